@@ -1,0 +1,128 @@
+"""Shape keys ↔ :class:`core.BlendshapeModel`."""
+from __future__ import annotations
+
+import numpy as np
+
+from core.blendshape import BlendshapeModel
+from core.result import Issue, ShapeSpaceError
+
+from .arrays import read_float, write_float
+from .meshes import group_weight_vector, vertex_groups
+
+
+def shape_key_container(obj):
+    """The object's ``Key`` datablock, or ``None``."""
+    if obj is None or obj.type != "MESH":
+        return None
+    return obj.data.shape_keys
+
+
+def check_shape_keys(obj) -> list:
+    """Structural problems that make reading the rig impossible, as :class:`core.Issue` errors."""
+    if obj is None:
+        return [Issue("error", "no_object", "no object is selected")]
+    if obj.type != "MESH":
+        return [Issue("error", "not_mesh", f"{obj.name!r} is a {obj.type.lower()}, not a mesh")]
+    key = obj.data.shape_keys
+    if key is None or len(key.key_blocks) == 0:
+        return [Issue("error", "no_shape_keys", f"mesh {obj.name!r} has no shape keys")]
+    issues = []
+    if len(key.key_blocks) == 1:
+        issues.append(Issue("error", "no_targets",
+                            f"mesh {obj.name!r} has only the basis key {key.key_blocks[0].name!r}, no targets"))
+    if not key.use_relative:
+        issues.append(Issue("error", "absolute_keys",
+                            f"mesh {obj.name!r} uses absolute shape keys; ShapeSpace needs relative keys"))
+    p = len(obj.data.vertices)
+    wrong = [kb.name for kb in key.key_blocks if len(kb.data) != p]
+    if wrong:
+        issues.append(Issue("error", "vertex_count_mismatch",
+                            f"mesh {obj.name!r} has {p} vertices but shape keys {', '.join(wrong[:5])} have "
+                            f"{len(key.key_blocks[wrong[0]].data)}: the topology changed after the keys were made",
+                            tuple(wrong)))
+    return issues
+
+
+def read_blendshape_model(obj) -> BlendshapeModel:
+    """Read an object's relative shape keys as a :class:`core.BlendshapeModel`.
+
+    Raises
+    ------
+    core.ShapeSpaceError
+        For the structural problems of :func:`check_shape_keys`.
+    """
+    errors = [i for i in check_shape_keys(obj) if i.severity == "error"]
+    if errors:
+        raise ShapeSpaceError(errors[0].message, errors[0].code)
+    key = obj.data.shape_keys
+    blocks = key.key_blocks
+    ref = key.reference_key
+    neutral = read_float(ref.data, "co", 3).astype(np.float64)
+    targets = [kb for kb in blocks if kb != ref]
+    coords = {kb.name: read_float(kb.data, "co", 3).astype(np.float64) for kb in blocks}
+    need_groups = any(kb.vertex_group for kb in targets)
+    groups = vertex_groups(obj) if need_groups else None
+    deltas = np.empty((len(targets), neutral.shape[0], 3))
+    masks = {}
+    for k, kb in enumerate(targets):
+        rel = kb.relative_key if kb.relative_key is not None else ref
+        if rel == kb:  # a key relative to itself contributes nothing in Blender
+            deltas[k] = 0.0
+            continue
+        deltas[k] = coords[kb.name] - coords[rel.name]
+        if kb.vertex_group:
+            mask = group_weight_vector(obj, kb.vertex_group, groups)
+            if mask is None:  # Blender ignores a mask naming a missing group
+                continue
+            masks[kb.name] = mask
+            deltas[k] *= mask[:, None]
+    return BlendshapeModel(
+        neutral=neutral,
+        deltas=deltas,
+        names=[kb.name for kb in targets],
+        slider_min=np.array([kb.slider_min for kb in targets]),
+        slider_max=np.array([kb.slider_max for kb in targets]),
+        mute=np.array([kb.mute for kb in targets], dtype=bool),
+        relative_to=[(kb.relative_key or ref).name for kb in targets],
+        masks=masks,
+        values=np.array([kb.value for kb in targets]),
+        reference_name=ref.name,
+    )
+
+
+def read_slider_values(obj, names=None) -> np.ndarray:
+    """Current ``value`` of the named keys (all non-reference keys by default), float64 (n,)."""
+    key = obj.data.shape_keys
+    if names is None:
+        names = [kb.name for kb in key.key_blocks if kb != key.reference_key]
+    blocks = key.key_blocks
+    missing = [n for n in names if n not in blocks]
+    if missing:
+        raise ShapeSpaceError(f"{obj.name!r} has no shape keys named {', '.join(missing)}", "missing_key")
+    return np.array([blocks[n].value for n in names], dtype=np.float64)
+
+
+def write_slider_values(obj, names, values) -> None:
+    """Set ``value`` of the named keys.  Blender clamps to each slider range."""
+    blocks = obj.data.shape_keys.key_blocks
+    values = np.asarray(values, dtype=np.float64).ravel()
+    if len(values) != len(names):
+        raise ShapeSpaceError(f"{len(values)} values for {len(names)} shape keys", "shape")
+    missing = [n for n in names if n not in blocks]
+    if missing:
+        raise ShapeSpaceError(f"{obj.name!r} has no shape keys named {', '.join(missing)}", "missing_key")
+    for name, v in zip(names, values):
+        blocks[name].value = float(v)
+    obj.data.update()
+
+
+def add_shape_key(obj, name: str, positions, relative_to: str = None, from_mix: bool = False):
+    """Create a shape key holding ``positions`` (p, 3) and return its name."""
+    if obj.data.shape_keys is None:
+        obj.shape_key_add(name="Basis", from_mix=False)
+    kb = obj.shape_key_add(name=name, from_mix=from_mix)
+    write_float(kb.data, "co", positions)
+    if relative_to:
+        kb.relative_key = obj.data.shape_keys.key_blocks[relative_to]
+    obj.data.update()
+    return kb.name

@@ -1,0 +1,239 @@
+"""Linear blendshape model (thesis ch. 3, Eq. 3.1 in delta form).
+
+The face is ``f = b0 + B w``: ``b0`` is the neutral (the reference key,
+"Basis"), ``B`` the delta matrix of size ``3p × n`` whose column ``k`` holds
+target ``k`` minus the key it is relative to, scaled by that key's
+vertex-group mask, and ``w`` the slider values clamped to each key's slider
+range.  This is exactly how Blender evaluates relative shape keys
+(``key_evaluate_relative``): muted keys contribute nothing, values outside
+``[slider_min, slider_max]`` are clamped, and a key relative to another
+non-basis key contributes ``value · (key − relative_key)``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .result import Issue, Result, ShapeSpaceError
+
+__all__ = ["BlendshapeModel", "diagnose_model", "bounding_box_diagonal"]
+
+
+def bounding_box_diagonal(points) -> float:
+    """Length of the axis-aligned bounding-box diagonal of ``points`` (p, 3)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if pts.shape[0] == 0:
+        return 0.0
+    return float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+
+
+@dataclass
+class BlendshapeModel:
+    """A relative shape-key rig as arrays.
+
+    Parameters
+    ----------
+    neutral : ndarray, shape (p, 3)
+        Reference-key vertex positions ``b0`` (object space).
+    deltas : ndarray, shape (n, p, 3)
+        Per-target displacements, already multiplied by the target's
+        vertex-group mask.  ``delta_matrix`` exposes them as the thesis'
+        ``B`` (3p × n, rows ordered x0, y0, z0, x1, ...).
+    names : list of str, length n
+        Shape-key names (reference key excluded).
+    slider_min, slider_max : ndarray, shape (n,)
+        Slider ranges; evaluation clamps to them as Blender does.
+    mute : ndarray of bool, shape (n,)
+        Muted keys contribute nothing.
+    relative_to : list of str, length n
+        Name of the key each target is relative to (the reference key name
+        for ordinary targets).
+    masks : dict of str -> ndarray (p,)
+        Vertex-group masks by target name (only targets that have one).
+    values : ndarray, shape (n,)
+        Current slider values, as read from the file.
+    reference_name : str
+        Name of the reference ("Basis") key.
+    """
+
+    neutral: np.ndarray
+    deltas: np.ndarray
+    names: list
+    slider_min: np.ndarray = None
+    slider_max: np.ndarray = None
+    mute: np.ndarray = None
+    relative_to: list = None
+    masks: dict = field(default_factory=dict)
+    values: np.ndarray = None
+    reference_name: str = "Basis"
+
+    def __post_init__(self):
+        self.neutral = np.ascontiguousarray(self.neutral, dtype=np.float64)
+        if self.neutral.ndim != 2 or self.neutral.shape[1] != 3:
+            raise ShapeSpaceError(
+                f"neutral must have shape (p, 3), got {self.neutral.shape}", "shape")
+        p = self.neutral.shape[0]
+        self.deltas = np.ascontiguousarray(self.deltas, dtype=np.float64)
+        if self.deltas.ndim == 2 and self.deltas.shape[0] == 3 * p:
+            # accept the thesis' 3p × n layout too
+            self.deltas = np.ascontiguousarray(self.deltas.T.reshape(-1, p, 3))
+        if self.deltas.ndim != 3 or self.deltas.shape[1:] != (p, 3):
+            raise ShapeSpaceError(
+                f"deltas must have shape (n, {p}, 3) or ({3 * p}, n), got {self.deltas.shape}",
+                "shape")
+        n = self.deltas.shape[0]
+        self.names = list(self.names)
+        if len(self.names) != n:
+            raise ShapeSpaceError(f"names has {len(self.names)} entries, deltas has {n} targets", "shape")
+        self.slider_min = self._vector(self.slider_min, 0.0, "slider_min")
+        self.slider_max = self._vector(self.slider_max, 1.0, "slider_max")
+        if np.any(self.slider_min > self.slider_max):
+            bad = [self.names[i] for i in np.flatnonzero(self.slider_min > self.slider_max)]
+            raise ShapeSpaceError(f"slider_min exceeds slider_max for {', '.join(bad)}", "range")
+        self.mute = np.zeros(n, bool) if self.mute is None else np.asarray(self.mute, bool).reshape(n)
+        self.values = self._vector(self.values, 0.0, "values")
+        if self.relative_to is None:
+            self.relative_to = [self.reference_name] * n
+        self.relative_to = list(self.relative_to)
+
+    def _vector(self, v, default, name):
+        n = self.deltas.shape[0]
+        if v is None:
+            return np.full(n, default, dtype=np.float64)
+        arr = np.asarray(v, dtype=np.float64)
+        if arr.shape != (n,):
+            raise ShapeSpaceError(f"{name} must have shape ({n},), got {arr.shape}", "shape")
+        return arr.copy()
+
+    # ------------------------------------------------------------------ views
+    @property
+    def n_targets(self) -> int:
+        return self.deltas.shape[0]
+
+    @property
+    def n_vertices(self) -> int:
+        return self.neutral.shape[0]
+
+    @property
+    def delta_matrix(self) -> np.ndarray:
+        """The thesis' ``B``, shape (3p, n) (a transposed view, no copy)."""
+        return self.deltas.reshape(self.n_targets, -1).T
+
+    @property
+    def scale(self) -> float:
+        """Model size: bounding-box diagonal of the neutral (used to normalise units)."""
+        return bounding_box_diagonal(self.neutral)
+
+    def index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ShapeSpaceError(f"the rig has no shape key named {name!r}", "missing_key") from None
+
+    # ------------------------------------------------------------- evaluation
+    def effective_weights(self, weights) -> np.ndarray:
+        """Weights as Blender applies them: clamped to the slider range, 0 when muted.
+
+        Parameters
+        ----------
+        weights : array_like, shape (n,) or (f, n)
+        """
+        w = np.asarray(weights, dtype=np.float64)
+        if w.shape[-1] != self.n_targets:
+            raise ShapeSpaceError(
+                f"weights must have last dimension {self.n_targets}, got shape {w.shape}", "shape")
+        w = np.clip(w, self.slider_min, self.slider_max)
+        return np.where(self.mute, 0.0, w)
+
+    def evaluate(self, weights=None) -> np.ndarray:
+        """Vertex positions ``b0 + B w`` for one or many slider settings.
+
+        Parameters
+        ----------
+        weights : array_like, shape (n,) or (f, n), optional
+            Slider values; defaults to :attr:`values`.
+
+        Returns
+        -------
+        ndarray, shape (p, 3) or (f, p, 3)
+        """
+        w = self.effective_weights(self.values if weights is None else weights)
+        flat = self.deltas.reshape(self.n_targets, -1)
+        out = w @ flat
+        return self.neutral + out.reshape(w.shape[:-1] + (self.n_vertices, 3))
+
+
+def diagnose_model(model: BlendshapeModel, rel_tol: float = 1e-7) -> Result:
+    """Find problems in a blendshape model before a solver uses it.
+
+    Checks: non-finite coordinates (error), empty targets, duplicate targets
+    (both make ``B`` rank-deficient: solvers regularise, the artist is told
+    by name), keys relative to a non-basis key, degenerate slider ranges.
+
+    Parameters
+    ----------
+    model : BlendshapeModel
+    rel_tol : float
+        Displacements below ``rel_tol × model.scale`` count as zero.
+
+    Returns
+    -------
+    Result
+        ``value`` is the numerical rank of ``B``; ``issues`` lists findings.
+    """
+    issues = []
+    bad_neutral = ~np.isfinite(model.neutral).all(axis=1)
+    if bad_neutral.any():
+        issues.append(Issue("error", "non_finite", (
+            f"the neutral has {int(bad_neutral.sum())} vertices with NaN or infinite coordinates "
+            f"(first: vertex {int(np.flatnonzero(bad_neutral)[0])})")))
+    bad_targets = [model.names[k] for k in range(model.n_targets)
+                   if not np.isfinite(model.deltas[k]).all()]
+    if bad_targets:
+        issues.append(Issue("error", "non_finite",
+                            f"NaN or infinite coordinates in shape keys: {', '.join(bad_targets)}",
+                            tuple(bad_targets)))
+    if any(i.severity == "error" for i in issues):
+        return Result(None, -1, issues[0].message, {}, issues)
+
+    scale = model.scale or 1.0
+    flat = model.deltas.reshape(model.n_targets, -1)
+    norms = np.linalg.norm(flat, axis=1)
+    peak = np.abs(flat).max(axis=1) if flat.size else np.zeros(0)
+    empty = peak <= rel_tol * scale
+    if empty.any():
+        names = tuple(model.names[k] for k in np.flatnonzero(empty))
+        issues.append(Issue("warning", "empty_target",
+                            f"shape keys that move no vertex: {', '.join(names)}", names))
+    live = np.flatnonzero(~empty)
+    dups = []
+    if live.size > 1:
+        unit = flat[live] / norms[live, None]
+        gram = unit @ unit.T
+        close = np.triu(gram > 1.0 - 1e-9, k=1)
+        for a, b in zip(*np.nonzero(close)):
+            ka, kb = live[a], live[b]
+            if abs(norms[ka] - norms[kb]) <= 1e-6 * max(norms[ka], norms[kb]):
+                dups.append((model.names[ka], model.names[kb]))
+    if dups:
+        text = ", ".join(f"{a} = {b}" for a, b in dups)
+        issues.append(Issue("warning", "duplicate_target", f"duplicate shape keys: {text}",
+                            tuple(x for pair in dups for x in pair)))
+    nonbasis = [(n, r) for n, r in zip(model.names, model.relative_to) if r != model.reference_name]
+    if nonbasis:
+        text = ", ".join(f"{n} (relative to {r})" for n, r in nonbasis)
+        issues.append(Issue("warning", "relative_to_non_basis",
+                            f"keys relative to a non-basis key, used as key minus its relative key: {text}",
+                            tuple(n for n, _ in nonbasis)))
+    flat_range = [model.names[k] for k in range(model.n_targets)
+                  if model.slider_max[k] - model.slider_min[k] <= 0]
+    if flat_range:
+        issues.append(Issue("warning", "zero_range",
+                            f"shape keys whose slider range is empty: {', '.join(flat_range)}",
+                            tuple(flat_range)))
+    rank = int(np.linalg.matrix_rank(flat[live], tol=rel_tol * scale * np.sqrt(flat.shape[1]))) if live.size else 0
+    status = 1 if issues else 0
+    msg = issues[0].message if issues else f"{model.n_targets} targets, rank {rank}"
+    return Result(rank, status, msg, {"rank": rank, "n_targets": model.n_targets,
+                                       "n_vertices": model.n_vertices, "scale": scale}, issues)
