@@ -12,8 +12,8 @@ import numpy as np
 
 import bpy
 
-from core.animation import CONSTANT, LINEAR, sample_keys
-from core.result import ShapeSpaceError
+from ..core.animation import CONSTANT, LINEAR, sample_keys
+from ..core.result import ShapeSpaceError
 
 LAYERED = hasattr(bpy.types.Action, "slots")
 
@@ -219,3 +219,22 @@ def action_users(action) -> list:
     if LAYERED:
         return [s.identifier for s in action.slots]
     return [action.id_root]
+
+
+def slider_names(obj) -> list:
+    """Names of the object's non-reference shape keys, in order."""
+    key = obj.data.shape_keys
+    return [kb.name for kb in key.key_blocks if kb != key.reference_key]
+
+
+def key_sliders(obj, names, frame: float, only_nonzero: bool = False) -> int:
+    """Key the current value of each named shape key at ``frame``; return how many were keyed."""
+    key = obj.data.shape_keys
+    count = 0
+    for name in names:
+        value = key.key_blocks[name].value
+        if only_nonzero and value == 0.0:
+            continue
+        insert_key(key, shape_key_path(name), frame, value, group="Shape Keys")
+        count += 1
+    return count

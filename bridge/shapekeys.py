@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.blendshape import BlendshapeModel
-from core.result import Issue, ShapeSpaceError
+from ..core.blendshape import BlendshapeModel
+from ..core.result import Issue, ShapeSpaceError
 
 from .arrays import read_float, write_float
 from .meshes import group_weight_vector, vertex_groups

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.result import Issue, ShapeSpaceError
-from core.skinning import ArmatureDeform, SkinningRig, SkinWeights
+from ..core.result import Issue, ShapeSpaceError
+from ..core.skinning import ArmatureDeform, SkinningRig, SkinWeights
 
 from .arrays import matrix, read_matrices
 from .meshes import group_weight_vector, vertex_groups, world_matrix

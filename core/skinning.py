@@ -238,7 +238,11 @@ def matrix_to_dual_quaternion(basemat, mat):
     mat = _as_mats(mat, "mat")
     base_rs = mat @ basemat
     size = np.linalg.norm(base_rs[..., :3, :3], axis=-2)
-    has_scale = (np.linalg.det(mat[..., :3, :3]) < 0) | (np.sum((size - 1.0) ** 2, -1) > 1e-8)
+    m3 = mat[..., :3, :3]
+    gram = np.swapaxes(m3, -1, -2) @ m3
+    orthonormal = np.all(np.abs(gram - np.eye(3)) <= 1e-6, axis=(-2, -1))
+    has_scale = (~orthonormal | (np.linalg.det(m3) < 0)
+                 | (np.sum((size - 1.0) ** 2, -1) > 1e-8))
     rigid = mat.copy()
     scale = np.broadcast_to(np.eye(4), mat.shape).copy()
     if has_scale.any():
@@ -291,21 +295,27 @@ def dual_quaternion_skinning(coords, weights: SkinWeights, basemat, chan, to_arm
     p, k = w.shape
     qsum = np.zeros((p, 4))
     tsum = np.zeros((p, 4))
-    ssum = np.zeros((p, 4, 4))
-    swt = np.zeros(p)
     contrib = np.zeros(p)
     for j in range(k):  # influences in stored order (k is small); vectorised over vertices
         wj = w[:, j]
-        live = wj != 0.0
-        qj = q[idx[:, j]]
+        bj = idx[:, j]
+        qj = q[bj]
+        tj = tr[bj]
+        hs = has_sc[bj] & (wj != 0.0)
+        if hs.any():
+            # Blender's add_weighted_dq_dq_pivot: fold the bone's scale, as seen at this
+            # vertex (the pivot), into the translation and drop the scale matrix.
+            d = np.einsum("pij,pj->pi", sc[bj[hs], :3, :3], arm_co[hs]) + sc[bj[hs], :3, 3] - arm_co[hs]
+            qs = qj[hs]
+            tj = tj.copy()
+            tj[hs, 0] -= 0.5 * (qs[:, 1] * d[:, 0] + qs[:, 2] * d[:, 1] + qs[:, 3] * d[:, 2])
+            tj[hs, 1] += 0.5 * (qs[:, 0] * d[:, 0] + qs[:, 2] * d[:, 2] - qs[:, 3] * d[:, 1])
+            tj[hs, 2] += 0.5 * (qs[:, 0] * d[:, 1] + qs[:, 3] * d[:, 0] - qs[:, 1] * d[:, 2])
+            tj[hs, 3] += 0.5 * (qs[:, 0] * d[:, 2] + qs[:, 1] * d[:, 1] - qs[:, 2] * d[:, 0])
         flip = np.sum(qj * qsum, axis=1) < 0.0
         sw = np.where(flip, -wj, wj)
         qsum += sw[:, None] * qj
-        tsum += sw[:, None] * tr[idx[:, j]]
-        hs = has_sc[idx[:, j]] & live
-        if hs.any():
-            ssum[hs] += wj[hs, None, None] * sc[idx[hs, j]]
-            swt[hs] += wj[hs]
+        tsum += sw[:, None] * tj
         contrib += wj
     ok = contrib > MIN_CONTRIB
     out = arm_co.copy()
@@ -314,13 +324,6 @@ def dual_quaternion_skinning(coords, weights: SkinWeights, basemat, chan, to_arm
         qn = qsum[ok] * inv[:, None]
         tn = tsum[ok] * inv[:, None]
         r = arm_co[ok].copy()
-        scaled = swt[ok] != 0.0
-        if scaled.any():
-            add = contrib[ok][scaled] - swt[ok][scaled]
-            smat = ssum[ok][scaled] + add[:, None, None] * np.eye(4)
-            smat *= inv[scaled, None, None]
-            rs = r[scaled]
-            r[scaled] = np.einsum("pij,pj->pi", smat[:, :3, :3], rs) + smat[:, :3, 3]
         wq, xq, yq, zq = qn.T
         m = np.empty((qn.shape[0], 3, 3))
         m[:, 0, 0] = wq * wq + xq * xq - yq * yq - zq * zq

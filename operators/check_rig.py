@@ -1,0 +1,31 @@
+import bpy
+
+from ..bridge import inventory
+
+
+class SHAPESPACE_OT_check_rig(bpy.types.Operator):
+    """Check the active mesh's shape keys and skin for problems ShapeSpace solvers care about
+(empty or duplicate targets, NaN coordinates, changed topology, unweighted vertices, orphan groups)"""
+
+    bl_idname = "shapespace.check_rig"
+    bl_label = "Check Rig"
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        ob = context.active_object
+        if ob is None or ob.type != "MESH":
+            cls.poll_message_set("Select a mesh object")
+            return False
+        return True
+
+    def execute(self, context):
+        found = inventory.check_object(context.active_object)
+        errors = [i for i in found if i.severity == "error"]
+        for issue in found:
+            self.report({"ERROR" if issue.severity == "error" else "WARNING"}, issue.message)
+        if errors:
+            return {"CANCELLED"}
+        if not found:
+            self.report({"INFO"}, f"{context.active_object.name}: no problems found")
+        return {"FINISHED"}

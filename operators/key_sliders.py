@@ -1,0 +1,36 @@
+import bpy
+
+from ..bridge import actions, shapekeys
+
+
+class SHAPESPACE_OT_key_sliders(bpy.types.Operator):
+    """Insert a keyframe on every shape-key slider of the active mesh at the current frame"""
+
+    bl_idname = "shapespace.key_sliders"
+    bl_label = "Key All Sliders"
+    bl_options = {"REGISTER", "UNDO"}
+
+    only_changed: bpy.props.BoolProperty(
+        name="Only Non-Zero", description="Key only sliders whose value is not zero", default=False)
+
+    @classmethod
+    def poll(cls, context):
+        ob = context.active_object
+        if ob is None or ob.type != "MESH":
+            cls.poll_message_set("Select a mesh object")
+            return False
+        if ob.data.shape_keys is None or len(ob.data.shape_keys.key_blocks) < 2:
+            cls.poll_message_set("The mesh has no shape keys to key")
+            return False
+        return True
+
+    def execute(self, context):
+        ob = context.active_object
+        problems = [i for i in shapekeys.check_shape_keys(ob) if i.severity == "error"]
+        if problems:
+            self.report({"ERROR"}, problems[0].message)
+            return {"CANCELLED"}
+        names = actions.slider_names(ob)
+        count = actions.key_sliders(ob, names, context.scene.frame_current, self.only_changed)
+        self.report({"INFO"}, f"Keyed {count} sliders at frame {context.scene.frame_current}")
+        return {"FINISHED"}

@@ -1,0 +1,30 @@
+import bpy
+
+
+class SHAPESPACE_PT_rig(bpy.types.Panel):
+    """The active mesh's shape-key rig and skin at a glance"""
+
+    bl_label = "Rig"
+    bl_idname = "SHAPESPACE_PT_rig"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "ShapeSpace"
+
+    def draw(self, context):
+        layout = self.layout
+        ob = context.active_object
+        if ob is None or ob.type != "MESH":
+            layout.label(text="Select a mesh", icon="INFO")
+            return
+        col = layout.column(align=True)
+        key = ob.data.shape_keys
+        n_keys = len(key.key_blocks) - 1 if key else 0
+        col.label(text=f"{ob.name}: {len(ob.data.vertices)} vertices", icon="MESH_DATA")
+        col.label(text=f"{n_keys} shape keys" if n_keys else "No shape keys", icon="SHAPEKEY_DATA")
+        arms = [m for m in ob.modifiers if m.type == "ARMATURE" and m.object]
+        for m in arms:
+            dq = " (Preserve Volume)" if m.use_deform_preserve_volume else ""
+            col.label(text=f"{m.object.name}{dq}", icon="ARMATURE_DATA")
+        row = layout.row(align=True)
+        row.operator("shapespace.check_rig", icon="CHECKMARK")
+        row.operator("shapespace.key_sliders", icon="KEY_HLT")

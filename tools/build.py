@@ -1,0 +1,104 @@
+"""Build the extension zips, one per platform, with Blender's own builder.
+
+    python tools/build.py [--out dist]
+
+1. Downloads the scipy wheels listed in ``blender_manifest.toml`` into
+   ``./wheels`` (pip, for CPython 3.11 on each platform) unless present.
+2. Runs Blender's extension builder (``blender_ext.py build
+   --split-platforms``, shipped with Blender and the ``bpy`` module), which
+   validates the manifest and writes one zip per platform holding only that
+   platform's wheel.
+3. Names them ``dist/shapespace-<version>-<platform>.zip``.
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import importlib.util
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tomllib
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+PLATFORM_TAG = {  # wheel platform tag → pip --platform
+    "manylinux_2_17_x86_64.manylinux2014_x86_64": "manylinux_2_17_x86_64",
+    "win_amd64": "win_amd64",
+    "macosx_12_0_arm64": "macosx_12_0_arm64",
+    "macosx_10_13_x86_64": "macosx_10_13_x86_64",
+}
+
+
+def manifest() -> dict:
+    with open(os.path.join(ROOT, "blender_manifest.toml"), "rb") as fh:
+        return tomllib.load(fh)
+
+
+def fetch_wheels(wheels) -> None:
+    os.makedirs(os.path.join(ROOT, "wheels"), exist_ok=True)
+    for rel in wheels:
+        path = os.path.normpath(os.path.join(ROOT, rel))
+        if os.path.isfile(path):
+            continue
+        name = os.path.basename(path)
+        m = re.match(r"(?P<dist>[^-]+)-(?P<ver>[^-]+)-(?P<py>cp\d+)-(?P<abi>[^-]+)-(?P<plat>.+)\.whl$", name)
+        if not m:
+            raise SystemExit(f"build: cannot parse wheel name {name}")
+        plat = PLATFORM_TAG.get(m["plat"], m["plat"].split(".")[0])
+        cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--only-binary=:all:",
+               "--python-version", m["py"][2:3] + "." + m["py"][3:], "--implementation", "cp",
+               "--platform", plat, "-d", os.path.dirname(path), f"{m['dist']}=={m['ver']}"]
+        print("build: fetching", name, file=sys.stderr)
+        subprocess.run(cmd, check=True)
+        if not os.path.isfile(path):
+            raise SystemExit(f"build: pip did not produce {name}")
+
+
+def blender_ext_script() -> str:
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or spec.origin is None:
+        raise SystemExit("build: the bpy module is needed (pip install bpy) for Blender's extension builder")
+    hits = glob.glob(os.path.join(os.path.dirname(spec.origin), "*", "scripts", "addons_core", "bl_pkg",
+                                  "cli", "blender_ext.py"))
+    if not hits:
+        raise SystemExit("build: blender_ext.py not found in the bpy module")
+    return hits[0]
+
+
+def build(out_dir: str) -> list:
+    info = manifest()
+    fetch_wheels(info.get("wheels", []))
+    tmp = os.path.join(ROOT, "build", "ext")
+    shutil.rmtree(tmp, ignore_errors=True)
+    os.makedirs(tmp)
+    cmd = [sys.executable, blender_ext_script(), "build", "--source-dir", ROOT, "--output-dir", tmp,
+           "--split-platforms"]
+    if subprocess.run(cmd).returncode != 0:
+        raise SystemExit("build: Blender's extension builder rejected the package (see above)")
+    os.makedirs(out_dir, exist_ok=True)
+    made = []
+    for zpath in sorted(glob.glob(os.path.join(tmp, "*.zip"))):
+        plat = os.path.basename(zpath)[:-4].rsplit("-", 1)[-1].replace("_", "-")
+        dest = os.path.join(out_dir, f"{info['id']}-{info['version']}-{plat}.zip")
+        shutil.move(zpath, dest)
+        made.append(dest)
+    expected = {p for p in info["platforms"]}
+    got = {os.path.basename(p)[:-4].split("-", 2)[-1] for p in made}
+    if got != expected:
+        raise SystemExit(f"build: expected zips for {sorted(expected)}, got {sorted(got)}")
+    return made
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=os.path.join(ROOT, "dist"))
+    args = ap.parse_args(argv)
+    for path in build(args.out):
+        print(path, f"{os.path.getsize(path) / 1e6:.1f} MB")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
