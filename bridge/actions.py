@@ -15,7 +15,7 @@ import bpy
 from ..core.animation import CONSTANT, LINEAR, sample_keys
 from ..core.result import ShapeSpaceError
 
-LAYERED = hasattr(bpy.types.Action, "slots")
+LAYERED = "slots" in bpy.types.Action.bl_rna.properties
 
 _INTERP_CODE = {"CONSTANT": CONSTANT, "LINEAR": LINEAR}
 
@@ -138,7 +138,7 @@ def write_curve(id_block, data_path: str, frames, values, index: int = 0,
 def insert_key(id_block, data_path: str, frame: float, value: float, index: int = 0, group: str = ""):
     """Insert (or replace) one key, keeping the curve's other keys."""
     fc = ensure_fcurve(id_block, data_path, index, group)
-    kp = fc.keyframe_points.insert(frame, value, options={"REPLACE"})
+    kp = fc.keyframe_points.insert(frame, value)  # replaces a key already on that frame
     fc.update()
     return kp
 

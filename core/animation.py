@@ -60,7 +60,8 @@ def sample_keys(key_frames, key_values, interpolation, frames, extrapolate_linea
     before, after = t < x[0], t > x[-1]
     if extrapolate_linear:
         s0 = (y[1] - y[0]) / (x[1] - x[0]) if mode[0] == LINEAR else 0.0
-        s1 = (y[-1] - y[-2]) / (x[-1] - x[-2]) if mode[-2] == LINEAR else 0.0
+        # Blender: each end extrapolates by its own key's interpolation (a CONSTANT end key holds)
+        s1 = (y[-1] - y[-2]) / (x[-1] - x[-2]) if mode[-1] == LINEAR else 0.0
         out = np.where(before, y[0] + s0 * (t - x[0]), out)
         out = np.where(after, y[-1] + s1 * (t - x[-1]), out)
     else:

@@ -91,11 +91,18 @@ class BlendshapeModel:
         if np.any(self.slider_min > self.slider_max):
             bad = [self.names[i] for i in np.flatnonzero(self.slider_min > self.slider_max)]
             raise ShapeSpaceError(f"slider_min exceeds slider_max for {', '.join(bad)}", "range")
-        self.mute = np.zeros(n, bool) if self.mute is None else np.asarray(self.mute, bool).reshape(n)
+        if self.mute is None:
+            self.mute = np.zeros(n, bool)
+        else:
+            self.mute = np.asarray(self.mute, bool)
+            if self.mute.shape != (n,):
+                raise ShapeSpaceError(f"mute must have shape ({n},), got {self.mute.shape}", "shape")
         self.values = self._vector(self.values, 0.0, "values")
         if self.relative_to is None:
             self.relative_to = [self.reference_name] * n
         self.relative_to = list(self.relative_to)
+        if len(self.relative_to) != n:
+            raise ShapeSpaceError(f"relative_to has {len(self.relative_to)} entries for {n} targets", "shape")
 
     def _vector(self, v, default, name):
         n = self.deltas.shape[0]
@@ -118,7 +125,7 @@ class BlendshapeModel:
     @property
     def delta_matrix(self) -> np.ndarray:
         """The thesis' ``B``, shape (3p, n) (a transposed view, no copy)."""
-        return self.deltas.reshape(self.n_targets, -1).T
+        return self.deltas.reshape(self.n_targets, 3 * self.n_vertices).T
 
     @property
     def scale(self) -> float:
@@ -159,7 +166,7 @@ class BlendshapeModel:
         ndarray, shape (p, 3) or (f, p, 3)
         """
         w = self.effective_weights(self.values if weights is None else weights)
-        flat = self.deltas.reshape(self.n_targets, -1)
+        flat = self.deltas.reshape(self.n_targets, 3 * self.n_vertices)
         out = w @ flat
         return self.neutral + out.reshape(w.shape[:-1] + (self.n_vertices, 3))
 
@@ -198,7 +205,7 @@ def diagnose_model(model: BlendshapeModel, rel_tol: float = 1e-7) -> Result:
         return Result(None, -1, issues[0].message, {}, issues)
 
     scale = model.scale or 1.0
-    flat = model.deltas.reshape(model.n_targets, -1)
+    flat = model.deltas.reshape(model.n_targets, 3 * model.n_vertices)
     norms = np.linalg.norm(flat, axis=1)
     peak = np.abs(flat).max(axis=1) if flat.size else np.zeros(0)
     empty = peak <= rel_tol * scale
@@ -232,7 +239,9 @@ def diagnose_model(model: BlendshapeModel, rel_tol: float = 1e-7) -> Result:
         issues.append(Issue("warning", "zero_range",
                             f"shape keys whose slider range is empty: {', '.join(flat_range)}",
                             tuple(flat_range)))
-    rank = int(np.linalg.matrix_rank(flat[live], tol=rel_tol * scale * np.sqrt(flat.shape[1]))) if live.size else 0
+    # Same threshold as "moves no vertex": a direction whose largest singular value is below
+    # rel_tol × scale is numerically absent.
+    rank = int(np.linalg.matrix_rank(flat[live], tol=rel_tol * scale)) if live.size else 0
     status = 1 if issues else 0
     msg = issues[0].message if issues else f"{model.n_targets} targets, rank {rank}"
     return Result(rank, status, msg, {"rank": rank, "n_targets": model.n_targets,

@@ -102,7 +102,7 @@ def match_channels(source_names, target_names):
     target_names = list(target_names)
     by_canon = {}
     for t in target_names:
-        by_canon.setdefault(canonical_name(t), t)
+        by_canon.setdefault(canonical_name(t), []).append(t)
     exact = set(target_names)
     mapping = {}
     used = set()
@@ -113,8 +113,8 @@ def match_channels(source_names, target_names):
     for s in source_names:
         if s in mapping:
             continue
-        t = by_canon.get(canonical_name(s))
-        if t is not None and t not in used:
+        t = next((c for c in by_canon.get(canonical_name(s), ()) if c not in used), None)
+        if t is not None:
             mapping[s] = t
             used.add(t)
     unmatched_source = [s for s in source_names if s not in mapping]

@@ -125,9 +125,6 @@ def test_unmatched_lists_keep_input_order():
     assert un_src == ["z", "a"] and un_tgt == ["q", "b"]
 
 
-@pytest.mark.xfail(strict=True, reason="BUG core/names.py match_channels: by_canon keeps only the first target "
-                   "per canonical name, so when that target is taken by an exact match a second target with "
-                   "the same canonical name is never offered; both EyeBlinkLeft and eyeBlink_L end up unmatched")
 def test_canonical_twin_target_is_used_when_first_is_taken():
     mapping, un_src, un_tgt = match_channels(["eyeBlinkLeft", "EyeBlinkLeft"], ["eyeBlinkLeft", "eyeBlink_L"])
     assert mapping == {"eyeBlinkLeft": "eyeBlinkLeft", "EyeBlinkLeft": "eyeBlink_L"}

@@ -1,0 +1,44 @@
+"""Runs inside a fresh Python with bpy: install the built zip with Blender's extensions API,
+enable it, run an operator and the CLI handler.  Prints one JSON line with what it saw.
+
+    python installed_session.py ZIP ASSET_GLB
+The environment must already point BLENDER_USER_RESOURCES at a temporary folder.
+"""
+import contextlib
+import io
+import json
+import os
+import sys
+
+zip_path, asset = sys.argv[1], sys.argv[2]
+import bpy  # noqa: E402
+
+seen = {"user_resources": bpy.utils.user_resource("EXTENSIONS")}
+result = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
+seen["install"] = sorted(result)
+seen["addons"] = [a.module for a in bpy.context.preferences.addons if "shapespace" in a.module]
+ext = sys.modules.get("bl_ext.user_default.shapespace")
+seen["module_file"] = getattr(ext, "__file__", None)
+seen["cli_registered"] = bool(ext and ext.cli._registered)
+
+site = os.path.join(bpy.utils.user_resource("EXTENSIONS"), ".local", "lib",
+                    f"python{sys.version_info[0]}.{sys.version_info[1]}", "site-packages")
+seen["wheel_dirs"] = sorted(d for d in os.listdir(site) if d.startswith("scipy")) if os.path.isdir(site) else []
+seen["site_on_path"] = any(os.path.realpath(p) == os.path.realpath(site) for p in sys.path)
+
+bpy.ops.import_scene.gltf(filepath=asset)
+head = bpy.data.objects["Mesh_2"]
+bpy.context.view_layer.objects.active = head
+seen["check_rig"] = sorted(bpy.ops.shapespace.check_rig())
+bpy.context.scene.frame_set(10)
+seen["key_sliders"] = sorted(bpy.ops.shapespace.key_sliders())
+
+buf = io.StringIO()
+with contextlib.redirect_stdout(buf):
+    seen["cli_exit"] = ext.cli.main(["info"])
+text = buf.getvalue()
+seen["cli_json"] = json.loads(text[text.index("{"):])
+
+bpy.ops.preferences.addon_disable(module="bl_ext.user_default.shapespace")
+seen["after_disable_registered"] = hasattr(bpy.types, "SHAPESPACE_OT_check_rig")
+print("E2E-RESULT " + json.dumps(seen))

@@ -1,0 +1,64 @@
+"""End to end: build the zips, install the Linux one into a temporary Blender user folder with
+Blender's own extensions API, enable it, run operators and the CLI handler."""
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import zipfile
+
+import pytest
+
+from support import ASSETS, ROOT
+
+pytest.importorskip("bpy")
+
+
+@pytest.fixture(scope="session")
+def built_zips(tmp_path_factory):
+    out = tmp_path_factory.mktemp("dist")
+    proc = subprocess.run([sys.executable, os.path.join(ROOT, "tools", "build.py"), "--out", str(out)],
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return {p.name.split("-", 2)[-1][:-4]: p for p in out.glob("*.zip")}
+
+
+def test_four_platform_zips_each_with_its_own_wheel(built_zips):
+    assert set(built_zips) == {"linux-x64", "windows-x64", "macos-arm64", "macos-x64"}
+    tags = {"linux-x64": "manylinux", "windows-x64": "win_amd64", "macos-arm64": "arm64",
+            "macos-x64": "macosx_10_13_x86_64"}
+    for plat, path in built_zips.items():
+        with zipfile.ZipFile(path) as z:
+            names = z.namelist()
+            wheels = [n for n in names if n.endswith(".whl")]
+            assert len(wheels) == 1 and tags[plat] in wheels[0] and "scipy" in wheels[0]
+            manifest = z.read("blender_manifest.toml").decode()
+            assert f'platforms = ["{plat}"]' in manifest
+            assert "__init__.py" in names and "core/blendshape.py" in names
+            assert not any(n.startswith(("tests/", "tools/", "assets/", ".ci/")) for n in names)
+
+
+def test_install_enable_run_operator_and_cli(built_zips, tmp_path):
+    user = tmp_path / "blender-user"
+    home = tmp_path / "home"
+    home.mkdir()
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(user), HOME=str(home))
+    script = os.path.join(os.path.dirname(__file__), "installed_session.py")
+    asset = os.path.join(ASSETS, "facecap", "facecap_decoded.glb")
+    proc = subprocess.run([sys.executable, script, str(built_zips["linux-x64"]), asset],
+                          capture_output=True, text=True, timeout=600, env=env, cwd=str(tmp_path))
+    line = [ln for ln in proc.stdout.splitlines() if ln.startswith("E2E-RESULT ")]
+    assert proc.returncode == 0 and line, proc.stderr[-3000:]
+    seen = json.loads(line[0][len("E2E-RESULT "):])
+    assert seen["install"] == ["FINISHED"]
+    assert seen["addons"] == ["bl_ext.user_default.shapespace"]
+    assert seen["module_file"].startswith(str(user))          # the installed copy, not the repo
+    assert seen["cli_registered"]
+    assert "scipy" in seen["wheel_dirs"] and seen["site_on_path"]
+    assert seen["check_rig"] == ["FINISHED"] and seen["key_sliders"] == ["FINISHED"]
+    assert seen["cli_exit"] == 0
+    head = {m["object"]: m for m in seen["cli_json"]["shape_key_meshes"]}["Mesh_2"]
+    assert head["shape_keys"] == 52
+    assert seen["after_disable_registered"] is False
+    # Blender wrote only into the temporary user folder
+    assert not (home / ".config" / "blender").exists()
