@@ -46,10 +46,11 @@ def ensure(name: str) -> str:
 
 
 def reexec_in(name: str, script: str, argv) -> None:
-    """Re-run ``script`` with the environment's python unless already inside it."""
-    py = ensure(name)
-    if os.path.realpath(sys.prefix) == os.path.realpath(os.path.join(ROOT, ".venv", name)):
+    """Re-run ``script`` with the environment's python unless this python already has ``bpy``."""
+    import importlib.util
+    if importlib.util.find_spec("bpy") is not None:
         return
+    py = ensure(name)
     os.execv(py, [py, script, *argv])
 
 
