@@ -1,6 +1,7 @@
 import bpy
 
 from ..bridge import inventory
+from .polls import active_mesh
 
 
 class SHAPESPACE_OT_check_rig(bpy.types.Operator):
@@ -13,11 +14,7 @@ class SHAPESPACE_OT_check_rig(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        ob = context.active_object
-        if ob is None or ob.type != "MESH":
-            cls.poll_message_set("Select a mesh object")
-            return False
-        return True
+        return active_mesh(cls, context) is not None
 
     def execute(self, context):
         found = inventory.check_object(context.active_object)

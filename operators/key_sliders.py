@@ -1,6 +1,7 @@
 import bpy
 
 from ..bridge import actions, shapekeys
+from .polls import active_mesh
 
 
 class SHAPESPACE_OT_key_sliders(bpy.types.Operator):
@@ -15,9 +16,8 @@ class SHAPESPACE_OT_key_sliders(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        ob = context.active_object
-        if ob is None or ob.type != "MESH":
-            cls.poll_message_set("Select a mesh object")
+        ob = active_mesh(cls, context)
+        if ob is None:
             return False
         if ob.data.shape_keys is None or len(ob.data.shape_keys.key_blocks) < 2:
             cls.poll_message_set("The mesh has no shape keys to key")
