@@ -17,7 +17,70 @@ import numpy as np
 
 from .result import Issue, Result, ShapeSpaceError
 
-__all__ = ["BlendshapeModel", "diagnose_model", "bounding_box_diagonal"]
+__all__ = ["BlendshapeModel", "InBetween", "Combination", "diagnose_model", "bounding_box_diagonal", "hat"]
+
+
+def hat(w, left: float, peak: float, right: float):
+    """Piecewise-linear tent: 0 at ``left`` and ``right``, 1 at ``peak`` (thesis 3.3.2).
+
+    This is the driver expression ShapeSpace writes for an in-between key:
+    ``max(0, min((w - left) / (peak - left), (right - w) / (right - peak)))``.
+    """
+    w = np.asarray(w, dtype=np.float64)
+    return np.maximum(0.0, np.minimum((w - left) / (peak - left), (right - w) / (right - peak)))
+
+
+def hat_slope(w, left: float, peak: float, right: float):
+    """One-sided (right) derivative of :func:`hat`, used by Gauss–Newton."""
+    w = np.asarray(w, dtype=np.float64)
+    up = (w >= left) & (w < peak)
+    down = (w >= peak) & (w < right)
+    return np.where(up, 1.0 / (peak - left), np.where(down, -1.0 / (right - peak), 0.0))
+
+
+@dataclass
+class InBetween:
+    """An in-between shape of a primary target, stored as a driven corrective key.
+
+    The face at primary weight ``w`` is piecewise linear through the knots
+    (thesis 3.3.2).  Blender has no native in-betweens, so ShapeSpace stores
+    ``delta = S_t − t·S_primary`` in a key whose value is driven by
+    ``hat(w_primary; left, peak, right)``: at ``w = peak`` the face is ``S_t``
+    exactly and between knots it interpolates linearly.
+
+    Attributes
+    ----------
+    name : str
+        The driven key.
+    primary : int
+        Index of the primary target in :attr:`BlendshapeModel.names`.
+    knots : tuple of float
+        ``(left, peak, right)``.
+    delta : ndarray, shape (p, 3)
+    """
+
+    name: str
+    primary: int
+    knots: tuple
+    delta: np.ndarray
+
+
+@dataclass
+class Combination:
+    """A combination (corrective) shape: weight = product of 2–3 primary weights (thesis 3.3.3).
+
+    Attributes
+    ----------
+    name : str
+        The driven key.
+    inputs : tuple of int
+        Indices of the primary targets.
+    delta : ndarray, shape (p, 3)
+    """
+
+    name: str
+    inputs: tuple
+    delta: np.ndarray
 
 
 def bounding_box_diagonal(points) -> float:
@@ -67,6 +130,8 @@ class BlendshapeModel:
     masks: dict = field(default_factory=dict)
     values: np.ndarray = None
     reference_name: str = "Basis"
+    inbetweens: list = field(default_factory=list)
+    combinations: list = field(default_factory=list)
 
     def __post_init__(self):
         self.neutral = np.ascontiguousarray(self.neutral, dtype=np.float64)
@@ -153,8 +218,40 @@ class BlendshapeModel:
         w = np.clip(w, self.slider_min, self.slider_max)
         return np.where(self.mute, 0.0, w)
 
+    @property
+    def is_linear(self) -> bool:
+        """True when the rig has no in-betweens or combination shapes."""
+        return not (self.inbetweens or self.combinations)
+
+    def driven_values(self, weights) -> np.ndarray:
+        """Values Blender's drivers give the in-between and combination keys, shape (..., d)."""
+        w = np.clip(np.asarray(weights, dtype=np.float64), self.slider_min, self.slider_max)
+        cols = [hat(w[..., ib.primary], *ib.knots) for ib in self.inbetweens]
+        cols += [np.prod(w[..., list(c.inputs)], axis=-1) for c in self.combinations]
+        if not cols:
+            return np.zeros(w.shape[:-1] + (0,))
+        return np.stack(cols, axis=-1)
+
+    def driven_slopes(self, weights) -> np.ndarray:
+        """Derivative of :meth:`driven_values` w.r.t. the sliders, shape (d, n), at one setting."""
+        w = np.clip(np.asarray(weights, dtype=np.float64), self.slider_min, self.slider_max)
+        out = np.zeros((len(self.inbetweens) + len(self.combinations), self.n_targets))
+        for r, ib in enumerate(self.inbetweens):
+            out[r, ib.primary] = hat_slope(w[ib.primary], *ib.knots)
+        for r, c in enumerate(self.combinations, start=len(self.inbetweens)):
+            for i in c.inputs:
+                out[r, i] += np.prod([w[j] for j in c.inputs if j != i])
+        return out
+
+    def driven_deltas(self) -> np.ndarray:
+        """Corrective deltas of the driven keys, shape (d, p, 3)."""
+        items = [ib.delta for ib in self.inbetweens] + [c.delta for c in self.combinations]
+        if not items:
+            return np.zeros((0, self.n_vertices, 3))
+        return np.stack([np.asarray(d, dtype=np.float64) for d in items])
+
     def evaluate(self, weights=None) -> np.ndarray:
-        """Vertex positions ``b0 + B w`` for one or many slider settings.
+        """Vertex positions ``b0 + B w`` (+ driven in-betweens and combinations) for slider settings.
 
         Parameters
         ----------
@@ -168,6 +265,9 @@ class BlendshapeModel:
         w = self.effective_weights(self.values if weights is None else weights)
         flat = self.deltas.reshape(self.n_targets, 3 * self.n_vertices)
         out = w @ flat
+        if not self.is_linear:
+            raw = self.values if weights is None else weights
+            out = out + self.driven_values(raw) @ self.driven_deltas().reshape(-1, 3 * self.n_vertices)
         return self.neutral + out.reshape(w.shape[:-1] + (self.n_vertices, 3))
 
 
