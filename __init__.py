@@ -2,9 +2,9 @@
 
 Registration only; the numerics live in ``core``, Blender I/O in ``bridge``.
 """
-from . import cli, operators, panels
+from . import cli, operators, overlay, panels, properties, viewport_tool
 
-_modules = (operators, panels, cli)
+_modules = (properties, operators, panels, overlay, viewport_tool, cli)
 
 
 def register():

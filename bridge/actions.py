@@ -222,9 +222,12 @@ def action_users(action) -> list:
 
 
 def slider_names(obj) -> list:
-    """Names of the object's non-reference shape keys, in order."""
+    """Names of the object's sliders: non-reference keys that no ShapeSpace driver sets, in order."""
+    from .driven import prune
     key = obj.data.shape_keys
-    return [kb.name for kb in key.key_blocks if kb != key.reference_key]
+    meta = prune(key)
+    driven_keys = set(meta["inbetweens"]) | set(meta["combinations"])
+    return [kb.name for kb in key.key_blocks if kb != key.reference_key and kb.name not in driven_keys]
 
 
 def key_sliders(obj, names, frame: float, only_nonzero: bool = False) -> int:

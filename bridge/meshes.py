@@ -19,9 +19,10 @@ def set_vertex_positions(mesh, positions) -> None:
 def evaluated_positions(obj, depsgraph) -> np.ndarray:
     """Object-space vertex positions after shape keys and modifiers, float32 (p, 3).
 
-    Uses Blender's own evaluation (the depsgraph); the caller is responsible
-    for having updated it (``view_layer.update()``).
+    Uses Blender's own evaluation (the depsgraph), brought up to date first
+    (a no-op when nothing changed since the last evaluation).
     """
+    depsgraph.update()
     ob_eval = obj.evaluated_get(depsgraph)
     mesh = ob_eval.to_mesh()
     try:

@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.blendshape import BlendshapeModel
+from ..core.blendshape import BlendshapeModel, Combination, InBetween
 from ..core.result import Issue, ShapeSpaceError
 
+from . import driven
 from .arrays import read_float, write_float
 from .meshes import group_weight_vector, vertex_groups
 
@@ -58,24 +59,35 @@ def read_blendshape_model(obj) -> BlendshapeModel:
     blocks = key.key_blocks
     ref = key.reference_key
     neutral = read_float(ref.data, "co", 3).astype(np.float64)
-    targets = [kb for kb in blocks if kb != ref]
+    meta = driven.prune(key)
+    driven_names = set(meta["inbetweens"]) | set(meta["combinations"])
+    everything = [kb for kb in blocks if kb != ref]
+    targets = [kb for kb in everything if kb.name not in driven_names]
     coords = {kb.name: read_float(kb.data, "co", 3).astype(np.float64) for kb in blocks}
     need_groups = any(kb.vertex_group for kb in targets)
     groups = vertex_groups(obj) if need_groups else None
-    deltas = np.empty((len(targets), neutral.shape[0], 3))
     masks = {}
-    for k, kb in enumerate(targets):
+
+    def delta_of(kb):
         rel = kb.relative_key if kb.relative_key is not None else ref
         if rel == kb:  # a key relative to itself contributes nothing in Blender
-            deltas[k] = 0.0
-            continue
-        deltas[k] = coords[kb.name] - coords[rel.name]
+            return np.zeros_like(neutral)
+        d = coords[kb.name] - coords[rel.name]
         if kb.vertex_group:
             mask = group_weight_vector(obj, kb.vertex_group, groups)
-            if mask is None:  # Blender ignores a mask naming a missing group
-                continue
-            masks[kb.name] = mask
-            deltas[k] *= mask[:, None]
+            if mask is not None:  # Blender ignores a mask naming a missing group
+                masks[kb.name] = mask
+                d = d * mask[:, None]
+        return d
+
+    deltas = np.stack([delta_of(kb) for kb in targets]) if targets else np.zeros((0,) + neutral.shape)
+    free = [kb.name for kb in targets]
+    inbetweens = []
+    for prim in sorted({v["primary"] for v in meta["inbetweens"].values()}):
+        for name, knots in driven.knots_for(meta, prim).items():
+            inbetweens.append(InBetween(name, free.index(prim), knots, delta_of(blocks[name])))
+    combinations = [Combination(name, tuple(free.index(i) for i in v["inputs"]), delta_of(blocks[name]))
+                    for name, v in sorted(meta["combinations"].items())]
     return BlendshapeModel(
         neutral=neutral,
         deltas=deltas,
@@ -87,6 +99,8 @@ def read_blendshape_model(obj) -> BlendshapeModel:
         masks=masks,
         values=np.array([kb.value for kb in targets]),
         reference_name=ref.name,
+        inbetweens=inbetweens,
+        combinations=combinations,
     )
 
 

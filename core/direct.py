@@ -8,8 +8,10 @@ linear rig the solve is thesis Eq. 4.5,
 where ``R`` (3k × n) holds the delta-matrix rows of the k pinned surface
 points (barycentric combinations of a triangle's vertices), ``m`` their
 targets minus the neutral, ``w0`` the sliders before the drag and
-``[lo, hi]`` each key's slider range.  Positions are divided by the model's
-bounding-box diagonal first, so α and μ mean the same for a rig in metres,
+``[lo, hi]`` each key's slider range.  Positions are first rescaled so the
+model's bounding-box diagonal measures :data:`NORMALISED_DIAGONAL` (30, a
+real head's diagonal in centimetres, the scale the thesis' α = 0.1 and
+μ = 0.001 were tuned at), so α and μ mean the same for a rig in metres,
 centimetres or facecap's int16 units.
 
 Learned mode (thesis 4.3) replaces ``α‖w − w0‖²`` by a prior learned from
@@ -35,7 +37,10 @@ from .blendshape import BlendshapeModel
 from .boxqp import solve_box_qp
 from .result import ShapeSpaceError
 
-__all__ = [
+#: Positions are measured as if the model's bounding-box diagonal were this long (a head in cm).
+NORMALISED_DIAGONAL = 30.0
+
+__all__ = ["NORMALISED_DIAGONAL", 
     "Pin", "WeightPrior", "DragResult", "pin_matrix", "pin_rest_positions", "pin_positions",
     "train_prior", "solve_drag", "solve_drag_reference", "drag_objective",
 ]
@@ -237,6 +242,11 @@ class DragResult:
     diagnostics: dict = field(default_factory=dict)
 
 
+def _unit(model) -> float:
+    """Model units per normalised unit (see :data:`NORMALISED_DIAGONAL`)."""
+    return (model.scale or NORMALISED_DIAGONAL) / NORMALISED_DIAGONAL
+
+
 def _bounds(model, w0):
     lo = model.slider_min.copy()
     hi = model.slider_max.copy()
@@ -272,7 +282,7 @@ def _prior_terms(prior: WeightPrior, alpha, w0, pca_snap=None):
 
 def drag_objective(model, pins, targets, w, w0, alpha=0.1, mu=0.001, prior: WeightPrior = None):
     """The normalised objective of Eq. 4.5 (or its learned variant) at ``w``."""
-    scale = model.scale or 1.0
+    scale = _unit(model)
     pos = pin_positions(model, pins, w)
     data = float(np.sum(((pos - np.asarray(targets)) / scale) ** 2))
     dw = np.asarray(w, dtype=np.float64) - w0
@@ -351,7 +361,7 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
         prior = prior.aligned(model.names)
     if prior_form not in ("covariance", "pca"):
         raise ShapeSpaceError(f"prior_form must be 'covariance' or 'pca', got {prior_form!r}", "range")
-    scale = model.scale or 1.0
+    scale = _unit(model)
     rest = pin_rest_positions(model, pins)
     lo, hi = _bounds(model, w0)
     x = np.clip(w0 if x0 is None else np.asarray(x0, dtype=np.float64), lo, hi)
@@ -458,17 +468,17 @@ def _solve_pca(model, pins, targets, rest, scale, w0, alpha, mu, prior, lo, hi):
 def _warnings(model, pins, targets, residuals, scale):
     out = []
     R = pin_matrix(model, pins)
-    dead = [j for j in range(len(pins)) if not np.any(np.abs(R[3 * j:3 * j + 3]) > 1e-9 * scale)]
+    dead = [j for j in range(len(pins)) if not np.any(np.abs(R[3 * j:3 * j + 3]) > 1e-9 * model.scale)]
     if dead:
         out.append(f"pins {', '.join(map(str, dead))} are on points no shape key moves")
     idx, bary = _pin_arrays(pins, model.n_vertices)
     keyed = {}
     for j in range(len(pins)):
         key = tuple(np.round(np.concatenate([idx[j], bary[j]]), 9))
-        if key in keyed and np.linalg.norm(targets[j] - targets[keyed[key]]) > 1e-9 * scale:
+        if key in keyed and np.linalg.norm(targets[j] - targets[keyed[key]]) > 1e-9 * model.scale:
             out.append(f"pins {keyed[key]} and {j} share a point but have different targets: both are met halfway")
         keyed.setdefault(key, j)
-    far = [j for j in range(len(pins)) if residuals[j] > 0.05 * scale]
+    far = [j for j in range(len(pins)) if residuals[j] > 0.05 * model.scale]
     if far:
         out.append(f"pins {', '.join(map(str, far))} cannot reach their targets within the slider ranges")
     return out
@@ -484,7 +494,7 @@ def solve_drag_reference(model: BlendshapeModel, pins, targets, w0=None, alpha=0
     targets, w0 = _validate(model, pins, targets, w0)
     if not model.is_linear:
         raise ShapeSpaceError("the reference solver handles linear rigs only", "nonlinear")
-    scale = model.scale or 1.0
+    scale = _unit(model)
     R = pin_matrix(model, pins) / scale
     m = (targets - pin_rest_positions(model, pins)).reshape(-1) / scale
     n = model.n_targets

@@ -8,3 +8,25 @@ def active_mesh(cls, context):
         cls.poll_message_set("Select a mesh object")
         return None
     return ob
+
+
+def active_rig(cls, context):
+    """The active mesh when it has shape-key targets; otherwise say why and return None."""
+    ob = active_mesh(cls, context)
+    if ob is None:
+        return None
+    if ob.data.shape_keys is None or len(ob.data.shape_keys.key_blocks) < 2:
+        cls.poll_message_set("The mesh has no shape keys")
+        return None
+    return ob
+
+
+def pinnable_rig(cls, context):
+    """A rig in a direct-manipulation mode with pins; otherwise say why and return None."""
+    ob = active_rig(cls, context)
+    if ob is None:
+        return None
+    if ob.shapespace.mode == "SLIDERS":
+        cls.poll_message_set("Switch the ShapeSpace mode to Direct or Learned")
+        return None
+    return ob

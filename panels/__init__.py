@@ -1,8 +1,9 @@
 """Sidebar panels (View3D ▸ Sidebar ▸ ShapeSpace)."""
 import bpy
 
+from .direct_panel import SHAPESPACE_PT_direct, SHAPESPACE_UL_pins
 from .rig_panel import SHAPESPACE_PT_rig
 
-classes = (SHAPESPACE_PT_rig,)
+classes = (SHAPESPACE_PT_rig, SHAPESPACE_UL_pins, SHAPESPACE_PT_direct)
 
 register, unregister = bpy.utils.register_classes_factory(classes)

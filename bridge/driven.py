@@ -1,0 +1,160 @@
+"""In-between and combination shapes as driven shape keys (thesis 3.3.2, 3.3.3).
+
+Blender has neither natively.  ShapeSpace builds them from plain relative
+keys and *simple-expression* drivers, which Blender evaluates without
+Python, so files play back anywhere:
+
+- an in-between of primary ``P`` at weight ``t`` is a key holding the
+  correction ``S_t − t·S_P``, driven by ``hat(P; left, t, right)``;
+- a combination of ``A``, ``B`` (, ``C``) is a key holding the correction,
+  driven by ``A·B(·C)``.
+
+What was built is recorded as JSON in the ``Key`` datablock's custom property
+``shapespace_driven`` so the reader can rebuild the exact nonlinear model.
+"""
+from __future__ import annotations
+
+import json
+
+import bpy
+import numpy as np
+
+from ..core.result import ShapeSpaceError
+from .arrays import read_float, write_float
+
+PROP = "shapespace_driven"
+
+
+def metadata(key) -> dict:
+    """``{"inbetweens": {key: {"primary", "at"}}, "combinations": {key: {"inputs"}}}``."""
+    raw = key.get(PROP) if key is not None else None
+    data = json.loads(raw) if raw else {}
+    data.setdefault("inbetweens", {})
+    data.setdefault("combinations", {})
+    return data
+
+
+def _store(key, data) -> None:
+    key[PROP] = json.dumps(data, sort_keys=True)
+
+
+def knots_for(data: dict, primary: str) -> dict:
+    """``{inbetween key: (left, peak, right)}`` for every in-between of ``primary``."""
+    items = sorted((v["at"], k) for k, v in data["inbetweens"].items() if v["primary"] == primary)
+    ts = [0.0] + [t for t, _ in items] + [1.0]
+    return {name: (ts[i], ts[i + 1], ts[i + 2]) for i, (_, name) in enumerate(items)}
+
+
+def _value_path(name: str) -> str:
+    return f'key_blocks["{bpy.utils.escape_identifier(name)}"].value'
+
+
+def _set_driver(key, target_name: str, expression: str, inputs) -> None:
+    kb = key.key_blocks[target_name]
+    kb.driver_remove("value")
+    fc = kb.driver_add("value")
+    drv = fc.driver
+    drv.type = "SCRIPTED"
+    for var_name, source in inputs:
+        var = drv.variables.new()
+        var.name = var_name
+        var.type = "SINGLE_PROP"
+        var.targets[0].id_type = "KEY"
+        var.targets[0].id = key
+        var.targets[0].data_path = _value_path(source)
+    drv.expression = expression
+    for mod in list(fc.modifiers):  # Blender adds a Generator modifier to new drivers
+        fc.modifiers.remove(mod)
+
+
+def hat_expression(left: float, peak: float, right: float) -> str:
+    return (f"max(0.0, min((w - {left!r}) / {peak - left!r}, ({right!r} - w) / {right - peak!r}))")
+
+
+def _refresh_inbetween_drivers(key, data, primary: str) -> None:
+    for name, (a, t, b) in knots_for(data, primary).items():
+        _set_driver(key, name, hat_expression(a, t, b), [("w", primary)])
+
+
+def _shape(key, name) -> np.ndarray:
+    return read_float(key.key_blocks[name].data, "co", 3).astype(np.float64)
+
+
+def add_inbetween(obj, primary: str, source: str, at: float, name: str = None, keep_source: bool = False) -> str:
+    """Turn shape key ``source`` (a full sculpt) into an in-between of ``primary`` at weight ``at``."""
+    key = obj.data.shape_keys
+    if key is None:
+        raise ShapeSpaceError(f"mesh {obj.name!r} has no shape keys", "no_shape_keys")
+    blocks = key.key_blocks
+    for n in (primary, source):
+        if n not in blocks:
+            raise ShapeSpaceError(f"mesh {obj.name!r} has no shape key named {n!r}", "missing_key")
+    if primary == source:
+        raise ShapeSpaceError("the in-between shape must be a different key than its primary", "same_key")
+    if not 0.0 < at < 1.0:
+        raise ShapeSpaceError(f"an in-between weight must lie strictly between 0 and 1, got {at}", "range")
+    data = metadata(key)
+    if primary in data["inbetweens"] or primary in data["combinations"]:
+        raise ShapeSpaceError(f"{primary!r} is itself a driven key", "driven_primary")
+    if any(v["primary"] == primary and abs(v["at"] - at) < 1e-6 for v in data["inbetweens"].values()):
+        raise ShapeSpaceError(f"{primary!r} already has an in-between at {at:g}", "duplicate_inbetween")
+    basis = _shape(key, key.reference_key.name)
+    prim_rel = blocks[primary].relative_key.name
+    s_primary = _shape(key, primary) - _shape(key, prim_rel)
+    s_at = _shape(key, source) - _shape(key, blocks[source].relative_key.name)
+    name = name or f"{primary}@{at:g}"
+    kb = obj.shape_key_add(name=name, from_mix=False)
+    write_float(kb.data, "co", basis + (s_at - at * s_primary))
+    kb.slider_min, kb.slider_max = 0.0, 1.0
+    data["inbetweens"][kb.name] = {"primary": primary, "at": float(at)}
+    _store(key, data)
+    _refresh_inbetween_drivers(key, data, primary)
+    if not keep_source:
+        obj.shape_key_remove(blocks[source])
+    obj.data.update()
+    return kb.name
+
+
+def add_combination(obj, inputs, source: str, name: str = None, keep_source: bool = False) -> str:
+    """Turn shape key ``source`` (the full sculpt at all ``inputs`` = 1) into a combination shape."""
+    key = obj.data.shape_keys
+    if key is None:
+        raise ShapeSpaceError(f"mesh {obj.name!r} has no shape keys", "no_shape_keys")
+    inputs = list(inputs)
+    if not 2 <= len(inputs) <= 3 or len(set(inputs)) != len(inputs):
+        raise ShapeSpaceError("a combination needs 2 or 3 different primary keys", "combination_inputs")
+    blocks = key.key_blocks
+    for n in inputs + [source]:
+        if n not in blocks:
+            raise ShapeSpaceError(f"mesh {obj.name!r} has no shape key named {n!r}", "missing_key")
+    if source in inputs:
+        raise ShapeSpaceError("the combination shape must be a different key than its inputs", "same_key")
+    data = metadata(key)
+    driven = set(data["inbetweens"]) | set(data["combinations"])
+    if driven & set(inputs):
+        raise ShapeSpaceError("combination inputs must be primary (undriven) keys", "driven_primary")
+    basis = _shape(key, key.reference_key.name)
+    total = sum(_shape(key, n) - _shape(key, blocks[n].relative_key.name) for n in inputs)
+    sculpt = _shape(key, source) - _shape(key, blocks[source].relative_key.name)
+    name = name or "+".join(inputs)
+    kb = obj.shape_key_add(name=name, from_mix=False)
+    write_float(kb.data, "co", basis + (sculpt - total))
+    kb.slider_min, kb.slider_max = -10.0, 10.0  # products of extended ranges must not clamp
+    data["combinations"][kb.name] = {"inputs": inputs}
+    _store(key, data)
+    letters = "abc"[:len(inputs)]
+    _set_driver(key, kb.name, "*".join(letters), list(zip(letters, inputs)))
+    if not keep_source:
+        obj.shape_key_remove(blocks[source])
+    obj.data.update()
+    return kb.name
+
+
+def prune(key) -> dict:
+    """Metadata restricted to driven keys (and their inputs) that still exist."""
+    data = metadata(key)
+    names = set(key.key_blocks.keys())
+    data["inbetweens"] = {k: v for k, v in data["inbetweens"].items() if k in names and v["primary"] in names}
+    data["combinations"] = {k: v for k, v in data["combinations"].items()
+                            if k in names and all(i in names for i in v["inputs"])}
+    return data

@@ -1,0 +1,53 @@
+import bpy
+
+
+class SHAPESPACE_UL_pins(bpy.types.UIList):
+    """Pins of the active mesh"""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index):
+        kind = "Stationary" if item.stationary else "Pin"
+        layout.label(text=f"{kind} {index}: vertex {item.vertices[0]}",
+                     icon="PINNED" if item.stationary else "UNPINNED")
+
+
+class SHAPESPACE_PT_direct(bpy.types.Panel):
+    """Pin-and-drag direct manipulation of the shape-key sliders"""
+
+    bl_label = "Direct Manipulation"
+    bl_idname = "SHAPESPACE_PT_direct"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "ShapeSpace"
+
+    @classmethod
+    def poll(cls, context):
+        ob = context.active_object
+        return ob is not None and ob.type == "MESH" and ob.data.shape_keys is not None
+
+    def draw(self, context):
+        layout = self.layout
+        st = context.active_object.shapespace
+        layout.row().prop(st, "mode", expand=True)
+        if st.mode == "SLIDERS":
+            layout.label(text="Animate with the Shape Keys sliders", icon="INFO")
+            return
+        col = layout.column(align=True)
+        col.prop(st, "alpha")
+        col.prop(st, "mu")
+        if st.mode == "LEARNED":
+            box = layout.box()
+            box.prop(st, "prior_action")
+            row = box.row(align=True)
+            row.prop(st, "prior_start")
+            row.prop(st, "prior_end")
+            box.prop(st, "prior_form")
+            box.prop(st, "snap")
+        layout.label(text="Pin tool: click and drag on the face", icon="RESTRICT_SELECT_OFF")
+        layout.template_list("SHAPESPACE_UL_pins", "", st, "pins", st, "active_pin", rows=3)
+        row = layout.row(align=True)
+        row.operator("shapespace.solve_pins", icon="PLAY")
+        row.operator("shapespace.remove_pin", icon="REMOVE", text="")
+        row.operator("shapespace.clear_pins", icon="X", text="")
+        row = layout.row(align=True)
+        row.operator("shapespace.add_inbetween", icon="IPO_LINEAR")
+        row.operator("shapespace.add_combination", icon="AUTOMERGE_OFF")

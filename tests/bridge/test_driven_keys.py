@@ -1,0 +1,89 @@
+"""In-between and combination shapes built with native drivers evaluate exactly as the core model."""
+import numpy as np
+import pytest
+
+from support import ASSETS
+from blender_support import blend_fingerprint, bpy, evaluated, import_file, rel_error
+from shapespace.bridge import actions, driven, shapekeys
+from shapespace.core.direct import Pin, pin_positions, solve_drag
+from shapespace.core.result import ShapeSpaceError
+import os
+
+
+def _facecap():
+    import_file(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
+    ob = bpy.data.objects["Mesh_2"]
+    ob.data.shape_keys.animation_data_clear()
+    return ob
+
+
+def _sculpt(ob, name, from_keys, extra, rng):
+    """A new full shape: a mix of existing keys plus a smooth random bulge (an artist's sculpt)."""
+    model = shapekeys.read_blendshape_model(ob)
+    w = np.zeros(model.n_targets)
+    for n, v in from_keys.items():
+        w[model.index(n)] = v
+    pos = model.evaluate(w)
+    centre = pos[rng.integers(len(pos))]
+    fall = np.exp(-np.sum((pos - centre) ** 2, axis=1) / (0.05 * model.scale) ** 2)
+    pos = pos + extra * model.scale * fall[:, None] * rng.normal(size=3)
+    shapekeys.add_shape_key(ob, name, pos)
+    return pos
+
+
+def test_inbetweens_and_combinations_match_blender_and_play_without_python(registered):
+    ob = _facecap()
+    rng = np.random.default_rng(0)
+    _sculpt(ob, "jawHalf", {"jawOpen": 0.5}, 0.02, rng)
+    ib = driven.add_inbetween(ob, "jawOpen", "jawHalf", 0.5)
+    _sculpt(ob, "jawQuarter", {"jawOpen": 0.25}, 0.01, rng)
+    driven.add_inbetween(ob, "jawOpen", "jawQuarter", 0.25)
+    sculpt = _sculpt(ob, "smileBlink", {"mouthSmile_L": 1.0, "eyeBlink_L": 1.0}, 0.03, rng)
+    combo = driven.add_combination(ob, ["mouthSmile_L", "eyeBlink_L"], "smileBlink")
+    key = ob.data.shape_keys
+    for fc in key.animation_data.drivers:
+        assert fc.driver.is_simple_expression, fc.driver.expression  # no Python at playback
+    model = shapekeys.read_blendshape_model(ob)
+    assert model.n_targets == 52 and len(model.inbetweens) == 2 and len(model.combinations) == 1
+    assert ib not in actions.slider_names(ob) and combo not in actions.slider_names(ob)
+    # the sculpt is reproduced exactly at the combination's corner
+    w = np.zeros(52)
+    w[[model.index("mouthSmile_L"), model.index("eyeBlink_L")]] = 1.0
+    shapekeys.write_slider_values(ob, model.names, w)
+    assert rel_error(evaluated(ob), sculpt) < 1e-6
+    # random settings, with jawOpen sweeping through the knots
+    for j in np.linspace(0, 1, 9):
+        w = rng.uniform(0, 1, 52)
+        w[model.index("jawOpen")] = j
+        shapekeys.write_slider_values(ob, model.names, w)
+        assert rel_error(model.evaluate(w), evaluated(ob)) < 1e-5
+
+
+def test_drag_solve_on_a_rig_with_driven_keys_reaches_blender_positions(registered):
+    ob = _facecap()
+    rng = np.random.default_rng(1)
+    _sculpt(ob, "jawHalf", {"jawOpen": 0.5}, 0.03, rng)
+    driven.add_inbetween(ob, "jawOpen", "jawHalf", 0.5)
+    model = shapekeys.read_blendshape_model(ob)
+    w_true = np.zeros(model.n_targets)
+    w_true[model.index("jawOpen")] = 0.35
+    pins = [Pin.at_vertex(i) for i in rng.choice(model.n_vertices, 12, replace=False)]
+    targets = pin_positions(model, pins, w_true)
+    res = solve_drag(model, pins, targets, np.zeros(model.n_targets), alpha=1e-4, mu=1e-6)
+    shapekeys.write_slider_values(ob, model.names, res.weights)
+    got = evaluated(ob)
+    idx = [p.vertices[0] for p in pins]
+    assert np.abs(got[idx] - targets).max() < 0.02 * model.scale
+    assert abs(res.weights[model.index("jawOpen")] - 0.35) < 0.05
+
+
+def test_driven_key_bad_input_leaves_file_unchanged():
+    ob = _facecap()
+    before = blend_fingerprint()
+    with pytest.raises(ShapeSpaceError, match="strictly between 0 and 1"):
+        driven.add_inbetween(ob, "jawOpen", "mouthClose", 1.0)
+    with pytest.raises(ShapeSpaceError, match="no shape key named"):
+        driven.add_inbetween(ob, "jawOpen", "nope", 0.5)
+    with pytest.raises(ShapeSpaceError, match="2 or 3 different"):
+        driven.add_combination(ob, ["jawOpen"], "mouthClose")
+    assert blend_fingerprint() == before
