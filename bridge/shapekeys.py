@@ -117,17 +117,24 @@ def read_slider_values(obj, names=None) -> np.ndarray:
 
 
 def write_slider_values(obj, names, values) -> None:
-    """Set ``value`` of the named keys.  Blender clamps to each slider range."""
-    blocks = obj.data.shape_keys.key_blocks
+    """Set ``value`` of the named keys in one bulk write; clamped to each slider range as Blender does."""
+    key = obj.data.shape_keys
+    blocks = key.key_blocks
     values = np.asarray(values, dtype=np.float64).ravel()
     if len(values) != len(names):
         raise ShapeSpaceError(f"{len(values)} values for {len(names)} shape keys", "shape")
-    missing = [n for n in names if n not in blocks]
+    index = {kb.name: i for i, kb in enumerate(blocks)}
+    missing = [n for n in names if n not in index]
     if missing:
         raise ShapeSpaceError(f"{obj.name!r} has no shape keys named {', '.join(missing)}", "missing_key")
-    for name, v in zip(names, values):
-        blocks[name].value = float(v)
-    obj.data.update()
+    current = read_float(blocks, "value", 1).astype(np.float64)
+    lo = read_float(blocks, "slider_min", 1)
+    hi = read_float(blocks, "slider_max", 1)
+    pos = np.fromiter((index[n] for n in names), dtype=np.int64, count=len(names))
+    current[pos] = np.clip(values, lo[pos], hi[pos])
+    write_float(blocks, "value", current)
+    key.update_tag()
+    obj.data.update_tag()
 
 
 def add_shape_key(obj, name: str, positions, relative_to: str = None, from_mix: bool = False):

@@ -163,6 +163,7 @@ class BlendshapeModel:
             if self.mute.shape != (n,):
                 raise ShapeSpaceError(f"mute must have shape ({n},), got {self.mute.shape}", "shape")
         self.values = self._vector(self.values, 0.0, "values")
+        self._scale = None
         if self.relative_to is None:
             self.relative_to = [self.reference_name] * n
         self.relative_to = list(self.relative_to)
@@ -194,8 +195,13 @@ class BlendshapeModel:
 
     @property
     def scale(self) -> float:
-        """Model size: bounding-box diagonal of the neutral (used to normalise units)."""
-        return bounding_box_diagonal(self.neutral)
+        """Model size: bounding-box diagonal of the neutral (used to normalise units).
+
+        Computed once; the model is treated as immutable after construction.
+        """
+        if self._scale is None:
+            self._scale = bounding_box_diagonal(self.neutral)
+        return self._scale
 
     def index(self, name: str) -> int:
         try:

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .blendshape import BlendshapeModel
-from .boxqp import solve_box_qp
+from .boxqp import solve_box_lsq_dual, solve_box_qp
 from .result import ShapeSpaceError
 
 #: Positions are measured as if the model's bounding-box diagonal were this long (a head in cm).
@@ -86,6 +86,45 @@ def _pin_arrays(pins, p):
     return idx, bary
 
 
+class _PinRows:
+    """Everything a solve needs about the pins, computed once: rows of B, rest positions, driven rows."""
+
+    def __init__(self, model: BlendshapeModel, pins):
+        self.model = model
+        self.idx, self.bary = _pin_arrays(pins, model.n_vertices)
+        self.R = _rows(model, self.idx, self.bary)
+        self.rest = np.einsum("kc,kcx->kx", self.bary, model.neutral[self.idx])
+        self.Rd = None if model.is_linear else _rows(model, self.idx, self.bary, model.driven_deltas())
+        self.unit = _unit(model)
+
+    def positions(self, w) -> np.ndarray:
+        pos = self.rest + (self.R @ self.model.effective_weights(w)).reshape(-1, 3)
+        if self.Rd is not None:
+            pos = pos + (self.Rd @ self.model.driven_values(w)).reshape(-1, 3)
+        return pos
+
+    def objective(self, targets, w, w0, alpha, mu, prior):
+        data = float(np.sum(((self.positions(w) - targets) / self.unit) ** 2))
+        dw = np.asarray(w, dtype=np.float64) - w0
+        if prior is None:
+            reg = alpha * float(dw @ dw)
+        else:
+            a, cols, sgn, _ = _prior_terms(prior, alpha, w0)
+            reg = a * float(dw @ dw) + float(sum((s * (c.T @ dw)) @ (c.T @ dw) for c, s in zip(cols, sgn)))
+        return data + reg + mu * float(np.asarray(w) @ np.asarray(w))
+
+    def linearised(self, targets, x):
+        """Normalised rows and right-hand side of the (linearised) data term at ``x``: ‖R w − m‖²."""
+        R = self.R / self.unit
+        m = (targets - self.rest).reshape(-1) / self.unit
+        if self.Rd is not None:
+            driven = self.Rd / self.unit
+            slopes = self.model.driven_slopes(x)
+            m = m - driven @ (self.model.driven_values(x) - slopes @ x)
+            R = R + driven @ slopes
+        return R, m
+
+
 def pin_matrix(model: BlendshapeModel, pins, deltas=None) -> np.ndarray:
     """Rows of the delta matrix at the pins, ``R`` of shape (3k, n) (thesis Eq. 4.5).
 
@@ -93,6 +132,10 @@ def pin_matrix(model: BlendshapeModel, pins, deltas=None) -> np.ndarray:
     overrides the model's targets (used for the driven keys' Jacobian).
     """
     idx, bary = _pin_arrays(pins, model.n_vertices)
+    return _rows(model, idx, bary, deltas)
+
+
+def _rows(model, idx, bary, deltas=None):
     d = model.deltas if deltas is None else deltas
     rows = np.einsum("kc,tkcx->kxt", bary, d[:, idx, :])     # (k, 3, t)
     rows = rows.reshape(-1, d.shape[0])
@@ -175,7 +218,7 @@ class WeightPrior:
         return WeightPrior(names, mean, comp, self.variances, self.coefficients, self.eps)
 
 
-def train_prior(weights, names, eps: float = 0.1, energy: float = 0.999) -> WeightPrior:
+def train_prior(weights, names, eps: float = 0.1, energy: float = 1.0) -> WeightPrior:
     """Learn a :class:`WeightPrior` from animation frames.
 
     Parameters
@@ -186,7 +229,9 @@ def train_prior(weights, names, eps: float = 0.1, energy: float = 0.999) -> Weig
     eps : float
         Regulariser (fraction of the mean variance) added to the covariance.
     energy : float
-        Keep the leading components that explain this fraction of variance.
+        Keep the leading components that explain this fraction of variance
+        (default: every direction the data moves in; the regulariser ``eps``
+        keeps the rest reachable).
 
     Raises
     ------
@@ -208,7 +253,7 @@ def train_prior(weights, names, eps: float = 0.1, energy: float = 0.999) -> Weig
     if var.size == 0 or var[0] <= 1e-12:
         raise ShapeSpaceError("the training animation moves none of the shape keys", "prior_constant")
     cum = np.cumsum(var) / var.sum()
-    r = int(np.searchsorted(cum, energy) + 1)
+    r = var.size if energy >= 1.0 else int(np.searchsorted(cum, energy) + 1)
     r = max(1, min(r, int(np.sum(var > 1e-12 * var[0]))))
     comp = vt[:r].T
     return WeightPrior(names, mean, comp, var[:r], centred @ comp, eps)
@@ -282,17 +327,9 @@ def _prior_terms(prior: WeightPrior, alpha, w0, pca_snap=None):
 
 def drag_objective(model, pins, targets, w, w0, alpha=0.1, mu=0.001, prior: WeightPrior = None):
     """The normalised objective of Eq. 4.5 (or its learned variant) at ``w``."""
-    scale = _unit(model)
-    pos = pin_positions(model, pins, w)
-    data = float(np.sum(((pos - np.asarray(targets)) / scale) ** 2))
-    dw = np.asarray(w, dtype=np.float64) - w0
-    if prior is None:
-        reg = alpha * float(dw @ dw)
-    else:
-        p = prior.aligned(model.names)
-        a, cols, sgn, _ = _prior_terms(p, alpha, w0)
-        reg = a * float(dw @ dw) + float(sum((s * (c.T @ dw)) @ (c.T @ dw) for c, s in zip(cols, sgn)))
-    return data + reg + mu * float(np.asarray(w) @ np.asarray(w))
+    prior = prior.aligned(model.names) if prior is not None else None
+    return _PinRows(model, pins).objective(np.asarray(targets, dtype=np.float64), w,
+                                           np.asarray(w0, dtype=np.float64), alpha, mu, prior)
 
 
 def _validate(model, pins, targets, w0):
@@ -361,21 +398,19 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
         prior = prior.aligned(model.names)
     if prior_form not in ("covariance", "pca"):
         raise ShapeSpaceError(f"prior_form must be 'covariance' or 'pca', got {prior_form!r}", "range")
-    scale = _unit(model)
-    rest = pin_rest_positions(model, pins)
+    rows = _PinRows(model, pins)
     lo, hi = _bounds(model, w0)
     x = np.clip(w0 if x0 is None else np.asarray(x0, dtype=np.float64), lo, hi)
     total_it = 0
-    diag = {"scale": scale}
+    diag = {"unit": rows.unit}
     if prior is not None and prior_form == "pca":
-        x, total_it = _solve_pca(model, pins, targets, rest, scale, w0, alpha, mu, prior, lo, hi)
+        x, total_it = _solve_pca(rows, targets, w0, alpha, mu, prior, lo, hi)
         diag["prior_form"] = "pca"
     else:
         snap_term = None
         passes = 2 if snap else 1
         for pass_ in range(passes):
-            x, it = _gauss_newton(model, pins, targets, rest, scale, w0, alpha, mu, prior, lo, hi, x,
-                                  snap_term, gn_tol, gn_max_iter)
+            x, it = _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, gn_tol, gn_max_iter)
             total_it += it
             if snap and pass_ == 0:
                 snap_term, count = _snap_term(prior, x)
@@ -384,41 +419,48 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
                     break
                 U3, tgt = snap_term
                 snap_term = (U3, tgt, alpha)
-    pos = pin_positions(model, pins, x)
-    residuals = np.linalg.norm(pos - targets, axis=1)
-    messages = _warnings(model, pins, targets, residuals, scale)
-    obj = drag_objective(model, pins, targets, x, w0, alpha, mu, prior if prior_form == "covariance" else None)
+    residuals = np.linalg.norm(rows.positions(x) - targets, axis=1)
+    messages = _warnings(rows, pins, targets, residuals)
+    obj = rows.objective(targets, x, w0, alpha, mu, prior if prior_form == "covariance" else None)
     diag.update({"clamped": int(np.sum((x <= lo + 1e-12) | (x >= hi - 1e-12)))})
     return DragResult(x, obj, residuals, total_it, 1 if messages else 0,
                       "; ".join(messages) if messages else "ok", diag)
 
 
-def _linear_system(model, pins, targets, rest, scale, w0, alpha, mu, prior, x, snap_term):
-    """Normalised linearisation at x: H = a I + Σ V_i diag(s_i) V_iᵀ, linear term g."""
-    R = pin_matrix(model, pins) / scale
-    m = (targets - rest).reshape(-1) / scale
-    if not model.is_linear:
-        driven = pin_matrix(model, pins, model.driven_deltas()) / scale
-        dv = model.driven_values(x)
-        J = R + driven @ model.driven_slopes(x)
-        m = m - (driven @ dv - driven @ model.driven_slopes(x) @ x)
-        R = J
+def _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term):
+    """One bounded QP: data ‖R w − m‖² plus the regularisers; returns (w, iterations)."""
+    if prior is None and snap_term is None:
+        # Eq. 4.5: Hessian (α+μ)I + RᵀR — solved through its 3k-dimensional dual.
+        c = alpha + mu
+        res = solve_box_lsq_dual(R, m, c, alpha * w0 / c, lo, hi, dual0=2.0 * (R @ x - m))
+        return res.x, res.iterations
     if prior is None:
-        a, cols, sgn, lin = alpha, [], [], alpha * w0
-        if snap_term is not None:
-            U3, tgt, beta = snap_term
-            cols, sgn, lin = [U3], [np.full(U3.shape[1], beta)], lin + U3 @ (beta * tgt)
+        U3, tgt, beta = snap_term
+        a, cols, sgn, lin = alpha, [U3], [np.full(U3.shape[1], beta)], alpha * w0 + U3 @ (beta * tgt)
     else:
         a, cols, sgn, lin = _prior_terms(prior, alpha, w0, snap_term)
-    V = np.hstack([R.T] + cols) if cols else R.T
-    s = np.concatenate([np.ones(R.shape[0])] + sgn) if sgn else np.ones(R.shape[0])
+    V = np.hstack([R.T] + cols)
+    s = np.concatenate([np.ones(R.shape[0])] + sgn)
     keep = s != 0
-    return 2.0 * (a + mu), V[:, keep], 2.0 * s[keep], 2.0 * (R.T @ m + lin)
+    res = solve_box_qp(2.0 * (a + mu), V[:, keep], 2.0 * s[keep], 2.0 * (R.T @ m + lin), lo, hi, x0=x)
+    return res.x, res.iterations
 
 
-def _gauss_newton(model, pins, targets, rest, scale, w0, alpha, mu, prior, lo, hi, x, snap_term, tol, max_iter):
+def _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, tol, max_iter):
+    """Damped Gauss–Newton; a single exact QP for linear rigs.
+
+    Each step solves the bounded QP of the linearisation exactly, then halves
+    the step until the true objective does not increase.  The objective is
+    bounded below and never increases, so the loop stops: when the relative
+    decrease falls below ``tol``, when no decreasing step exists, or after
+    ``max_iter`` steps.
+    """
+    if rows.Rd is None:
+        R, m = rows.linearised(targets, x)
+        return _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term)
+
     def true_obj(w):
-        val = drag_objective(model, pins, targets, w, w0, alpha, mu, prior)
+        val = rows.objective(targets, w, w0, alpha, mu, prior)
         if snap_term is not None:
             U3, tgt, beta = snap_term
             r = U3.T @ w - tgt
@@ -427,14 +469,12 @@ def _gauss_newton(model, pins, targets, rest, scale, w0, alpha, mu, prior, lo, h
 
     total = 0
     f = true_obj(x)
-    for _ in range(max_iter if not model.is_linear else 1):
-        a, V, s, g = _linear_system(model, pins, targets, rest, scale, w0, alpha, mu, prior, x, snap_term)
-        res = solve_box_qp(a, V, s, g, lo, hi, x0=x)
-        total += res.iterations
-        if model.is_linear:
-            return res.x, total
-        step = res.x - x
-        t, f_new = 1.0, true_obj(res.x)
+    for _ in range(max_iter):
+        R, m = rows.linearised(targets, x)
+        cand, it = _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term)
+        total += it
+        step = cand - x
+        t, f_new = 1.0, true_obj(cand)
         while f_new > f and t > 1e-6:
             t *= 0.5
             f_new = true_obj(x + t * step)
@@ -448,12 +488,11 @@ def _gauss_newton(model, pins, targets, rest, scale, w0, alpha, mu, prior, lo, h
     return x, total
 
 
-def _solve_pca(model, pins, targets, rest, scale, w0, alpha, mu, prior, lo, hi):
+def _solve_pca(rows, targets, w0, alpha, mu, prior, lo, hi):
     """Thesis Eq. 4.8: PCA coefficients c = √Λ z with |z_k| ≤ 3 (i.e. |c_k| ≤ 3√λ_k)."""
-    if not model.is_linear:
+    if rows.Rd is not None:
         raise ShapeSpaceError("the PCA prior form needs a rig without in-betweens or combinations", "nonlinear")
-    R = pin_matrix(model, pins) / scale
-    m = (targets - rest).reshape(-1) / scale
+    R, m = rows.linearised(targets, w0)
     L = prior.components * np.sqrt(prior.variances / prior.unit)          # n × r, whitened to the unit
     Rz = R @ L
     mz = m - R @ prior.mean
@@ -465,20 +504,21 @@ def _solve_pca(model, pins, targets, rest, scale, w0, alpha, mu, prior, lo, hi):
     return w, res.iterations
 
 
-def _warnings(model, pins, targets, residuals, scale):
+def _warnings(rows, pins, targets, residuals):
     out = []
-    R = pin_matrix(model, pins)
-    dead = [j for j in range(len(pins)) if not np.any(np.abs(R[3 * j:3 * j + 3]) > 1e-9 * model.scale)]
+    model = rows.model
+    size = model.scale
+    moving = np.abs(rows.R).reshape(len(pins), -1).max(axis=1) > 1e-9 * size
+    dead = [j for j in range(len(pins)) if not moving[j]]
     if dead:
         out.append(f"pins {', '.join(map(str, dead))} are on points no shape key moves")
-    idx, bary = _pin_arrays(pins, model.n_vertices)
     keyed = {}
     for j in range(len(pins)):
-        key = tuple(np.round(np.concatenate([idx[j], bary[j]]), 9))
-        if key in keyed and np.linalg.norm(targets[j] - targets[keyed[key]]) > 1e-9 * model.scale:
+        key = tuple(np.round(np.concatenate([rows.idx[j], rows.bary[j]]), 9))
+        if key in keyed and np.linalg.norm(targets[j] - targets[keyed[key]]) > 1e-9 * size:
             out.append(f"pins {keyed[key]} and {j} share a point but have different targets: both are met halfway")
         keyed.setdefault(key, j)
-    far = [j for j in range(len(pins)) if residuals[j] > 0.05 * model.scale]
+    far = np.flatnonzero(residuals > 0.05 * size).tolist()
     if far:
         out.append(f"pins {', '.join(map(str, far))} cannot reach their targets within the slider ranges")
     return out

@@ -1,0 +1,44 @@
+"""ShapeSpace benchmarks.
+
+    python tools/bench.py SUITE --json FILE [--quick]
+
+Suites: ``dm`` (direct manipulation, issue #3).  Every goal metric named in
+the issue is computed in ``--quick`` mode too, with fewer repetitions.
+Reference solvers are measured in the same run, on the same machine.
+Creates ``.venv/bpy50`` on first use (Blender is needed to read the real rigs).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+TOOLS = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, TOOLS)
+import env  # noqa: E402
+
+SUITES = ("dm",)
+
+
+def main(argv) -> int:
+    ap = argparse.ArgumentParser(description="ShapeSpace benchmarks")
+    ap.add_argument("suite", choices=SUITES)
+    ap.add_argument("--json", required=True, help="write the flat metrics here")
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions (same metrics)")
+    args = ap.parse_args(argv)
+    env.reexec_in("bpy50", os.path.abspath(__file__), argv)
+    if args.suite == "dm":
+        import bench_dm
+        metrics = bench_dm.run(quick=args.quick)
+    with open(args.json, "w", encoding="utf-8") as fh:
+        json.dump(metrics, fh, indent=2, sort_keys=True)
+    width = max(len(k) for k in metrics)
+    for k in sorted(metrics):
+        v = metrics[k]
+        print(f"{k:<{width}}  {v:.6g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
