@@ -20,9 +20,12 @@ def test_demo_writes_blend_renders_and_report(tmp_path):
     assert report["head"]["vertices"] == 2694 and report["head"]["targets"] == 52
     assert report["head"]["rank"] == 51
     assert report["model_vs_blender_max_rel_error"] < 1e-5
+    dm = report["direct_manipulation"]
+    errs = dm["max_error_rel_after_each_drag"]
+    assert dm["drags"] == 5 and len(errs) == 6
+    assert errs[-1] < 0.5 * errs[0]  # the drags bring the neutral toward the captured expression
     assert (out / "demo.blend").stat().st_size > 0
-    for key in ("neutral_png", "frame_png"):
-        png = report["outputs"][key]
+    for png in [report["outputs"][k] for k in ("neutral_png", "frame_png")] + list(dm["renders"].values()):
         with open(png, "rb") as fh:
             assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
     # the saved file reopens and still plays the capture on the head
