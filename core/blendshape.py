@@ -30,11 +30,15 @@ def hat(w, left: float, peak: float, right: float):
     return np.maximum(0.0, np.minimum((w - left) / (peak - left), (right - w) / (right - peak)))
 
 
-def hat_slope(w, left: float, peak: float, right: float):
-    """One-sided (right) derivative of :func:`hat`, used by Gauss–Newton."""
+def hat_slope(w, left: float, peak: float, right: float, side: str = "right"):
+    """One-sided derivative of :func:`hat` (``side`` = "right" or "left"), used by Gauss–Newton."""
     w = np.asarray(w, dtype=np.float64)
-    up = (w >= left) & (w < peak)
-    down = (w >= peak) & (w < right)
+    if side == "right":
+        up = (w >= left) & (w < peak)
+        down = (w >= peak) & (w < right)
+    else:
+        up = (w > left) & (w <= peak)
+        down = (w > peak) & (w <= right)
     return np.where(up, 1.0 / (peak - left), np.where(down, -1.0 / (right - peak), 0.0))
 
 
@@ -238,12 +242,37 @@ class BlendshapeModel:
             return np.zeros(w.shape[:-1] + (0,))
         return np.stack(cols, axis=-1)
 
-    def driven_slopes(self, weights) -> np.ndarray:
-        """Derivative of :meth:`driven_values` w.r.t. the sliders, shape (d, n), at one setting."""
+    def knots_of(self, index: int) -> np.ndarray:
+        """Sorted kink positions of slider ``index``'s in-between tents (empty when it has none)."""
+        pts = {k for ib in self.inbetweens if ib.primary == index for k in ib.knots}
+        return np.array(sorted(pts))
+
+    def segment(self, index: int, w: float, direction: int, eps: float = 1e-9):
+        """The interval between kinks that slider ``index`` enters moving from ``w`` in ``direction`` (±1)."""
+        knots = self.knots_of(index)
+        lo, hi = self.slider_min[index], self.slider_max[index]
+        if knots.size == 0:
+            return lo, hi
+        probe = w + direction * eps
+        below = knots[knots <= probe]
+        above = knots[knots > probe]
+        return (max(lo, below[-1]) if below.size else lo), (min(hi, above[0]) if above.size else hi)
+
+    def driven_slopes(self, weights, sides=None) -> np.ndarray:
+        """Derivative of :meth:`driven_values` w.r.t. the sliders, shape (d, n), at one setting.
+
+        ``sides`` (n,) of ±1 picks, at a kink of an in-between's tent, the
+        derivative of the piece entered moving up (+1, default) or down (−1);
+        at a slider's upper bound the downward piece is always used (the only
+        feasible direction).
+        """
         w = np.clip(np.asarray(weights, dtype=np.float64), self.slider_min, self.slider_max)
+        sides = np.ones(self.n_targets) if sides is None else np.asarray(sides)
         out = np.zeros((len(self.inbetweens) + len(self.combinations), self.n_targets))
         for r, ib in enumerate(self.inbetweens):
-            out[r, ib.primary] = hat_slope(w[ib.primary], *ib.knots)
+            i = ib.primary
+            down = sides[i] < 0 or w[i] >= self.slider_max[i]
+            out[r, i] = hat_slope(w[i], *ib.knots, side="left" if down else "right")
         for r, c in enumerate(self.combinations, start=len(self.inbetweens)):
             for i in c.inputs:
                 out[r, i] += np.prod([w[j] for j in c.inputs if j != i])

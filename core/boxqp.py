@@ -17,7 +17,9 @@ method terminates with the optimum.  Warm starts (the previous mouse-move's
 solution) usually identify the active set at once.
 
 Stopping test: the natural residual ``‖x − clip(x − ∇f(x))‖∞ ≤ tol ·
-max(1, ‖g‖∞)``, which is zero exactly at the KKT point.
+max(1, ‖g‖∞)``, which is zero exactly at the KKT point; or, when no step
+decreases the objective measurably any more (the rounding limit of an
+ill-conditioned problem), a residual ≤ 1e-8 · max(1, ‖g‖∞).
 """
 from __future__ import annotations
 
@@ -56,7 +58,7 @@ def _free_solve(a, Vf, s, rhs):
     return (rhs - Vf @ np.linalg.solve(inner, Vf.T @ rhs)) / a
 
 
-def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=200) -> BoxQPResult:
+def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=500) -> BoxQPResult:
     """Minimise ``½ xᵀ(aI + V diag(s) Vᵀ)x − gᵀx`` over the box ``[lo, hi]``.
 
     Parameters
@@ -81,7 +83,11 @@ def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=200) -> BoxQPR
     """
     g = np.asarray(g, dtype=np.float64)
     n = g.shape[0]
-    V = np.asarray(V, dtype=np.float64).reshape(n, -1)
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim == 1:
+        V = V.reshape(n, 1)
+    if V.ndim != 2 or V.shape[0] != n:
+        raise ShapeSpaceError(f"V must have shape ({n}, r), got {V.shape}", "shape")
     s = np.asarray(s, dtype=np.float64).reshape(-1)
     lo = np.asarray(lo, dtype=np.float64).reshape(n)
     hi = np.asarray(hi, dtype=np.float64).reshape(n)
@@ -127,8 +133,11 @@ def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=200) -> BoxQPR
             if f - ft >= decrease or t < 1e-12:
                 break
             t *= 0.5
-        if ft > f:  # no progress possible in floating point: the optimum to rounding
-            return BoxQPResult(x, it, 0, res, "converged (rounding limit)")
+        if f - ft <= 4 * np.finfo(float).eps * max(abs(f), 1e-300):
+            # no measurable decrease: at the optimum to rounding, or stalled
+            if res <= 1e-8 * scale:
+                return BoxQPResult(x if ft > f else xt, it, 0, res, "converged (rounding limit)")
+            return BoxQPResult(x, it, 1, res, "stalled: no decrease possible")
         x, f, vx = xt, ft, vxt
     grad = _hess_apply(a, V, s, x) - g
     res = float(np.abs(x - np.clip(x - grad, lo, hi)).max(initial=0.0))

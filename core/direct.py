@@ -113,13 +113,13 @@ class _PinRows:
             reg = a * float(dw @ dw) + float(sum((s * (c.T @ dw)) @ (c.T @ dw) for c, s in zip(cols, sgn)))
         return data + reg + mu * float(np.asarray(w) @ np.asarray(w))
 
-    def linearised(self, targets, x):
+    def linearised(self, targets, x, sides=None, linear_only=False):
         """Normalised rows and right-hand side of the (linearised) data term at ``x``: ‖R w − m‖²."""
         R = self.R / self.unit
         m = (targets - self.rest).reshape(-1) / self.unit
-        if self.Rd is not None:
+        if self.Rd is not None and not linear_only:
             driven = self.Rd / self.unit
-            slopes = self.model.driven_slopes(x)
+            slopes = self.model.driven_slopes(x, sides)
             m = m - driven @ (self.model.driven_values(x) - slopes @ x)
             R = R + driven @ slopes
         return R, m
@@ -402,16 +402,19 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
     lo, hi = _bounds(model, w0)
     x = np.clip(w0 if x0 is None else np.asarray(x0, dtype=np.float64), lo, hi)
     total_it = 0
+    solver_status = 0
     diag = {"unit": rows.unit}
     if prior is not None and prior_form == "pca":
-        x, total_it = _solve_pca(rows, targets, w0, alpha, mu, prior, lo, hi)
+        x, total_it, solver_status = _solve_pca(rows, targets, w0, alpha, mu, prior, lo, hi)
         diag["prior_form"] = "pca"
     else:
         snap_term = None
         passes = 2 if snap else 1
         for pass_ in range(passes):
-            x, it = _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, gn_tol, gn_max_iter)
+            x, it, st = _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, gn_tol,
+                                      gn_max_iter)
             total_it += it
+            solver_status = max(solver_status, st)
             if snap and pass_ == 0:
                 snap_term, count = _snap_term(prior, x)
                 diag["snap_neighbours"] = count
@@ -421,6 +424,8 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
                 snap_term = (U3, tgt, alpha)
     residuals = np.linalg.norm(rows.positions(x) - targets, axis=1)
     messages = _warnings(rows, pins, targets, residuals)
+    if solver_status:
+        messages.append("the solver stopped before full convergence (weights are the best found)")
     obj = rows.objective(targets, x, w0, alpha, mu, prior if prior_form == "covariance" else None)
     diag.update({"clamped": int(np.sum((x <= lo + 1e-12) | (x >= hi - 1e-12)))})
     return DragResult(x, obj, residuals, total_it, 1 if messages else 0,
@@ -430,10 +435,14 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
 def _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term):
     """One bounded QP: data ‖R w − m‖² plus the regularisers; returns (w, iterations)."""
     if prior is None and snap_term is None:
-        # Eq. 4.5: Hessian (α+μ)I + RᵀR — solved through its 3k-dimensional dual.
+        # Eq. 4.5: Hessian (α+μ)I + RᵀR — solved through its 3k-dimensional dual; when the
+        # regularisation is so weak that the dual converges slowly, finish in the primal.
         c = alpha + mu
-        res = solve_box_lsq_dual(R, m, c, alpha * w0 / c, lo, hi, dual0=2.0 * (R @ x - m))
-        return res.x, res.iterations
+        res = solve_box_lsq_dual(R, m, c, alpha * w0 / c, lo, hi, dual0=2.0 * (R @ x - m), max_iter=40)
+        if res.status == 0:
+            return res.x, res.iterations, 0
+        p = solve_box_qp(2.0 * c, R.T, np.full(R.shape[0], 2.0), 2.0 * (R.T @ m + alpha * w0), lo, hi, x0=res.x)
+        return p.x, res.iterations + p.iterations, p.status
     if prior is None:
         U3, tgt, beta = snap_term
         a, cols, sgn, lin = alpha, [U3], [np.full(U3.shape[1], beta)], alpha * w0 + U3 @ (beta * tgt)
@@ -443,17 +452,22 @@ def _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term):
     s = np.concatenate([np.ones(R.shape[0])] + sgn)
     keep = s != 0
     res = solve_box_qp(2.0 * (a + mu), V[:, keep], 2.0 * s[keep], 2.0 * (R.T @ m + lin), lo, hi, x0=x)
-    return res.x, res.iterations
+    return res.x, res.iterations, res.status
 
 
 def _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, tol, max_iter):
-    """Damped Gauss–Newton; a single exact QP for linear rigs.
+    """Damped Gauss–Newton; a single exact QP for linear rigs.  Returns (w, iterations, status).
 
-    Each step solves the bounded QP of the linearisation exactly, then halves
-    the step until the true objective does not increase.  The objective is
-    bounded below and never increases, so the loop stops: when the relative
-    decrease falls below ``tol``, when no decreasing step exists, or after
-    ``max_iter`` steps.
+    In-between tents are piecewise linear, so each step keeps every slider
+    that has in-betweens inside one piece (the one the objective decreases
+    into, probed at a kink), where the tents are exactly linear; the bounded
+    QP of that linearisation is solved exactly and the step halved until the
+    true objective decreases (combinations are bilinear).  The objective is
+    bounded below and strictly decreases, so the loop stops: when the
+    relative decrease falls below ``tol``, when no decreasing step exists, or
+    after ``max_iter`` steps.  It runs from the given start and from the
+    solution that ignores the driven keys, and keeps the better end point
+    (the problem is not convex).
     """
     if rows.Rd is None:
         R, m = rows.linearised(targets, x)
@@ -467,25 +481,59 @@ def _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, tol
             val += beta * float(r @ r)
         return val
 
-    total = 0
-    f = true_obj(x)
-    for _ in range(max_iter):
-        R, m = rows.linearised(targets, x)
-        cand, it = _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term)
-        total += it
-        step = cand - x
-        t, f_new = 1.0, true_obj(cand)
-        while f_new > f and t > 1e-6:
-            t *= 0.5
-            f_new = true_obj(x + t * step)
-        if f_new > f:
-            break
-        x_new = x + t * step
-        done = f - f_new <= tol * max(f, 1e-300)
-        x, f = x_new, f_new
-        if done:
-            break
-    return x, total
+    model = rows.model
+    kinked = sorted({ib.primary for ib in model.inbetweens})
+
+    def choose_sides(x, f):
+        """+1/−1 per slider: at a tent's kink, the side whose piece the objective decreases into."""
+        sides = np.ones(model.n_targets)
+        for i in kinked:
+            knots = model.knots_of(i)
+            if np.min(np.abs(knots - x[i])) > 1e-7:
+                continue
+            h = 1e-6
+            up = true_obj(np.where(np.arange(x.size) == i, min(x[i] + h, hi[i]), x)) - f
+            down = true_obj(np.where(np.arange(x.size) == i, max(x[i] - h, lo[i]), x)) - f
+            sides[i] = -1.0 if down < up else 1.0
+        return sides
+
+    def piece_bounds(x, sides):
+        """Keep each kinked slider inside the piece it enters: the tents are then exactly linear."""
+        lo2, hi2 = lo.copy(), hi.copy()
+        for i in kinked:
+            a, b = model.segment(i, x[i], int(sides[i]))
+            lo2[i], hi2[i] = max(lo[i], a), min(hi[i], b)
+        return lo2, hi2
+
+    def descend(x):
+        total, status = 0, 0
+        f = true_obj(x)
+        for _ in range(max_iter):
+            sides = choose_sides(x, f)
+            lo2, hi2 = piece_bounds(x, sides)
+            R, m = rows.linearised(targets, x, sides)
+            cand, it, st = _solve_linearised(R, m, w0, alpha, mu, prior, lo2, hi2, x, snap_term)
+            total += it
+            status = max(status, st)
+            step = cand - x
+            t, f_new = 1.0, true_obj(cand)
+            while f_new > f and t > 1e-6:
+                t *= 0.5
+                f_new = true_obj(x + t * step)
+            if not f_new < f:
+                break
+            done = f - f_new <= tol * max(f, 1e-300)
+            x, f = x + t * step, f_new
+            if done:
+                break
+        return x, f, total, status
+
+    R, m = rows.linearised(targets, x, linear_only=True)
+    x_lin, it0, _ = _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term)
+    a = descend(x)
+    b = descend(x_lin)
+    best = a if a[1] <= b[1] else b
+    return best[0], a[2] + b[2] + it0, best[3]
 
 
 def _solve_pca(rows, targets, w0, alpha, mu, prior, lo, hi):
@@ -501,7 +549,7 @@ def _solve_pca(rows, targets, w0, alpha, mu, prior, lo, hi):
     res = solve_box_qp(2.0 * (alpha + mu), Rz.T, np.full(Rz.shape[0], 2.0), 2.0 * (Rz.T @ mz + alpha * z0),
                        np.full(L.shape[1], -bound), np.full(L.shape[1], bound), x0=np.clip(z0, -bound, bound))
     w = np.clip(prior.mean + L @ res.x, lo, hi)   # Blender clamps sliders to their range anyway
-    return w, res.iterations
+    return w, res.iterations, res.status
 
 
 def _warnings(rows, pins, targets, residuals):

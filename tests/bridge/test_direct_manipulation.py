@@ -235,3 +235,34 @@ def test_overlay_draws_pins_offscreen(registered):
     assert colour_near(current[0], overlay.PIN_COLOR[:3])
     assert colour_near(current[1], overlay.STILL_COLOR[:3])
     assert colour_near(goal[0], overlay.TARGET_COLOR[:3])
+
+
+def test_muted_masked_and_extended_range_keys_in_a_drag(registered):
+    ob = _facecap()
+    blocks = ob.data.shape_keys.key_blocks
+    group = ob.vertex_groups.new(name="lower")
+    co = np.empty(len(ob.data.vertices) * 3, np.float32)
+    ob.data.vertices.foreach_get("co", co)
+    z = co.reshape(-1, 3)[:, 2]
+    group.add(np.flatnonzero(z < np.median(z)).tolist(), 0.5, "REPLACE")
+    blocks["jawOpen"].vertex_group = "lower"
+    blocks["mouthSmile_L"].mute = True
+    blocks["mouthSmile_L"].value = 0.3
+    blocks["browInnerUp"].slider_min, blocks["browInnerUp"].slider_max = -1.0, 2.0
+    model = shapekeys.read_blendshape_model(ob)
+    rng = np.random.default_rng(8)
+    goal_w = np.zeros(model.n_targets)
+    goal_w[model.index("browInnerUp")] = 1.7
+    goal_w[model.index("jawOpen")] = 0.8
+    verts = rng.choice(model.n_vertices, 10, replace=False)
+    for v in verts:
+        bpy.ops.shapespace.add_pin(vertices=(int(v), 0, 0), use_target=True,
+                                   target=tuple(pin_positions(model, [Pin.at_vertex(int(v))], goal_w)[0]))
+    ob.shapespace.alpha, ob.shapespace.mu = 1e-4, 1e-6
+    assert bpy.ops.shapespace.solve_pins() == {"FINISHED"}
+    w = shapekeys.read_slider_values(ob, model.names)
+    assert w[model.index("mouthSmile_L")] == pytest.approx(0.3)   # muted: left where it was
+    assert -1.0 <= w[model.index("browInnerUp")] <= 2.0
+    assert w[model.index("browInnerUp")] > 1.0                     # used the extended range
+    # what Blender shows is what the solver computed (masks, mute and ranges included)
+    assert rel_error(model.evaluate(w), evaluated(ob)) < 1e-5
