@@ -2,7 +2,7 @@ import bpy
 
 from ..bridge import driven
 from ..core.result import ShapeSpaceError
-from .polls import active_rig
+from .polls import sculpted_key
 
 
 class SHAPESPACE_OT_add_combination(bpy.types.Operator):
@@ -20,13 +20,7 @@ their weights (driven natively: no Python at playback)"""
 
     @classmethod
     def poll(cls, context):
-        ob = active_rig(cls, context)
-        if ob is None:
-            return False
-        if ob.active_shape_key_index == 0:
-            cls.poll_message_set("Make the sculpted combination shape the active shape key")
-            return False
-        return True
+        return sculpted_key(cls, context, "combination") is not None
 
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self)

@@ -2,7 +2,7 @@ import bpy
 
 from ..bridge import driven
 from ..core.result import ShapeSpaceError
-from .polls import active_rig
+from .polls import sculpted_key
 
 
 class SHAPESPACE_OT_add_inbetween(bpy.types.Operator):
@@ -19,13 +19,7 @@ class SHAPESPACE_OT_add_inbetween(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        ob = active_rig(cls, context)
-        if ob is None:
-            return False
-        if ob.active_shape_key_index == 0:
-            cls.poll_message_set("Make the sculpted in-between shape the active shape key")
-            return False
-        return True
+        return sculpted_key(cls, context, "in-between") is not None
 
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self)

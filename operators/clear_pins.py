@@ -1,6 +1,6 @@
 import bpy
 
-from .polls import active_mesh
+from .polls import mesh_with_pins
 
 
 class SHAPESPACE_OT_clear_pins(bpy.types.Operator):
@@ -12,13 +12,7 @@ class SHAPESPACE_OT_clear_pins(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        ob = active_mesh(cls, context)
-        if ob is None:
-            return False
-        if not len(ob.shapespace.pins):
-            cls.poll_message_set("The mesh has no pins")
-            return False
-        return True
+        return mesh_with_pins(cls, context) is not None
 
     def execute(self, context):
         context.active_object.shapespace.pins.clear()

@@ -1,7 +1,7 @@
 import bpy
 
 from ..bridge import actions, shapekeys
-from .polls import active_mesh
+from .polls import active_rig
 
 
 class SHAPESPACE_OT_key_sliders(bpy.types.Operator):
@@ -16,13 +16,7 @@ class SHAPESPACE_OT_key_sliders(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        ob = active_mesh(cls, context)
-        if ob is None:
-            return False
-        if ob.data.shape_keys is None or len(ob.data.shape_keys.key_blocks) < 2:
-            cls.poll_message_set("The mesh has no shape keys to key")
-            return False
-        return True
+        return active_rig(cls, context) is not None
 
     def execute(self, context):
         ob = context.active_object

@@ -30,3 +30,25 @@ def pinnable_rig(cls, context):
         cls.poll_message_set("Switch the ShapeSpace mode to Direct or Learned")
         return None
     return ob
+
+
+def mesh_with_pins(cls, context):
+    """The active mesh when it has pins; otherwise say why and return None."""
+    ob = active_mesh(cls, context)
+    if ob is None:
+        return None
+    if not len(ob.shapespace.pins):
+        cls.poll_message_set("The mesh has no pins")
+        return None
+    return ob
+
+
+def sculpted_key(cls, context, what: str):
+    """The active rig when its active shape key is a target (not the basis); otherwise say why."""
+    ob = active_rig(cls, context)
+    if ob is None:
+        return None
+    if ob.active_shape_key_index == 0:
+        cls.poll_message_set(f"Make the sculpted {what} shape the active shape key")
+        return None
+    return ob

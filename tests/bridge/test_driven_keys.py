@@ -87,3 +87,33 @@ def test_driven_key_bad_input_leaves_file_unchanged():
     with pytest.raises(ShapeSpaceError, match="2 or 3 different"):
         driven.add_combination(ob, ["jawOpen"], "mouthClose")
     assert blend_fingerprint() == before
+
+
+def test_inbetween_and_combination_operators(registered):
+    ob = _facecap()
+    bpy.context.view_layer.objects.active = ob
+    rng = np.random.default_rng(4)
+    _sculpt(ob, "jawHalf", {"jawOpen": 0.5}, 0.02, rng)
+    ob.active_shape_key_index = ob.data.shape_keys.key_blocks.find("jawHalf")
+    assert bpy.ops.shapespace.add_inbetween(primary="jawOpen", weight=0.5) == {"FINISHED"}
+    assert "jawHalf" not in ob.data.shape_keys.key_blocks
+    sculpt = _sculpt(ob, "browCombo", {"browInnerUp": 1.0, "browOuterUp_L": 1.0}, 0.02, rng)
+    ob.active_shape_key_index = ob.data.shape_keys.key_blocks.find("browCombo")
+    assert bpy.ops.shapespace.add_combination(first="browInnerUp", second="browOuterUp_L") == {"FINISHED"}
+    model = shapekeys.read_blendshape_model(ob)
+    assert len(model.inbetweens) == 1 and len(model.combinations) == 1
+    w = np.zeros(model.n_targets)
+    w[[model.index("browInnerUp"), model.index("browOuterUp_L")]] = 1.0
+    shapekeys.write_slider_values(ob, model.names, w)
+    assert rel_error(evaluated(ob), sculpt) < 1e-6
+    # bad input: the operator cancels with the reason and changes nothing
+    _sculpt(ob, "other", {"jawOpen": 0.2}, 0.01, rng)
+    ob.active_shape_key_index = ob.data.shape_keys.key_blocks.find("other")
+    before = blend_fingerprint()
+    with pytest.raises(RuntimeError, match="no shape key named 'nope'"):
+        bpy.ops.shapespace.add_inbetween(primary="nope", weight=0.3)
+    with pytest.raises(RuntimeError, match="already has an in-between at 0.5"):
+        bpy.ops.shapespace.add_inbetween(primary="jawOpen", weight=0.5)
+    assert blend_fingerprint() == before
+    ob.active_shape_key_index = 0
+    assert not bpy.ops.shapespace.add_inbetween.poll()
