@@ -150,8 +150,11 @@ def prior_from_settings(obj, model):
     return train_prior(weights, model.names)
 
 
-def solve_pins(obj, depsgraph=None, x0=None, model=None, prior=None, w0=None):
-    """Solve for the sliders from the stored pins and write them; return the DragResult."""
+def solve_pins(obj, x0=None, model=None, prior=None, w0=None, warm=None):
+    """Solve for the sliders from the stored pins and write them; return the DragResult.
+
+    ``warm`` is the previous mouse-move's result (its weights, duals and pin rows are reused).
+    """
     model = model or shapekeys.read_blendshape_model(obj)
     check_pins(obj)
     pins, targets, _ = read_pins(obj)
@@ -160,7 +163,8 @@ def solve_pins(obj, depsgraph=None, x0=None, model=None, prior=None, w0=None):
         prior = prior_from_settings(obj, model)
     w0 = model.values if w0 is None else w0
     result = solve_drag(model, pins, targets, w0, alpha=st.alpha, mu=st.mu, prior=prior,
-                        prior_form="pca" if st.prior_form == "PCA" else "covariance", snap=st.snap, x0=x0)
+                        prior_form="pca" if st.prior_form == "PCA" else "covariance", snap=st.snap, x0=x0,
+                        warm=warm)
     shapekeys.write_slider_values(obj, model.names, result.weights)
     return result
 

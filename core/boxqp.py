@@ -194,6 +194,7 @@ def solve_box_lsq_dual(R, m, c, b, lo, hi, dual0=None, tol=1e-14, max_iter=100) 
     if not c > 0:
         raise ShapeSpaceError(f"c must be positive, got {c}", "shape")
     lam = np.zeros(q) if dual0 is None else np.asarray(dual0, dtype=np.float64).reshape(q).copy()
+    gram = R @ R.T
 
     def parts(lam):
         x = np.clip(b - (R.T @ lam) / (2 * c), lo, hi)
@@ -204,6 +205,8 @@ def solve_box_lsq_dual(R, m, c, b, lo, hi, dual0=None, tol=1e-14, max_iter=100) 
 
     x, rx, d = parts(lam)
     gap = np.inf
+    H = None
+    free_prev = None
     for it in range(max_iter + 1):
         res = rx - m
         primal = res @ res + c * ((x - b) @ (x - b))
@@ -214,8 +217,27 @@ def solve_box_lsq_dual(R, m, c, b, lo, hi, dual0=None, tol=1e-14, max_iter=100) 
             break
         grad = res - 0.5 * lam
         free = (x > lo) & (x < hi)
-        H = (R * free) @ R.T / (2 * c)
-        H.flat[::q + 1] += 0.5
+        if H is None or it % 10 == 0:
+            # H = ½I + R_F R_Fᵀ/(2c), built from whichever of the free/bound column sets is smaller
+            if 2 * free.sum() <= n:
+                Rf = R[:, free]
+                H = Rf @ Rf.T
+            else:
+                Rb = R[:, ~free]
+                H = gram - Rb @ Rb.T if Rb.shape[1] else gram.copy()
+            H /= 2 * c
+            H.flat[::q + 1] += 0.5
+        else:
+            # the free set changes in a few coordinates between iterations: rank updates
+            entered = free & ~free_prev
+            left = free_prev & ~free
+            if entered.any():
+                Re = R[:, entered]
+                H += Re @ Re.T / (2 * c)
+            if left.any():
+                Rl = R[:, left]
+                H -= Rl @ Rl.T / (2 * c)
+        free_prev = free
         step = np.linalg.solve(H, grad)
         t, slope = 1.0, grad @ step
         while True:

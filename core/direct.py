@@ -137,8 +137,9 @@ def pin_matrix(model: BlendshapeModel, pins, deltas=None) -> np.ndarray:
 
 def _rows(model, idx, bary, deltas=None):
     d = model.deltas if deltas is None else deltas
-    rows = np.einsum("kc,tkcx->kxt", bary, d[:, idx, :])     # (k, 3, t)
-    rows = rows.reshape(-1, d.shape[0])
+    gathered = d[:, idx, :]                                   # (t, k, 3 vertices, 3 coords)
+    rows = (gathered * bary[None, :, :, None]).sum(axis=2)    # (t, k, 3)
+    rows = np.ascontiguousarray(rows.reshape(d.shape[0], -1).T)  # (3k, t)
     if deltas is None:
         rows[:, model.mute] = 0.0
     return rows
@@ -362,7 +363,7 @@ def _snap_term(prior: WeightPrior, w, dims=3):
 
 def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.1, mu: float = 0.001,
                prior: WeightPrior = None, prior_form: str = "covariance", snap: bool = False,
-               x0=None, gn_tol: float = 1e-10, gn_max_iter: int = 30) -> DragResult:
+               x0=None, warm: "DragResult" = None, gn_tol: float = 1e-10, gn_max_iter: int = 30) -> DragResult:
     """Solve for slider values that take the pins to their targets (thesis Eq. 4.5, 4.8, 4.9).
 
     Parameters
@@ -383,7 +384,10 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
     snap : bool
         Mode snapping (Eq. 4.9) after the solve; needs ``prior``.
     x0 : array_like, shape (n,), optional
-        Warm start (e.g. the previous mouse-move's solution).
+        Primal warm start.
+    warm : DragResult, optional
+        The previous mouse-move's result: its weights and dual variables
+        warm-start this solve (the active set changes little during a drag).
 
     Returns
     -------
@@ -398,12 +402,19 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
         prior = prior.aligned(model.names)
     if prior_form not in ("covariance", "pca"):
         raise ShapeSpaceError(f"prior_form must be 'covariance' or 'pca', got {prior_form!r}", "range")
-    rows = _PinRows(model, pins)
+    key = tuple((tuple(p.vertices), tuple(p.weights)) for p in pins)
+    cached = warm.diagnostics.get("_rows") if warm is not None else None
+    rows = cached if cached is not None and cached.key == key and cached.model is model else _PinRows(model, pins)
+    rows.key = key
     lo, hi = _bounds(model, w0)
     x = np.clip(w0 if x0 is None else np.asarray(x0, dtype=np.float64), lo, hi)
     total_it = 0
     solver_status = 0
     diag = {"unit": rows.unit}
+    warm_dual = None
+    if warm is not None and len(warm.weights) == model.n_targets:
+        x = np.clip(warm.weights, lo, hi) if x0 is None else x
+        warm_dual = warm.diagnostics.get("dual")
     if prior is not None and prior_form == "pca":
         x, total_it, solver_status = _solve_pca(rows, targets, w0, alpha, mu, prior, lo, hi)
         diag["prior_form"] = "pca"
@@ -412,7 +423,7 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
         passes = 2 if snap else 1
         for pass_ in range(passes):
             x, it, st = _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, gn_tol,
-                                      gn_max_iter)
+                                      gn_max_iter, warm_dual, diag)
             total_it += it
             solver_status = max(solver_status, st)
             if snap and pass_ == 0:
@@ -427,18 +438,24 @@ def solve_drag(model: BlendshapeModel, pins, targets, w0=None, alpha: float = 0.
     if solver_status:
         messages.append("the solver stopped before full convergence (weights are the best found)")
     obj = rows.objective(targets, x, w0, alpha, mu, prior if prior_form == "covariance" else None)
-    diag.update({"clamped": int(np.sum((x <= lo + 1e-12) | (x >= hi - 1e-12)))})
+    diag.update({"clamped": int(np.sum((x <= lo + 1e-12) | (x >= hi - 1e-12))), "_rows": rows})
     return DragResult(x, obj, residuals, total_it, 1 if messages else 0,
                       "; ".join(messages) if messages else "ok", diag)
 
 
-def _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term):
-    """One bounded QP: data ‖R w − m‖² plus the regularisers; returns (w, iterations)."""
+def _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term, dual=None, out=None):
+    """One bounded QP: data ‖R w − m‖² plus the regularisers; returns (w, iterations, status).
+
+    ``dual`` warm-starts the plain mode's dual solve; ``out`` (dict) receives the final dual.
+    """
     if prior is None and snap_term is None:
         # Eq. 4.5: Hessian (α+μ)I + RᵀR — solved through its 3k-dimensional dual; when the
         # regularisation is so weak that the dual converges slowly, finish in the primal.
         c = alpha + mu
-        res = solve_box_lsq_dual(R, m, c, alpha * w0 / c, lo, hi, dual0=2.0 * (R @ x - m), max_iter=40)
+        dual0 = dual if dual is not None and np.shape(dual) == (R.shape[0],) else None
+        res = solve_box_lsq_dual(R, m, c, alpha * w0 / c, lo, hi, dual0=dual0, max_iter=40)
+        if out is not None:
+            out["dual"] = res.dual
         if res.status == 0:
             return res.x, res.iterations, 0
         p = solve_box_qp(2.0 * c, R.T, np.full(R.shape[0], 2.0), 2.0 * (R.T @ m + alpha * w0), lo, hi, x0=res.x)
@@ -455,7 +472,7 @@ def _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term):
     return res.x, res.iterations, res.status
 
 
-def _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, tol, max_iter):
+def _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, tol, max_iter, dual=None, out=None):
     """Damped Gauss–Newton; a single exact QP for linear rigs.  Returns (w, iterations, status).
 
     In-between tents are piecewise linear, so each step keeps every slider
@@ -471,7 +488,7 @@ def _gauss_newton(rows, targets, w0, alpha, mu, prior, lo, hi, x, snap_term, tol
     """
     if rows.Rd is None:
         R, m = rows.linearised(targets, x)
-        return _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term)
+        return _solve_linearised(R, m, w0, alpha, mu, prior, lo, hi, x, snap_term, dual, out)
 
     def true_obj(w):
         val = rows.objective(targets, w, w0, alpha, mu, prior)

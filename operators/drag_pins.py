@@ -61,6 +61,7 @@ Click near a pin to drag it, Shift-click to pin a point in place, right-click or
         self.start_target = tuple(st.pins[index].target)
         self.anchor_world = meshes.to_world(ob, drag.deformed_pin_positions(ob, depsgraph)[index][None])[0]
         self.solution = self.before[1].copy()
+        self.last = None
         context.window_manager.modal_handler_add(self)
         context.workspace.status_text_set("Drag: move the pin · release to set · right-click/Esc to cancel")
         return {"RUNNING_MODAL"}
@@ -108,8 +109,9 @@ Click near a pin to drag it, Shift-click to pin a point in place, right-click or
         pins, _, _ = drag.read_pins(ob)
         target = drag.deformed_to_shape_space(ob, depsgraph, pins[self.index], self.model, self.solution, local)
         ob.shapespace.pins[self.index].target = target
-        result = drag.solve_pins(ob, x0=self.solution, model=self.model, prior=self.prior, w0=self.before[1])
-        self.solution = result.weights
+        result = drag.solve_pins(ob, x0=self.solution, model=self.model, prior=self.prior, w0=self.before[1],
+                                 warm=self.last)
+        self.solution, self.last = result.weights, result
         context.area.header_text_set(f"ShapeSpace: largest pin error {result.residuals.max():.3g}")
 
     def _restore(self, ob):

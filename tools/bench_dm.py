@@ -112,13 +112,14 @@ def solve_speed(quick):
             cold_ms, res = timed(lambda: solve_drag(model, pins, targets, w0), reps)
             # interactive: the same drag reached through 10 mouse moves, each warm-started
             path = [pins_t for pins_t in np.linspace(0.1, 1.0, 10)]
-            start = solve_drag(model, pins, pin_rest(model, pins), w0).weights
+            rest = pin_rest(model, pins)
+            start = solve_drag(model, pins, rest, w0)
 
             def drag_sequence():
-                x = start
+                last = start
                 for t in path:
-                    x = solve_drag(model, pins, (1 - t) * pin_rest(model, pins) + t * targets, w0, x0=x).weights
-                return x
+                    last = solve_drag(model, pins, (1 - t) * rest + t * targets, w0, warm=last)
+                return last
             warm_ms, _ = timed(drag_sequence, reps)
             warm_ms /= len(path)
             pr = peers(P, q, lo, hi, R, m, w0, 0.1, 0.001, max(1, reps // 3))
@@ -172,12 +173,12 @@ def update_overhead(quick):
         meshes.evaluated_positions(ob, depsgraph)
     blender_ms = (time.perf_counter() - t) / steps * 1e3
     # full update: move pin 0's target, solve (warm), write, re-evaluate
-    x = np.zeros(model.n_targets)
+    last = None
     zeros = np.zeros(model.n_targets)
     t = time.perf_counter()
     for w in goals:
         ob.shapespace.pins[0].target = pin_positions(model, pins[:1], w)[0]
-        x = drag.solve_pins(ob, x0=x, model=model, w0=zeros).weights
+        last = drag.solve_pins(ob, model=model, w0=zeros, warm=last)
         meshes.evaluated_positions(ob, depsgraph)
     full_ms = (time.perf_counter() - t) / steps * 1e3
     return {"update_blender_eval_ms": blender_ms, "update_full_ms": full_ms,

@@ -33,6 +33,11 @@ seen["check_rig"] = sorted(bpy.ops.shapespace.check_rig())
 bpy.context.scene.frame_set(10)
 seen["key_sliders"] = sorted(bpy.ops.shapespace.key_sliders())
 
+head.data.shape_keys.animation_data.action = None
+seen["add_pin"] = sorted(bpy.ops.shapespace.add_pin(vertices=(100, 0, 0)))
+target = tuple(head.shapespace.pins[0].target)
+seen["solve_pins"] = sorted(bpy.ops.shapespace.solve_pins(pin=0, target=(target[0], target[1] - 800.0, target[2])))
+
 buf = io.StringIO()
 with contextlib.redirect_stdout(buf):
     seen["cli_exit"] = ext.cli.main(["info"])

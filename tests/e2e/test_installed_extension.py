@@ -56,6 +56,7 @@ def test_install_enable_run_operator_and_cli(built_zips, tmp_path):
     assert seen["cli_registered"]
     assert "scipy" in seen["wheel_dirs"] and seen["site_on_path"]
     assert seen["check_rig"] == ["FINISHED"] and seen["key_sliders"] == ["FINISHED"]
+    assert seen["add_pin"] == ["FINISHED"] and seen["solve_pins"] == ["FINISHED"]
     assert seen["cli_exit"] == 0
     head = {m["object"]: m for m in seen["cli_json"]["shape_key_meshes"]}["Mesh_2"]
     assert head["shape_keys"] == 52
