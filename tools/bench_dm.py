@@ -175,9 +175,10 @@ def update_overhead(quick):
     # full update: move pin 0's target, solve (warm), write, re-evaluate
     last = None
     zeros = np.zeros(model.n_targets)
+    mouse_targets = [tuple(pin_positions(model, pins[:1], w)[0]) for w in goals]  # where the mouse goes
     t = time.perf_counter()
-    for w in goals:
-        ob.shapespace.pins[0].target = pin_positions(model, pins[:1], w)[0]
+    for target in mouse_targets:
+        ob.shapespace.pins[0].target = target
         last = drag.solve_pins(ob, model=model, w0=zeros, warm=last)
         meshes.evaluated_positions(ob, depsgraph)
     full_ms = (time.perf_counter() - t) / steps * 1e3
