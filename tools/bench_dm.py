@@ -149,11 +149,19 @@ def pin_rest(model, pins):
 # ------------------------------------------------------------------------ update overhead
 def update_overhead(quick):
     """One drag update in Blender (solve + write sliders + re-evaluation) minus Blender's own re-evaluation."""
+    import package
+    pkg = package.load()
+    pkg.register()
+    try:
+        return _update_overhead(quick)
+    finally:
+        pkg.unregister()  # clean shutdown (bpy can crash at exit with handlers registered)
+
+
+def _update_overhead(quick):
     import bpy
     from shapespace.bridge import assets, drag, meshes, shapekeys
     from shapespace.core.direct import Pin, pin_positions
-    import package
-    package.load().register()
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
     ob = bpy.data.objects["Mesh_2"]
     ob.data.shape_keys.animation_data.action = None

@@ -118,7 +118,14 @@ def run(out_dir: str, size: int = 512) -> dict:
     import numpy as np
     import bpy
     import package
-    package.load(register=True)
+    pkg = package.load(register=True)
+    try:
+        return _run(bpy, np, out_dir, size)
+    finally:
+        pkg.unregister()  # a clean shutdown: bpy 4.2 can crash at exit with handlers still registered
+
+
+def _run(bpy, np, out_dir, size):
     from shapespace.bridge import actions, assets, inventory, meshes, shapekeys
     from shapespace.core.blendshape import bounding_box_diagonal, diagnose_model
 
