@@ -8,6 +8,11 @@ from .check_rig import SHAPESPACE_OT_check_rig
 from .clear_pins import SHAPESPACE_OT_clear_pins
 from .drag_pins import SHAPESPACE_OT_drag_pins
 from .key_sliders import SHAPESPACE_OT_key_sliders
+from .psd_add_example import SHAPESPACE_OT_psd_add_example
+from .psd_apply_example import SHAPESPACE_OT_psd_apply_example
+from .psd_bake import SHAPESPACE_OT_psd_bake
+from .psd_remove_example import SHAPESPACE_OT_psd_remove_example
+from .psd_update import SHAPESPACE_OT_psd_update
 from .remove_pin import SHAPESPACE_OT_remove_pin
 from .solve_pins import SHAPESPACE_OT_solve_pins
 
@@ -21,6 +26,11 @@ classes = (
     SHAPESPACE_OT_drag_pins,
     SHAPESPACE_OT_add_inbetween,
     SHAPESPACE_OT_add_combination,
+    SHAPESPACE_OT_psd_add_example,
+    SHAPESPACE_OT_psd_apply_example,
+    SHAPESPACE_OT_psd_remove_example,
+    SHAPESPACE_OT_psd_update,
+    SHAPESPACE_OT_psd_bake,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -52,3 +52,19 @@ def sculpted_key(cls, context, what: str):
         cls.poll_message_set(f"Make the sculpted {what} shape the active shape key")
         return None
     return ob
+
+
+def psd_mesh(cls, context, need_example: bool = False):
+    """The active mesh for pose-space correctives (armature-deformed); optionally with an active example."""
+    ob = active_mesh(cls, context)
+    if ob is None:
+        return None
+    if not any(m.type == "ARMATURE" and m.object for m in ob.modifiers) and ob.shapespace_psd.armature is None:
+        cls.poll_message_set("The mesh has no Armature modifier")
+        return None
+    if need_example:
+        st = ob.shapespace_psd
+        if not 0 <= st.active_example < len(st.examples):
+            cls.poll_message_set("Add an example first")
+            return None
+    return ob

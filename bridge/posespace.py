@@ -1,0 +1,311 @@
+"""Pose-space examples in Blender: reading poses, posed sculpt copies, applying sculpts as correctives."""
+from __future__ import annotations
+
+import json
+
+import bpy
+import numpy as np
+
+from ..core.inversion import invert_deformation
+from ..core.posespace import PoseReader, pose_features
+from ..core.psd import example_issues, train_psd
+from ..core.result import ShapeSpaceError
+from ..core.skinning import deform
+from . import meshes, shapekeys, skin
+from .arrays import matrix, read_float, write_float
+
+SCULPT_SUFFIX = "_sculpt"
+
+
+def settings(obj):
+    return obj.shapespace_psd
+
+
+def armature_of(obj):
+    st = settings(obj)
+    if st.armature is not None:
+        return st.armature
+    mods = skin.armature_modifiers(obj)
+    return mods[0].object if mods else None
+
+
+def readers(obj) -> list:
+    return [PoseReader(r.kind.lower(), r.source, r.scale) for r in settings(obj).readers]
+
+
+def _local_quaternion(pose_bone) -> np.ndarray:
+    return np.array(pose_bone.matrix_basis.to_quaternion(), dtype=np.float64)
+
+
+def read_pose(obj) -> np.ndarray:
+    """The current pose-space location of ``obj``'s rig (feature vector)."""
+    arm = armature_of(obj)
+    rs = readers(obj)
+    if not rs:
+        raise ShapeSpaceError("the pose space has no readers: add the bones that drive the correctives",
+                              "no_readers")
+    values = []
+    for r in rs:
+        if r.is_bone:
+            if arm is None:
+                raise ShapeSpaceError(f"{obj.name!r} has no armature to read bone {r.source!r} from", "no_armature")
+            pb = arm.pose.bones.get(r.source)
+            if pb is None:
+                raise ShapeSpaceError(f"bone {r.source!r} no longer exists in {arm.name!r}: was it renamed "
+                                      "or deleted? Fix the pose-space reader", "missing_bone")
+            values.append(np.array(pb.matrix_basis.translation) if r.kind == "location" else _local_quaternion(pb))
+        elif r.kind == "shape_key":
+            blocks = obj.data.shape_keys.key_blocks if obj.data.shape_keys else {}
+            if r.source not in blocks:
+                raise ShapeSpaceError(f"shape key {r.source!r} no longer exists", "missing_key")
+            values.append(blocks[r.source].value)
+        else:
+            owner = arm if arm is not None else obj
+            try:
+                values.append(float(owner.path_resolve(r.source)))
+            except (ValueError, TypeError):
+                raise ShapeSpaceError(f"property {r.source!r} not found on {owner.name!r}", "missing_property") \
+                    from None
+    return pose_features(rs, values)
+
+
+def default_readers(obj) -> list:
+    """Rotation readers for every deforming bone posed away from rest (a sensible first pose space)."""
+    arm = armature_of(obj)
+    if arm is None:
+        raise ShapeSpaceError(f"{obj.name!r} has no Armature modifier", "no_armature")
+    out = []
+    for pb in arm.pose.bones:
+        q = _local_quaternion(pb)
+        if pb.bone.use_deform and abs(abs(q[0]) - 1.0) > 1e-6:
+            out.append(pb.name)
+    return out
+
+
+def correctives_meta(obj) -> dict:
+    """``{example key name: {"pose": [...], "pseudo": [...] or None}}`` from the examples list."""
+    out = {}
+    for ex in settings(obj).examples:
+        out[ex.name] = {"pose": json.loads(ex.pose) if ex.pose else None,
+                        "pseudo": json.loads(ex.pseudo_pose) if ex.pseudo_pose else None}
+    return out
+
+
+def _example_keys(obj) -> set:
+    return {ex.name for ex in settings(obj).examples} | {WPSD_KEY}
+
+
+def pre_armature_positions(obj) -> np.ndarray:
+    """Mesh positions before the Armature modifier, without the pose-space correctives (object space)."""
+    model = shapekeys.read_blendshape_model(obj)
+    w = model.values.copy()
+    for name in _example_keys(obj):
+        if name in model.names:
+            w[model.index(name)] = 0.0
+    return model.evaluate(w)
+
+
+def check_topology(obj) -> None:
+    if obj.data.shape_keys is not None:
+        errors = [i for i in shapekeys.check_shape_keys(obj) if i.severity == "error" and i.code != "no_targets"]
+        if errors:
+            raise ShapeSpaceError(errors[0].message, errors[0].code)
+
+
+def add_example(obj, name: str = None, make_sculpt_copy: bool = True):
+    """Record the current pose as a new example, create its (empty) corrective key and a posed copy to sculpt."""
+    check_topology(obj)
+    st = settings(obj)
+    if not len(st.readers):
+        for bone in default_readers(obj):
+            r = st.readers.add()
+            r.kind, r.source, r.scale = "ROTATION", bone, 1.0
+        if not len(st.readers):
+            raise ShapeSpaceError("pose the rig away from its rest pose first (no bone is rotated), or add "
+                                  "pose-space readers by hand", "no_readers")
+    pose = read_pose(obj)
+    if obj.data.shape_keys is None:
+        obj.shape_key_add(name="Basis", from_mix=False)
+    name = name or f"PSD_{len(st.examples) + 1:02d}"
+    kb = obj.shape_key_add(name=name, from_mix=False)
+    kb.slider_min, kb.slider_max = -10.0, 10.0   # cardinal weights may leave [0, 1]
+    kb.value = 0.0
+    ex = st.examples.add()
+    ex.name = kb.name
+    ex.pose = json.dumps([float(v) for v in pose])
+    st.active_example = len(st.examples) - 1
+    st.revision += 1
+    copy = make_sculpt_copy and posed_copy(obj, kb.name + SCULPT_SUFFIX)
+    if copy:
+        ex.sculpt = copy
+    return ex.name
+
+
+def posed_copy(obj, name: str):
+    """A plain mesh object holding ``obj``'s evaluated (posed) surface, at the same place, for sculpting."""
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    depsgraph.update()
+    ob_eval = obj.evaluated_get(depsgraph)
+    mesh = bpy.data.meshes.new_from_object(ob_eval)
+    mesh.name = name
+    copy = bpy.data.objects.new(name, mesh)
+    copy.matrix_world = obj.matrix_world.copy()
+    for coll in obj.users_collection:
+        coll.objects.link(copy)
+    return copy
+
+
+def apply_example(obj, example_name: str, sculpt_positions=None):
+    """Invert the example's sculpt to rest space and store it in the example's shape key.
+
+    ``sculpt_positions`` (p, 3) in ``obj``'s object space; default: the sculpt copy's vertices.
+    Returns the InversionResult.
+    """
+    check_topology(obj)
+    st = settings(obj)
+    ex = st.examples.get(example_name)
+    if ex is None:
+        raise ShapeSpaceError(f"there is no example {example_name!r}", "missing_example")
+    p = len(obj.data.vertices)
+    if sculpt_positions is None:
+        if ex.sculpt is None:
+            raise ShapeSpaceError(f"example {example_name!r} has no sculpt copy: give sculpt positions", "no_sculpt")
+        if len(ex.sculpt.data.vertices) != p:
+            raise ShapeSpaceError(f"the sculpt copy of {example_name!r} has {len(ex.sculpt.data.vertices)} "
+                                  f"vertices, the mesh has {p}: the topology changed", "vertex_count")
+        world = meshes.to_world(ex.sculpt, meshes.vertex_positions(ex.sculpt.data))
+        sculpt_positions = meshes.to_local(obj, world)
+    sculpt_positions = np.asarray(sculpt_positions, dtype=np.float64)
+    if sculpt_positions.shape != (p, 3):
+        raise ShapeSpaceError(f"sculpt positions must have shape ({p}, 3)", "shape")
+    rest = pre_armature_positions(obj)
+    if skin.armature_modifiers(obj):
+        rig = skin.read_skinning(obj)
+        poses = skin.modifier_poses(obj)
+        result = invert_deformation(lambda x: deform(x, rig, poses), rest, sculpt_positions)
+    else:
+        from ..core.inversion import InversionResult
+        result = InversionResult(sculpt_positions - rest, 0.0, 0, 0, "no armature: the sculpt is the corrective")
+    key = obj.data.shape_keys
+    basis = read_float(key.reference_key.data, "co", 3).astype(np.float64)
+    write_float(key.key_blocks[example_name].data, "co", basis + result.corrective)
+    obj.data.update()
+    st.revision += 1
+    return result
+
+
+def trained_deformer(obj):
+    """Train the object's pose-space deformer from its examples (muted examples left out)."""
+    st = settings(obj)
+    key = obj.data.shape_keys
+    active = [ex for ex in st.examples if not ex.mute]
+    if not active:
+        raise ShapeSpaceError("no (unmuted) examples to interpolate", "no_examples")
+    missing = [ex.name for ex in active if ex.name not in key.key_blocks]
+    if missing:
+        raise ShapeSpaceError(f"the corrective keys {', '.join(missing)} were deleted", "missing_key")
+    n_features = sum(r.dims for r in readers(obj))
+    poses = []
+    for ex in active:
+        pose = json.loads(ex.pseudo_pose or ex.pose)
+        if len(pose) != n_features:
+            raise ShapeSpaceError(f"example {ex.name!r} was recorded with a different pose space; record it "
+                                  "again", "stale_example")
+        poses.append(pose)
+    basis = read_float(key.reference_key.data, "co", 3).astype(np.float64)
+    D = np.stack([read_float(key.key_blocks[ex.name].data, "co", 3).astype(np.float64) - basis for ex in active])
+    method = st.method.lower()
+    kwargs = {}
+    if method == "wpsd":
+        kwargs = _skin_groups(obj)
+    return train_psd(np.array(poses), D, method, **kwargs), [ex.name for ex in active]
+
+
+def _skin_groups(obj):
+    rs = readers(obj)
+    from ..core.posespace import feature_groups
+    groups = feature_groups(rs)
+    sources = list(groups)
+    rig = skin.read_skinning(obj)
+    d = rig.deformers[0]
+    lookup = {name: i for i, name in enumerate(sources)}
+    remap = np.array([lookup.get(b, -1) for b in d.bone_names] + [-1])
+    gi = remap[d.weights.bone_index]
+    gw = np.where(gi >= 0, d.weights.weight, 0.0)
+    return {"vertex_groups": gi, "vertex_weights": gw, "group_columns": [groups[s] for s in sources]}
+
+
+def flag_examples(obj) -> list:
+    """Recompute duplicate/conflict/outlier flags on the examples; returns the issues."""
+    st = settings(obj)
+    key = obj.data.shape_keys
+    exs = list(st.examples)
+    if not exs or key is None:
+        return []
+    basis = read_float(key.reference_key.data, "co", 3).astype(np.float64)
+    poses = [json.loads(ex.pseudo_pose or ex.pose) for ex in exs]
+    if len({len(p) for p in poses}) != 1:
+        return []
+    D = np.stack([read_float(key.key_blocks[ex.name].data, "co", 3).astype(np.float64) - basis
+                  if ex.name in key.key_blocks else np.zeros_like(basis) for ex in exs])
+    issues = example_issues(np.array(poses), D, [ex.name for ex in exs])
+    for ex in exs:
+        ex.flags = ", ".join(sorted({i.code.replace("_", " ") for i in issues if ex.name in i.items}))
+    return issues
+
+
+def preview(obj, deformer=None, names=None) -> np.ndarray:
+    """Set the correctives for the current pose; returns the applied weights (PSD/SbE) or displacement."""
+    if deformer is None:
+        deformer, names = trained_deformer(obj)
+    pose = read_pose(obj)
+    if deformer.method == "wpsd":
+        disp = deformer.evaluate(pose)
+        write_wpsd_preview(obj, disp, names)
+        return disp
+    w = deformer.weights(pose)
+    shapekeys.write_slider_values(obj, names, w)
+    return w
+
+
+WPSD_KEY = "ShapeSpace_WPSD"
+
+
+def write_wpsd_preview(obj, disp, names) -> None:
+    """Weighted PSD is per vertex: its result lives in one key; the example keys stay at 0."""
+    key = obj.data.shape_keys
+    if WPSD_KEY not in key.key_blocks:
+        obj.shape_key_add(name=WPSD_KEY, from_mix=False)
+    key = obj.data.shape_keys
+    basis = read_float(key.reference_key.data, "co", 3).astype(np.float64)
+    write_float(key.key_blocks[WPSD_KEY].data, "co", basis + disp)
+    key.key_blocks[WPSD_KEY].value = 1.0
+    shapekeys.write_slider_values(obj, names, np.zeros(len(names)))
+
+
+def world_matrix_of(obj):
+    return matrix(obj.matrix_world)
+
+
+def bake_weights(obj, scene, start: int, end: int) -> int:
+    """Key every example key's weight on every frame of [start, end] (playback without the add-on)."""
+    from . import actions
+    deformer, names = trained_deformer(obj)
+    if deformer.method == "wpsd":
+        raise ShapeSpaceError("weighted PSD is per vertex and cannot be baked into example keys", "method")
+    frames = np.arange(start, end + 1, dtype=np.float64)
+    current = scene.frame_current
+    weights = np.empty((frames.size, len(names)))
+    try:
+        for i, f in enumerate(frames):
+            scene.frame_set(int(f))
+            weights[i] = deformer.weights(read_pose(obj))
+    finally:
+        scene.frame_set(current)
+    key = obj.data.shape_keys
+    action = actions.active_action(key)
+    if action is None:
+        action = actions.new_action(key, f"{obj.name}_PSD")
+    for j, name in enumerate(names):
+        actions.write_curve(key, actions.shape_key_path(name), frames, weights[:, j])
+    return len(names)

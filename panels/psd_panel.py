@@ -1,0 +1,54 @@
+import bpy
+
+
+class SHAPESPACE_UL_examples(bpy.types.UIList):
+    """Pose-space examples of the active mesh"""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index):
+        row = layout.row(align=True)
+        row.prop(item, "mute", text="", icon="HIDE_ON" if item.mute else "HIDE_OFF", emboss=False)
+        row.label(text=item.name, icon="SHAPEKEY_DATA")
+        if item.flags:
+            row.label(text=item.flags, icon="ERROR")
+
+
+class SHAPESPACE_UL_readers(bpy.types.UIList):
+    """Controls that make up the pose space"""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index):
+        row = layout.row(align=True)
+        row.prop(item, "kind", text="")
+        row.prop(item, "source", text="")
+        row.prop(item, "scale", text="")
+
+
+class SHAPESPACE_PT_correctives(bpy.types.Panel):
+    """Pose-space correctives: sculpt at a pose, interpolate in pose space"""
+
+    bl_label = "Pose-Space Correctives"
+    bl_idname = "SHAPESPACE_PT_correctives"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "ShapeSpace"
+
+    @classmethod
+    def poll(cls, context):
+        ob = context.active_object
+        return ob is not None and ob.type == "MESH" and any(m.type == "ARMATURE" for m in ob.modifiers)
+
+    def draw(self, context):
+        layout = self.layout
+        st = context.active_object.shapespace_psd
+        layout.prop(st, "method")
+        layout.prop(st, "live_preview")
+        layout.label(text="Pose space")
+        layout.template_list("SHAPESPACE_UL_readers", "", st, "readers", st, "active_reader", rows=2)
+        layout.label(text="Examples")
+        layout.template_list("SHAPESPACE_UL_examples", "", st, "examples", st, "active_example", rows=3)
+        row = layout.row(align=True)
+        row.operator("shapespace.psd_add_example", icon="ADD")
+        row.operator("shapespace.psd_apply_example", icon="CHECKMARK")
+        row.operator("shapespace.psd_remove_example", icon="REMOVE", text="")
+        row = layout.row(align=True)
+        row.operator("shapespace.psd_update", icon="FILE_REFRESH")
+        row.operator("shapespace.psd_bake", icon="REC")

@@ -1,0 +1,185 @@
+"""Pose-space correctives in Blender: add example, sculpt, apply (inversion), interpolate, preview, bake."""
+import json
+
+import numpy as np
+import pytest
+
+from support import shared
+from blender_support import SS, blend_fingerprint, bpy, evaluated, import_file
+from shapespace.bridge import meshes, posespace, skin
+from shapespace.core.blendshape import bounding_box_diagonal
+
+TOL = 1e-5
+
+
+def _cesium(dqs=False):
+    import_file(shared("cesium_man", "CesiumMan.glb"))
+    ob = bpy.data.objects["Cesium_Man"]
+    arm = bpy.data.objects["Armature"]
+    arm.animation_data.action = None
+    for pb in arm.pose.bones:
+        pb.rotation_mode = "QUATERNION"
+        pb.rotation_quaternion = (1, 0, 0, 0)
+    for m in skin.armature_modifiers(ob):
+        m.use_deform_preserve_volume = dqs
+    bpy.context.view_layer.objects.active = ob
+    return ob, arm
+
+
+def _pose(arm, bone, q):
+    arm.pose.bones[bone].rotation_quaternion = q
+    bpy.context.view_layer.update()
+
+
+def _sculpt(ob, example, seed, amount=0.01):
+    """Push a smooth bump into the example's posed copy; return the wanted positions (object space)."""
+    st = ob.shapespace_psd
+    copy = st.examples[example].sculpt
+    co = meshes.vertex_positions(copy.data).astype(np.float64)
+    rng = np.random.default_rng(seed)
+    centre = co[rng.integers(len(co))]
+    size = bounding_box_diagonal(co)
+    fall = np.exp(-np.sum((co - centre) ** 2, axis=1) / (0.1 * size) ** 2)
+    co = co + amount * size * fall[:, None] * rng.normal(size=3)
+    copy.data.vertices.foreach_set("co", co.astype(np.float32).ravel())
+    copy.data.update()
+    return meshes.to_local(ob, meshes.to_world(copy, co))
+
+
+@pytest.mark.parametrize("dqs", [False, True], ids=["lbs", "dqs"])
+def test_apply_round_trip_matches_the_sculpt(registered, dqs):
+    ob, arm = _cesium(dqs)
+    bone = arm.pose.bones[5].name
+    _pose(arm, bone, (0.9, 0.3, 0.2, 0.1))
+    assert bpy.ops.shapespace.psd_add_example() == {"FINISHED"}
+    st = ob.shapespace_psd
+    assert [r.source for r in st.readers] == [bone]       # default pose space: the posed bone
+    wanted = _sculpt(ob, st.examples[0].name, 1)
+    assert bpy.ops.shapespace.psd_apply_example() == {"FINISHED"}
+    assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
+    got = evaluated(ob)
+    assert np.abs(got - wanted).max() / bounding_box_diagonal(wanted) < TOL
+
+
+@pytest.mark.parametrize("method", ["PSD", "SBE", "WPSD"])
+def test_each_example_is_reproduced_at_its_pose_and_blends_between(registered, method):
+    ob, arm = _cesium()
+    st = ob.shapespace_psd
+    st.method = method
+    b1, b2 = arm.pose.bones[5].name, arm.pose.bones[9].name
+    poses = [((0.9, 0.3, 0.2, 0.1), (1, 0, 0, 0)), ((1, 0, 0, 0), (0.8, -0.4, 0.3, 0.2)),
+             ((0.85, 0.2, -0.4, 0.1), (0.9, 0.1, 0.3, -0.2))]
+    wanted = []
+    for i, (q1, q2) in enumerate(poses):
+        _pose(arm, b1, q1)
+        _pose(arm, b2, q2)
+        if i == 0:
+            st.readers.add().source = b1
+            st.readers.add().source = b2
+        bpy.ops.shapespace.psd_add_example()
+        wanted.append(_sculpt(ob, st.examples[i].name, 10 + i))
+        st.active_example = i
+        bpy.ops.shapespace.psd_apply_example()
+    for i, (q1, q2) in enumerate(poses):
+        _pose(arm, b1, q1)
+        _pose(arm, b2, q2)
+        assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
+        err = np.abs(evaluated(ob) - wanted[i]).max() / bounding_box_diagonal(wanted[i])
+        assert err < TOL, (method, i, err)
+
+
+def test_live_preview_follows_the_pose_and_bake_plays_without_the_add_on(registered, tmp_path):
+    ob, arm = _cesium()
+    st = ob.shapespace_psd
+    bone = arm.pose.bones[5].name
+    for i, q in enumerate([(0.9, 0.3, 0.2, 0.1), (0.9, -0.3, 0.1, 0.2)]):
+        _pose(arm, bone, q)
+        bpy.ops.shapespace.psd_add_example()
+        _sculpt(ob, st.examples[i].name, 20 + i)
+        st.active_example = i
+        bpy.ops.shapespace.psd_apply_example()
+    # animate the bone through both examples
+    pb = arm.pose.bones[bone]
+    scene = bpy.context.scene
+    for f, q in ((1, (1, 0, 0, 0)), (10, (0.9, 0.3, 0.2, 0.1)), (20, (0.9, -0.3, 0.1, 0.2))):
+        pb.rotation_quaternion = q
+        pb.keyframe_insert("rotation_quaternion", frame=f)
+    st.live_preview = True
+    preview = {}
+    for f in (4, 10, 15):
+        scene.frame_set(f)       # the frame handler updates the correctives
+        preview[f] = evaluated(ob)
+    keys = ob.data.shape_keys.key_blocks
+    scene.frame_set(10)
+    assert keys[st.examples[0].name].value == pytest.approx(1.0, abs=1e-6)
+    st.live_preview = False
+    assert bpy.ops.shapespace.psd_bake(frame_start=1, frame_end=20) == {"FINISHED"}
+    path = str(tmp_path / "baked.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    SS.unregister()
+    try:
+        bpy.ops.wm.open_mainfile(filepath=path)
+        ob2 = bpy.data.objects["Cesium_Man"]
+        for f, want in preview.items():
+            bpy.context.scene.frame_set(f)
+            got = evaluated(ob2)
+            assert np.abs(got - want).max() / bounding_box_diagonal(want) < TOL, f
+    finally:
+        SS.register()
+
+
+def test_bad_examples_are_flagged_and_survive(registered, tmp_path):
+    ob, arm = _cesium()
+    st = ob.shapespace_psd
+    bone = arm.pose.bones[5].name
+    _pose(arm, bone, (0.9, 0.3, 0.2, 0.1))
+    bpy.ops.shapespace.psd_add_example()
+    _sculpt(ob, st.examples[0].name, 1)
+    bpy.ops.shapespace.psd_apply_example()
+    bpy.ops.shapespace.psd_add_example()          # the same pose saved twice, a different sculpt
+    _sculpt(ob, st.examples[1].name, 2)
+    st.active_example = 1
+    bpy.ops.shapespace.psd_apply_example()
+    assert "conflicting examples" in st.examples[0].flags and "conflicting examples" in st.examples[1].flags
+    assert bpy.ops.shapespace.psd_update() == {"FINISHED"}          # regularised, not singular
+    assert np.isfinite(evaluated(ob)).all()
+    # save, reload, unregister / re-register with examples present
+    path = str(tmp_path / "examples.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    SS.unregister()
+    SS.register()
+    bpy.ops.wm.open_mainfile(filepath=path)
+    ob = bpy.data.objects["Cesium_Man"]
+    assert [e.name for e in ob.shapespace_psd.examples] == [e for e in ("PSD_01", "PSD_02")]
+    bpy.context.view_layer.objects.active = ob
+    assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
+
+
+def test_renamed_bone_and_changed_topology_cancel_with_a_message(registered):
+    ob, arm = _cesium()
+    st = ob.shapespace_psd
+    bone = arm.pose.bones[5].name
+    _pose(arm, bone, (0.9, 0.3, 0.2, 0.1))
+    bpy.ops.shapespace.psd_add_example()
+    _sculpt(ob, st.examples[0].name, 3)
+    bpy.ops.shapespace.psd_apply_example()
+    arm.data.bones[bone].name = "Renamed"
+    before = blend_fingerprint()
+    with pytest.raises(RuntimeError, match="no longer exists"):
+        bpy.ops.shapespace.psd_update()
+    assert blend_fingerprint() == before
+    arm.data.bones["Renamed"].name = bone
+    st.examples[0].sculpt.data.vertices.add(2)
+    with pytest.raises(RuntimeError, match="topology changed"):
+        bpy.ops.shapespace.psd_apply_example()
+
+
+def test_example_at_rest_pose_needs_readers(registered):
+    ob, arm = _cesium()
+    before = blend_fingerprint()
+    with pytest.raises(RuntimeError, match="pose the rig away from its rest pose"):
+        bpy.ops.shapespace.psd_add_example()
+    assert blend_fingerprint() == before
+    ob.shapespace_psd.readers.add().source = arm.pose.bones[2].name
+    assert bpy.ops.shapespace.psd_add_example() == {"FINISHED"}     # explicit readers: rest pose is fine
+    assert json.loads(ob.shapespace_psd.examples[0].pose) == pytest.approx([0.0] * 9)
