@@ -309,3 +309,51 @@ def bake_weights(obj, scene, start: int, end: int) -> int:
     for j, name in enumerate(names):
         actions.write_curve(key, actions.shape_key_path(name), frames, weights[:, j])
     return len(names)
+
+
+MESH_CACHE_NAME = "ShapeSpace Correctives"
+
+
+def bake_point_cache(obj, scene, start: int, end: int, path: str):
+    """Bake the corrected pre-armature mesh of every frame to PC2 and play it with a Mesh Cache modifier.
+
+    Works for every method (weighted PSD included): the Mesh Cache modifier,
+    placed before the Armature modifier, replaces the shape-key result with
+    the corrected one, so playback needs neither ShapeSpace nor Python.
+    """
+    from ..core.pointcache import write_pc2
+    deformer, names = trained_deformer(obj)
+    frames = list(range(start, end + 1))
+    current = scene.frame_current
+    st = settings(obj)
+    was_live = st.live_preview
+    st.live_preview = False
+    out = np.empty((len(frames), len(obj.data.vertices), 3))
+    try:
+        for i, f in enumerate(frames):
+            scene.frame_set(f)
+            pose = read_pose(obj)
+            rest = pre_armature_positions(obj)
+            out[i] = rest + deformer.evaluate(pose)
+    finally:
+        scene.frame_set(current)
+        st.live_preview = was_live
+    write_pc2(path, out, start_frame=float(start), sample_rate=1.0)
+    mod = obj.modifiers.get(MESH_CACHE_NAME) or obj.modifiers.new(MESH_CACHE_NAME, "MESH_CACHE")
+    mod.cache_format = "PC2"
+    mod.filepath = path
+    mod.deform_mode = "OVERWRITE"
+    mod.time_mode = "FRAME"
+    mod.play_mode = "SCENE"
+    mod.frame_start = float(start)
+    mod.frame_scale = 1.0
+    mod.interpolation = "NONE"
+    index = list(obj.modifiers).index(mod)
+    if index != 0:
+        with bpy.context.temp_override(object=obj):
+            bpy.ops.object.modifier_move_to_index(modifier=mod.name, index=0)
+    # the correctives now come from the cache: keep the example keys (and the WPSD preview key) at 0
+    key = obj.data.shape_keys
+    zero = [n for n in list(names) + [WPSD_KEY] if n in key.key_blocks]
+    shapekeys.write_slider_values(obj, zero, np.zeros(len(zero)))
+    return mod.name

@@ -11,6 +11,7 @@ from .key_sliders import SHAPESPACE_OT_key_sliders
 from .psd_add_example import SHAPESPACE_OT_psd_add_example
 from .psd_apply_example import SHAPESPACE_OT_psd_apply_example
 from .psd_bake import SHAPESPACE_OT_psd_bake
+from .psd_bake_cache import SHAPESPACE_OT_psd_bake_cache
 from .psd_remove_example import SHAPESPACE_OT_psd_remove_example
 from .psd_update import SHAPESPACE_OT_psd_update
 from .remove_pin import SHAPESPACE_OT_remove_pin
@@ -31,6 +32,7 @@ classes = (
     SHAPESPACE_OT_psd_remove_example,
     SHAPESPACE_OT_psd_update,
     SHAPESPACE_OT_psd_bake,
+    SHAPESPACE_OT_psd_bake_cache,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -52,3 +52,4 @@ class SHAPESPACE_PT_correctives(bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("shapespace.psd_update", icon="FILE_REFRESH")
         row.operator("shapespace.psd_bake", icon="REC")
+        row.operator("shapespace.psd_bake_cache", icon="FILE_CACHE")

@@ -183,3 +183,54 @@ def test_example_at_rest_pose_needs_readers(registered):
     ob.shapespace_psd.readers.add().source = arm.pose.bones[2].name
     assert bpy.ops.shapespace.psd_add_example() == {"FINISHED"}     # explicit readers: rest pose is fine
     assert json.loads(ob.shapespace_psd.examples[0].pose) == pytest.approx([0.0] * 9)
+
+
+@pytest.mark.parametrize("method", ["WPSD", "SBE"])
+def test_point_cache_bake_plays_without_the_add_on(registered, tmp_path, method):
+    ob, arm = _cesium()
+    st = ob.shapespace_psd
+    st.method = method
+    bone = arm.pose.bones[5].name
+    for i, q in enumerate([(0.9, 0.3, 0.2, 0.1), (0.9, -0.3, 0.1, 0.2), (0.8, 0.1, -0.5, 0.3)]):
+        _pose(arm, bone, q)
+        bpy.ops.shapespace.psd_add_example()
+        _sculpt(ob, st.examples[i].name, 30 + i)
+        st.active_example = i
+        bpy.ops.shapespace.psd_apply_example()
+    pb = arm.pose.bones[bone]
+    for f, q in ((1, (1, 0, 0, 0)), (8, (0.9, 0.3, 0.2, 0.1)), (16, (0.9, -0.3, 0.1, 0.2))):
+        pb.rotation_quaternion = q
+        pb.keyframe_insert("rotation_quaternion", frame=f)
+    scene = bpy.context.scene
+    preview = {}
+    for f in (3, 8, 12):
+        scene.frame_set(f)
+        bpy.ops.shapespace.psd_update()
+        preview[f] = evaluated(ob)
+    pc2 = str(tmp_path / "correctives.pc2")
+    assert bpy.ops.shapespace.psd_bake_cache(filepath=pc2, frame_start=1, frame_end=16) == {"FINISHED"}
+    assert ob.modifiers[0].type == "MESH_CACHE"
+    path = str(tmp_path / "cached.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    SS.unregister()
+    try:
+        bpy.ops.wm.open_mainfile(filepath=path)
+        ob2 = bpy.data.objects["Cesium_Man"]
+        for f, want in preview.items():
+            bpy.context.scene.frame_set(f)
+            assert np.abs(evaluated(ob2) - want).max() / bounding_box_diagonal(want) < TOL, f
+    finally:
+        SS.register()
+
+
+def test_pc2_round_trip(tmp_path):
+    from shapespace.core.pointcache import read_pc2, write_pc2
+    from shapespace.core.result import ShapeSpaceError
+    data = np.random.default_rng(0).normal(size=(5, 40, 3))
+    write_pc2(str(tmp_path / "a.pc2"), data, start_frame=3.0)
+    back, start, rate = read_pc2(str(tmp_path / "a.pc2"))
+    assert start == 3.0 and rate == 1.0
+    np.testing.assert_allclose(back, data, atol=1e-6)
+    (tmp_path / "bad.pc2").write_bytes(b"nope")
+    with pytest.raises(ShapeSpaceError, match="too short"):
+        read_pc2(str(tmp_path / "bad.pc2"))

@@ -17,6 +17,9 @@ from core.rbf import (KERNELS, NormalizedRBF, RBFInterpolant, Shepard, SimplexLi
                       fit_normalized_rbf, fit_rbf, loo_errors, pairwise_distances)
 from core.result import ShapeSpaceError
 
+# singular systems are expected in several tests; LAPACK's warning about them is noise here
+pytestmark = pytest.mark.filterwarnings("ignore::scipy.linalg.LinAlgWarning", "ignore::RuntimeWarning")
+
 # kernel -> polynomial degrees scipy accepts without a well-posedness warning (-1 .. 2)
 SCIPY_DEGREES = {
     "gaussian": [-1, 0, 1, 2],
@@ -96,13 +99,21 @@ def test_fit_rbf_matches_scipy(kernel, degree, dim, smoothing):
     np.testing.assert_allclose(C @ shp.reshape(K, -1), ref_shp, rtol=0, atol=1e-10)
 
 
-def test_default_degree_matches_scipy_default():
+_DEFAULT_DEGREE_BUG = pytest.mark.xfail(
+    strict=True, reason="BUG: fit_rbf's default degree is max(min_degree, 1) (1 for gaussian, multiquadric, "
+                        "inverse_multiquadric, inverse_quadratic, linear) but its docstring promises scipy's choice, "
+                        "which is max(min_degree, 0), i.e. 0 for these kernels")
+
+
+@pytest.mark.parametrize("kernel", [
+    pytest.param(k, marks=_DEFAULT_DEGREE_BUG) if MIN_DEGREE[k] < 1 else k for k in SCIPY_DEGREES])
+def test_default_degree_matches_scipy_default(kernel):
+    """fit_rbf documents its default degree as 'scipy's choice'; scipy: max(min_degree, 0)."""
     X = jittered_grid(2, 11)
     d = np.random.default_rng(11).normal(size=X.shape[0])
     Q = queries(2, 11)
-    for kernel in SCIPY_DEGREES:
-        ref = RBFInterpolator(X, d, kernel=kernel, epsilon=EPS)(Q)  # scipy default degree
-        np.testing.assert_allclose(fit_rbf(X, d, kernel, epsilon=EPS)(Q), ref, rtol=0, atol=1e-10)
+    ref = RBFInterpolator(X, d, kernel=kernel, epsilon=EPS)(Q)  # scipy default degree
+    np.testing.assert_allclose(fit_rbf(X, d, kernel, epsilon=EPS)(Q), ref, rtol=0, atol=1e-10)
 
 
 def test_one_dimensional_query_vector_is_a_column_for_1d_pose_space():
@@ -126,12 +137,11 @@ def test_exact_at_centres(kernel, degree, dim):
 
 
 # =========================================================================== polynomial reproduction
-def _poly_data(points, degree, rng_seed):
+def _poly_data(dim, degree, rng_seed):
     """Random polynomial of total degree ``degree``, evaluated by hand; returns a callable."""
     rng = np.random.default_rng(rng_seed)
-    dim = points.shape[1]
     c0 = rng.normal()
-    c1 = rng.normal(size=dim)
+    c1 = rng.normal(size=dim) if degree >= 1 else np.zeros(dim)
     c2 = rng.normal(size=(dim, dim)) if degree >= 2 else np.zeros((dim, dim))
 
     def p(x):
@@ -149,7 +159,7 @@ def _poly_data(points, degree, rng_seed):
 ])
 def test_polynomial_reproduction(kernel, degree, pdeg, dim, smoothing):
     X = jittered_grid(dim, 30 + dim)
-    p = _poly_data(X, pdeg, 5 * dim + pdeg)
+    p = _poly_data(X.shape[1], pdeg, 5 * dim + pdeg)
     f = fit_rbf(X, p(X), kernel, epsilon=EPS, degree=degree, smoothing=smoothing)
     Q = queries(dim, 3, m=60, lo=-1.5, hi=1.5)  # inside and outside the examples' box
     np.testing.assert_allclose(f(Q), p(Q), rtol=0, atol=1e-9)
@@ -158,7 +168,7 @@ def test_polynomial_reproduction(kernel, degree, pdeg, dim, smoothing):
 def test_affine_polynomial_does_not_reproduce_quadratic():
     """Sanity: the reproduction above is a property of the degree, not of any smooth data."""
     X = jittered_grid(2, 32)
-    p = _poly_data(X, 2, 99)
+    p = _poly_data(X.shape[1], 2, 99)
     f = fit_rbf(X, p(X), "thin_plate_spline", degree=1)
     Q = queries(2, 4)
     assert np.max(np.abs(f(Q) - p(Q))) > 1e-4
@@ -202,6 +212,25 @@ def test_polyharmonic_scale_invariance_without_epsilon_change(kernel, s):
     Ca = fit_rbf(X, None, kernel, degree=deg).cardinal(Q)
     Cb = fit_rbf(s * X, None, kernel, degree=deg).cardinal(s * Q)
     np.testing.assert_allclose(Cb, Ca, rtol=0, atol=1e-9)
+
+
+@pytest.mark.xfail(strict=True, reason="BUG: fit_rbf's singularity test (min |U_ii| <= 1e-14 max |LU|) is not "
+                                      "scale invariant: polyharmonic systems on positions in larger/smaller units "
+                                      "(e.g. pose angles in degrees) are refused as 'singular: duplicate examples' "
+                                      "although the interpolant is identical and scipy solves them to ~1e-11")
+@pytest.mark.parametrize("kernel,s", [("quintic", 10.0), ("quintic", 90.0), ("quintic", 1e-3), ("cubic", 180.0),
+                                      ("thin_plate_spline", 1000.0), ("polyharmonic4", 30.0)])
+def test_polyharmonic_scale_invariance_in_other_units(kernel, s):
+    X = jittered_grid(2, 43)
+    Q = queries(2, 43)
+    D = np.random.default_rng(43).normal(size=(X.shape[0], 2))
+    deg = POLYHARMONIC[kernel]
+    a = fit_rbf(X, D, kernel, degree=deg)(Q)
+    if kernel in SCIPY_DEGREES:  # the scaled problem is solvable: scipy reproduces the unscaled interpolant
+        ref = RBFInterpolator(s * X, D, kernel=kernel, degree=deg)(s * Q)
+        np.testing.assert_allclose(ref, a, rtol=0, atol=1e-9)
+    b = fit_rbf(s * X, D, kernel, degree=deg)(s * Q)
+    np.testing.assert_allclose(b, a, rtol=0, atol=1e-9)
 
 
 def test_gaussian_is_not_scale_invariant_without_epsilon_change():
@@ -258,12 +287,17 @@ def test_large_smoothing_degree0_tends_to_mean(kernel):
     d = np.random.default_rng(61).normal(size=(X.shape[0], 2))
     Q = queries(2, 61)
     errs = []
-    for lam in [1e4, 1e6, 1e8]:
+    for lam in [1e3, 1e5, 1e7]:
         f = fit_rbf(X, d, kernel, epsilon=EPS, degree=0, smoothing=lam)
         errs.append(np.max(np.abs(f(Q) - d.mean(axis=0))))
     # weights are O(|d|/λ): deviation from the constant least-squares fit shrinks like 1/λ
     assert errs[-1] < 1e-5
     assert errs[1] < errs[0] / 50 and errs[2] < errs[1] / 50
+    # and the whole path agrees with scipy's smoothed fit
+    lam = 1e5
+    ref = RBFInterpolator(X, d, kernel=kernel, epsilon=EPS, degree=0, smoothing=lam)(Q)
+    np.testing.assert_allclose(fit_rbf(X, d, kernel, epsilon=EPS, degree=0, smoothing=lam)(Q), ref,
+                               rtol=0, atol=1e-12)
 
 
 def test_large_smoothing_degree1_tends_to_least_squares_affine():
@@ -275,7 +309,7 @@ def test_large_smoothing_degree1_tends_to_least_squares_affine():
     coef = np.linalg.lstsq(A, d, rcond=None)[0]
     ls = np.hstack([np.ones((Q.shape[0], 1)), Q]) @ coef
     errs = [np.max(np.abs(fit_rbf(X, d, "thin_plate_spline", degree=1, smoothing=lam)(Q) - ls))
-            for lam in [1e4, 1e6, 1e8]]
+            for lam in [1e3, 1e5, 1e7]]
     assert errs[-1] < 1e-5
     assert errs[1] < errs[0] / 50 and errs[2] < errs[1] / 50
 
@@ -312,16 +346,18 @@ def test_error_negative_smoothing():
                                       "a singular system caused by duplicate examples")
 def test_error_nan_smoothing_names_smoothing():
     X, d = _fit_data()
-    with pytest.raises(ShapeSpaceError, match="smoothing"):
+    with pytest.raises(ShapeSpaceError) as ei:
         fit_rbf(X, d, "gaussian", smoothing=np.nan)
+    assert ei.value.code == "range" and "duplicate" not in str(ei.value)
 
 
 @pytest.mark.xfail(strict=True, reason="BUG: infinite epsilon passes the `epsilon > 0` check and is reported as "
                                       "a singular system caused by duplicate examples")
 def test_error_infinite_epsilon_names_epsilon():
     X, d = _fit_data()
-    with pytest.raises(ShapeSpaceError, match="epsilon"):
+    with pytest.raises(ShapeSpaceError, match="epsilon") as ei:
         fit_rbf(X, d, "gaussian", epsilon=np.inf)
+    assert ei.value.code == "range"
 
 
 @pytest.mark.parametrize("kernel,degree", [("thin_plate_spline", 0), ("cubic", -1), ("quintic", 1),
@@ -353,12 +389,13 @@ def test_error_duplicate_centres_singular(kernel):
     X, d = _fit_data()
     Xd = np.vstack([X, X[3:4]])
     dd = np.vstack([d, d[3:4]])
+    deg = max(MIN_DEGREE[kernel], 1)
     with pytest.raises(ShapeSpaceError, match="singular") as ei:
-        fit_rbf(Xd, dd, kernel, epsilon=EPS)
+        fit_rbf(Xd, dd, kernel, epsilon=EPS, degree=deg)
     assert ei.value.code == "singular"
     # smoothing makes the same examples solvable
-    f = fit_rbf(Xd, dd, kernel, epsilon=EPS, smoothing=0.1)
-    ref = RBFInterpolator(Xd, dd, kernel=kernel, epsilon=EPS, smoothing=0.1)(X)
+    f = fit_rbf(Xd, dd, kernel, epsilon=EPS, degree=deg, smoothing=0.1)
+    ref = RBFInterpolator(Xd, dd, kernel=kernel, epsilon=EPS, degree=deg, smoothing=0.1)(X)
     np.testing.assert_allclose(f(X), ref, rtol=0, atol=1e-10)
 
 
@@ -462,8 +499,9 @@ def test_loo_errors_shape_valued():
 
 def test_choose_epsilon_minimises_brute_force_loo_rms():
     X = jittered_grid(2, 90)
-    d = np.sin(1.5 * X[:, 0]) + 0.5 * X[:, 1] ** 2  # smooth
-    cands = np.geomspace(0.5, 8.0, 9)
+    # smooth function plus a little measurement noise
+    d = np.sin(1.5 * X[:, 0]) + 0.5 * X[:, 1] ** 2 + 0.05 * np.random.default_rng(5).normal(size=X.shape[0])
+    cands = np.geomspace(0.3, 8.0, 9)
     eps, scores = choose_epsilon(X, d, "gaussian", degree=1, candidates=cands)
     brute = np.array([np.sqrt(np.mean(_brute_loo(X, d, "gaussian", c, 1, use_scipy=True) ** 2)) for c in cands])
     np.testing.assert_allclose(scores, brute, rtol=1e-6, atol=0)
