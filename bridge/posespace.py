@@ -357,3 +357,54 @@ def bake_point_cache(obj, scene, start: int, end: int, path: str):
     zero = [n for n in list(names) + [WPSD_KEY] if n in key.key_blocks]
     shapekeys.write_slider_values(obj, zero, np.zeros(len(zero)))
     return mod.name
+
+
+def move_example(obj, example_name: str, reset: bool = False) -> None:
+    """Shape-by-Example pseudo-example: interpolate this sculpt at the current pose (or back where sculpted)."""
+    st = settings(obj)
+    ex = st.examples.get(example_name)
+    if ex is None:
+        raise ShapeSpaceError(f"there is no example {example_name!r}", "missing_example")
+    ex.pseudo_pose = "" if reset else json.dumps([float(v) for v in read_pose(obj)])
+    st.revision += 1
+
+
+def mirror_example(obj, example_name: str, tolerance: float = 1e-4) -> str:
+    """Add the left↔right mirror of an example: mirrored pose and corrective (mesh mirrored across local X)."""
+    from scipy.spatial import cKDTree
+    from ..core.posespace import mirror_name, mirror_pose
+    st = settings(obj)
+    ex = st.examples.get(example_name)
+    if ex is None:
+        raise ShapeSpaceError(f"there is no example {example_name!r}", "missing_example")
+    rs = readers(obj)
+    for r in rs:   # mirrored bone readers must point at bones that exist
+        if r.is_bone:
+            arm = armature_of(obj)
+            if arm is None or mirror_name(r.source) not in arm.pose.bones:
+                raise ShapeSpaceError(f"bone {mirror_name(r.source)!r} (the mirror of {r.source!r}) does not exist",
+                                      "no_mirror")
+    pose = mirror_pose(rs, json.loads(ex.pose))
+    key = obj.data.shape_keys
+    basis = read_float(key.reference_key.data, "co", 3).astype(np.float64)
+    size = float(np.linalg.norm(np.ptp(basis, axis=0))) or 1.0
+    dist, partner = cKDTree(basis).query(basis * np.array([-1.0, 1.0, 1.0]))
+    unmatched = int(np.sum(dist > tolerance * size))
+    if unmatched:
+        raise ShapeSpaceError(f"{unmatched} vertices have no mirror partner across the mesh's local X axis "
+                              f"(within {tolerance:g} of its size): the mesh is not symmetric", "not_symmetric")
+    delta = read_float(key.key_blocks[ex.name].data, "co", 3).astype(np.float64) - basis
+    mirrored = (delta * np.array([-1.0, 1.0, 1.0]))[partner]
+    name = mirror_name(ex.name)
+    if name == ex.name or name in key.key_blocks:
+        name = ex.name + "_mirror"
+    kb = obj.shape_key_add(name=name, from_mix=False)
+    kb.slider_min, kb.slider_max = -10.0, 10.0
+    kb.value = 0.0
+    write_float(kb.data, "co", basis + mirrored)
+    new = st.examples.add()
+    new.name = kb.name
+    new.pose = json.dumps([float(v) for v in pose])
+    st.active_example = len(st.examples) - 1
+    st.revision += 1
+    return kb.name

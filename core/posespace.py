@@ -24,7 +24,7 @@ import numpy as np
 from .result import ShapeSpaceError
 
 __all__ = ["PoseReader", "READER_DIMS", "quaternion_distance", "quaternion_to_matrix", "swing_twist",
-           "reader_features", "pose_features", "feature_groups"]
+           "reader_features", "pose_features", "feature_groups", "mirror_name", "mirror_features", "mirror_pose"]
 
 READER_DIMS = {"rotation": 9, "swing": 3, "twist": 2, "location": 3, "property": 1, "shape_key": 1}
 
@@ -170,4 +170,61 @@ def feature_groups(readers) -> dict:
         cols = np.arange(start, start + r.dims)
         out[r.source] = np.concatenate([out[r.source], cols]) if r.source in out else cols
         start += r.dims
+    return out
+
+
+_SIDES = (("Left", "Right"), ("left", "right"), (".L", ".R"), ("_L", "_R"), (".l", ".r"), ("_l", "_r"),
+          ("L_", "R_"), ("l_", "r_"))
+
+
+def mirror_name(name: str) -> str:
+    """The left↔right counterpart of a bone/key name (``hand.L`` ↔ ``hand.R``, ``LeftArm`` ↔ ``RightArm``)."""
+    for a, b in _SIDES:
+        for x, y in ((a, b), (b, a)):
+            if name.endswith(x):
+                return name[: -len(x)] + y
+            if name.startswith(x):
+                return y + name[len(x):]
+    for x, y in (("Left", "Right"), ("Right", "Left")):
+        if x in name:
+            return name.replace(x, y, 1)
+    return name
+
+
+def mirror_features(reader: PoseReader, feats) -> np.ndarray:
+    """Features of the mirrored pose (Blender's flipped pose: local quaternion (w, x, −y, −z), location −x)."""
+    f = np.asarray(feats, dtype=np.float64) / reader.scale
+    D = np.diag([1.0, -1.0, -1.0])
+    if reader.kind == "rotation":
+        out = (D @ f.reshape(3, 3) @ D).ravel()
+    elif reader.kind == "swing":
+        out = -(D @ f)
+    elif reader.kind == "twist":
+        out = np.array([f[0], -f[1]])
+    elif reader.kind == "location":
+        out = f * np.array([-1.0, 1.0, 1.0])
+    else:
+        out = f
+    return out * reader.scale
+
+
+def mirror_pose(readers, pose):
+    """Mirror a pose vector: each reader's features flipped and moved to its counterpart reader.
+
+    Raises
+    ------
+    ShapeSpaceError
+        When a reader's counterpart is not in the pose space.
+    """
+    readers = list(readers)
+    pose = np.asarray(pose, dtype=np.float64)
+    index = {(r.kind, r.source): i for i, r in enumerate(readers)}
+    starts = np.concatenate([[0], np.cumsum([r.dims for r in readers])])
+    out = np.empty_like(pose)
+    for i, r in enumerate(readers):
+        j = index.get((r.kind, mirror_name(r.source)))
+        if j is None:
+            raise ShapeSpaceError(f"the pose space has no {r.kind} reader for {mirror_name(r.source)!r} "
+                                  f"(the mirror of {r.source!r})", "no_mirror")
+        out[starts[j]:starts[j + 1]] = mirror_features(r, pose[starts[i]:starts[i + 1]])
     return out

@@ -100,6 +100,12 @@ def example_issues(poses, correctives=None, names=None, rel_tol: float = 1e-6, o
     return issues
 
 
+def _affine_determined(X) -> bool:
+    """True when the examples determine an affine function of the pose (Shape-by-Example's linear part)."""
+    K, d = X.shape
+    return K >= d + 2 and np.linalg.matrix_rank(np.hstack([np.ones((K, 1)), X])) == d + 1
+
+
 def _default_epsilon(X):
     d = rbf.pairwise_distances(X, X)
     pos = d[d > 0]
@@ -214,7 +220,7 @@ def train_psd(poses, correctives, method: str = "psd", epsilon: float = None, sm
             kern, degree = kernel or "gaussian", -1
         else:
             kern = kernel or "thin_plate_spline"
-            degree = 1 if K >= X.shape[1] + 1 + 1 else 0
+            degree = 1 if _affine_determined(X) else 0
             if degree == 0 and rbf.KERNELS[kern][1] >= 1:
                 kern = "multiquadric" if rbf.KERNELS[kern][1] >= 1 else kern
             diag["degree"] = degree
@@ -288,7 +294,7 @@ def train_driver(poses, values, names, kernel="thin_plate_spline", epsilon=1.0, 
         raise ShapeSpaceError(f"values have {V.shape[1]} columns for {len(names)} names", "shape")
     K = X.shape[0]
     if degree is None:
-        degree = 1 if K >= X.shape[1] + 2 else 0
+        degree = 1 if _affine_determined(X) else 0
         if degree == 0 and rbf.KERNELS[kernel][1] >= 1:
             kernel = "multiquadric"
     smoothing = _regularisation(X, smoothing)

@@ -141,7 +141,8 @@ class RBFInterpolant:
 
 
 def _default_degree(kernel):
-    return max(KERNELS[kernel][1], 1) if KERNELS[kernel][1] >= 0 else 1
+    """scipy's default: the kernel's minimum degree, at least 0."""
+    return max(KERNELS[kernel][1], 0)
 
 
 def fit_rbf(centers, values=None, kernel: str = "thin_plate_spline", epsilon: float = 1.0, degree: int = None,
@@ -160,8 +161,8 @@ def fit_rbf(centers, values=None, kernel: str = "thin_plate_spline", epsilon: fl
     epsilon : float
         Shape parameter: the kernel is evaluated at ``ε · distance``.
     degree : int, optional
-        Polynomial degree, −1 for none.  Defaults to scipy's choice (1, or the
-        kernel's minimum if higher).  Must be at least the kernel's minimum.
+        Polynomial degree, −1 for none.  Defaults to scipy's choice (the
+        kernel's minimum, at least 0).  Must be at least the kernel's minimum.
     smoothing : float
         λ ≥ 0 added to the kernel matrix diagonal (0 interpolates exactly).
 
@@ -173,12 +174,14 @@ def fit_rbf(centers, values=None, kernel: str = "thin_plate_spline", epsilon: fl
     """
     x = _check_points(centers, "centers")
     K, dim = x.shape
+    if K < 1:
+        raise ShapeSpaceError("an interpolant needs at least one centre", "too_few")
     if kernel not in KERNELS:
         raise ShapeSpaceError(f"unknown kernel {kernel!r}; choose from {', '.join(KERNELS)}", "kernel")
-    if not epsilon > 0:
-        raise ShapeSpaceError(f"epsilon must be positive, got {epsilon}", "range")
-    if smoothing < 0:
-        raise ShapeSpaceError(f"smoothing must be non-negative, got {smoothing}", "range")
+    if not (np.isfinite(epsilon) and epsilon > 0):
+        raise ShapeSpaceError(f"epsilon must be positive and finite, got {epsilon}", "range")
+    if not (np.isfinite(smoothing) and smoothing >= 0):
+        raise ShapeSpaceError(f"smoothing must be non-negative and finite, got {smoothing}", "range")
     min_deg = KERNELS[kernel][1]
     degree = _default_degree(kernel) if degree is None else int(degree)
     if degree < min_deg:
@@ -199,11 +202,24 @@ def fit_rbf(centers, values=None, kernel: str = "thin_plate_spline", epsilon: fl
     A[:K, :K][np.diag_indices(K)] += smoothing
     A[:K, K:] = P
     A[K:, :K] = P.T
-    lu = lu_factor(A, check_finite=False)
-    if not np.all(np.isfinite(lu[0])) or np.min(np.abs(np.diag(lu[0]))) <= 1e-14 * np.abs(lu[0]).max():
-        raise ShapeSpaceError(
-            "the interpolation system is singular: duplicate examples or a polynomial the examples cannot "
-            "determine; remove duplicates or add smoothing", "singular")
+    # Scale-invariant singularity tests: coincident centres (without smoothing) and a polynomial the
+    # centres cannot determine make the block system singular whatever the units.
+    if smoothing == 0 and K > 1:
+        d = pairwise_distances(x, x)
+        np.fill_diagonal(d, np.inf)
+        spread = float(np.max(hi - lo)) or 1.0
+        if d.min() <= 1e-12 * spread:
+            raise ShapeSpaceError("the interpolation system is singular: two examples sit at the same place; "
+                                  "remove the duplicate or add smoothing", "singular")
+    if n_p and np.linalg.matrix_rank(P) < n_p:
+        raise ShapeSpaceError(f"the examples cannot determine a degree-{degree} polynomial (they are "
+                              "collinear/coplanar); lower the degree", "singular")
+    try:
+        lu = lu_factor(A, check_finite=False)
+    except (ValueError, np.linalg.LinAlgError):
+        lu = None
+    if lu is None or not np.all(np.isfinite(lu[0])) or np.any(np.diag(lu[0]) == 0):
+        raise ShapeSpaceError("the interpolation system is singular; add smoothing", "singular")
     interp = RBFInterpolant(x, kernel, float(epsilon), degree, float(smoothing), lu, shift, scale, powers)
     if values is not None:
         d = np.asarray(values, dtype=np.float64)
@@ -281,6 +297,8 @@ class NormalizedRBF:
 def fit_normalized_rbf(centers, kernel="gaussian", epsilon=1.0) -> NormalizedRBF:
     """Fit a normalised RBF (thesis 8.x; Kurihara–Miyata's weighted PSD uses it)."""
     x = _check_points(centers, "centers")
+    if not (np.isfinite(epsilon) and epsilon > 0):
+        raise ShapeSpaceError(f"epsilon must be positive and finite, got {epsilon}", "range")
     if kernel not in ("gaussian", "inverse_multiquadric", "inverse_quadratic"):
         raise ShapeSpaceError("normalised RBF needs a positive kernel (gaussian or inverse (multi)quadric)",
                               "kernel")
@@ -293,12 +311,22 @@ def fit_normalized_rbf(centers, kernel="gaussian", epsilon=1.0) -> NormalizedRBF
     return model
 
 
+def _shepard_init(self):
+    self.centers = _check_points(self.centers, "centers")
+    if self.centers.shape[0] < 1:
+        raise ShapeSpaceError("Shepard interpolation needs at least one centre", "too_few")
+    if not self.power > 0:
+        raise ShapeSpaceError(f"power must be positive, got {self.power}", "range")
+
+
 @dataclass
 class Shepard:
     """Shepard's inverse-distance weighting, ``c_k(x) ∝ ‖x − x_k‖^(−power)`` (exact at the examples)."""
 
     centers: np.ndarray
     power: float = 2.0
+
+    __post_init__ = _shepard_init
 
     def cardinal(self, x) -> np.ndarray:
         x = _check_points(x, "x", self.centers.shape[1])
@@ -321,6 +349,8 @@ class SimplexLinear:
 
     def __init__(self, centers):
         x = _check_points(centers, "centers")
+        if x.shape[0] < 1:
+            raise ShapeSpaceError("linear interpolation needs at least one centre", "too_few")
         self.centers = x
         self._tree = cKDTree(x)
         if x.shape[1] == 1:
@@ -331,7 +361,11 @@ class SimplexLinear:
                 raise ShapeSpaceError(
                     f"linear interpolation on simplices needs more than {x.shape[1]} examples in {x.shape[1]}-D",
                     "too_few")
-            self._tri = Delaunay(x)
+            try:
+                self._tri = Delaunay(x)
+            except Exception as exc:  # scipy's QhullError: degenerate (collinear / coplanar) examples
+                raise ShapeSpaceError(f"the examples are degenerate in {x.shape[1]}-D (collinear or coplanar): "
+                                      f"{str(exc).splitlines()[0]}", "degenerate") from None
 
     def cardinal(self, x) -> np.ndarray:
         x = _check_points(x, "x", self.centers.shape[1])

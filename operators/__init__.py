@@ -12,6 +12,8 @@ from .psd_add_example import SHAPESPACE_OT_psd_add_example
 from .psd_apply_example import SHAPESPACE_OT_psd_apply_example
 from .psd_bake import SHAPESPACE_OT_psd_bake
 from .psd_bake_cache import SHAPESPACE_OT_psd_bake_cache
+from .psd_mirror_example import SHAPESPACE_OT_psd_mirror_example
+from .psd_move_example import SHAPESPACE_OT_psd_move_example
 from .psd_remove_example import SHAPESPACE_OT_psd_remove_example
 from .psd_update import SHAPESPACE_OT_psd_update
 from .remove_pin import SHAPESPACE_OT_remove_pin
@@ -33,6 +35,8 @@ classes = (
     SHAPESPACE_OT_psd_update,
     SHAPESPACE_OT_psd_bake,
     SHAPESPACE_OT_psd_bake_cache,
+    SHAPESPACE_OT_psd_move_example,
+    SHAPESPACE_OT_psd_mirror_example,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

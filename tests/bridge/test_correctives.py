@@ -234,3 +234,59 @@ def test_pc2_round_trip(tmp_path):
     (tmp_path / "bad.pc2").write_bytes(b"nope")
     with pytest.raises(ShapeSpaceError, match="too short"):
         read_pc2(str(tmp_path / "bad.pc2"))
+
+
+def test_undo_and_redo_across_add_and_apply(registered):
+    ob, arm = _cesium()
+    _pose(arm, arm.pose.bones[5].name, (0.9, 0.3, 0.2, 0.1))
+    bpy.ops.ed.undo_push(message="start")
+    bpy.ops.shapespace.psd_add_example()
+    bpy.ops.ed.undo_push(message="add")
+    _sculpt(ob, "PSD_01", 4)
+    bpy.ops.shapespace.psd_apply_example()
+    bpy.ops.ed.undo_push(message="apply")
+    key_after = meshes.vertex_positions(bpy.data.objects["Cesium_Man"].data)  # basis untouched
+    bpy.ops.ed.undo()
+    bpy.ops.ed.undo()
+    ob = bpy.data.objects["Cesium_Man"]
+    assert len(ob.shapespace_psd.examples) == 0
+    assert ob.data.shape_keys is None or "PSD_01" not in ob.data.shape_keys.key_blocks
+    bpy.ops.ed.redo()
+    bpy.ops.ed.redo()
+    ob = bpy.data.objects["Cesium_Man"]
+    assert [e.name for e in ob.shapespace_psd.examples] == ["PSD_01"]
+    np.testing.assert_allclose(meshes.vertex_positions(ob.data), key_after)
+    bpy.context.view_layer.objects.active = ob
+    assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
+
+
+def test_mirror_and_move_example(registered):
+    import_file(shared("rpm_brunette", "brunette-t.glb"))
+    ob = bpy.data.objects["Wolf3D_Body"]
+    arm = skin.armature_modifiers(ob)[0].object
+    bpy.context.view_layer.objects.active = ob
+    for pb in arm.pose.bones:
+        pb.rotation_mode = "QUATERNION"
+        pb.rotation_quaternion = (1, 0, 0, 0)
+    st = ob.shapespace_psd
+    st.readers.add().source = "LeftArm"
+    st.readers.add().source = "RightArm"
+    _pose(arm, "LeftArm", (0.9, 0.2, 0.3, 0.25))
+    bpy.ops.shapespace.psd_add_example()
+    _sculpt(ob, "PSD_01", 7)
+    bpy.ops.shapespace.psd_apply_example()
+    with pytest.raises(RuntimeError, match="not symmetric"):   # the avatar is only nearly symmetric
+        bpy.ops.shapespace.psd_mirror_example()
+    assert bpy.ops.shapespace.psd_mirror_example(tolerance=0.01) == {"FINISHED"} and len(st.examples) == 2
+    # the mirrored example sits where the flipped pose reads
+    _pose(arm, "LeftArm", (1, 0, 0, 0))
+    _pose(arm, "RightArm", (0.9, 0.2, -0.3, -0.25))
+    got = np.array(json.loads(st.examples[1].pose))
+    np.testing.assert_allclose(got, posespace.read_pose(ob), atol=1e-6)
+    # moving example 1 to another pose makes its sculpt appear there instead (pseudo-example)
+    _pose(arm, "RightArm", (0.95, -0.1, 0.2, 0.2))
+    st.active_example = 1
+    st.method = "SBE"
+    assert bpy.ops.shapespace.psd_move_example() == {"FINISHED"}
+    assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
+    assert ob.data.shape_keys.key_blocks[st.examples[1].name].value == pytest.approx(1.0, abs=1e-6)

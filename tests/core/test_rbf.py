@@ -99,14 +99,9 @@ def test_fit_rbf_matches_scipy(kernel, degree, dim, smoothing):
     np.testing.assert_allclose(C @ shp.reshape(K, -1), ref_shp, rtol=0, atol=1e-10)
 
 
-_DEFAULT_DEGREE_BUG = pytest.mark.xfail(
-    strict=True, reason="BUG: fit_rbf's default degree is max(min_degree, 1) (1 for gaussian, multiquadric, "
-                        "inverse_multiquadric, inverse_quadratic, linear) but its docstring promises scipy's choice, "
-                        "which is max(min_degree, 0), i.e. 0 for these kernels")
 
 
-@pytest.mark.parametrize("kernel", [
-    pytest.param(k, marks=_DEFAULT_DEGREE_BUG) if MIN_DEGREE[k] < 1 else k for k in SCIPY_DEGREES])
+@pytest.mark.parametrize("kernel", list(SCIPY_DEGREES))
 def test_default_degree_matches_scipy_default(kernel):
     """fit_rbf documents its default degree as 'scipy's choice'; scipy: max(min_degree, 0)."""
     X = jittered_grid(2, 11)
@@ -214,10 +209,6 @@ def test_polyharmonic_scale_invariance_without_epsilon_change(kernel, s):
     np.testing.assert_allclose(Cb, Ca, rtol=0, atol=1e-9)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: fit_rbf's singularity test (min |U_ii| <= 1e-14 max |LU|) is not "
-                                      "scale invariant: polyharmonic systems on positions in larger/smaller units "
-                                      "(e.g. pose angles in degrees) are refused as 'singular: duplicate examples' "
-                                      "although the interpolant is identical and scipy solves them to ~1e-11")
 @pytest.mark.parametrize("kernel,s", [("quintic", 10.0), ("quintic", 90.0), ("quintic", 1e-3), ("cubic", 180.0),
                                       ("thin_plate_spline", 1000.0), ("polyharmonic4", 30.0)])
 def test_polyharmonic_scale_invariance_in_other_units(kernel, s):
@@ -342,8 +333,6 @@ def test_error_negative_smoothing():
     assert ei.value.code == "range"
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: NaN smoothing passes the `smoothing < 0` check and is reported as "
-                                      "a singular system caused by duplicate examples")
 def test_error_nan_smoothing_names_smoothing():
     X, d = _fit_data()
     with pytest.raises(ShapeSpaceError) as ei:
@@ -351,8 +340,6 @@ def test_error_nan_smoothing_names_smoothing():
     assert ei.value.code == "range" and "duplicate" not in str(ei.value)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: infinite epsilon passes the `epsilon > 0` check and is reported as "
-                                      "a singular system caused by duplicate examples")
 def test_error_infinite_epsilon_names_epsilon():
     X, d = _fit_data()
     with pytest.raises(ShapeSpaceError, match="epsilon") as ei:
@@ -451,8 +438,6 @@ def test_error_is_a_valueerror():
         fit_rbf(np.zeros((3, 2)) + np.arange(3)[:, None], None, "nope")
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: zero centres with a kernel needing no polynomial (degree -1) "
-                                      "crash in numpy (x.min on an empty array) instead of ShapeSpaceError")
 def test_error_no_centres():
     with pytest.raises(ShapeSpaceError):
         fit_rbf(np.zeros((0, 2)), np.zeros((0,)), "gaussian", degree=-1)
@@ -667,9 +652,6 @@ def test_simplex_linear_bad_query_dimension():
         S.cardinal(np.zeros((2, 3)))
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: degenerate centres (collinear in 2-D, coplanar in 3-D) with more than "
-                                      "d points pass the too-few check and scipy's QhullError escapes instead of "
-                                      "ShapeSpaceError (operators/CLI only catch ShapeSpaceError)")
 @pytest.mark.parametrize("dim", [2, 3])
 def test_simplex_linear_degenerate_centres_raise_shapespace_error(dim):
     t = np.linspace(0.0, 1.0, 5)[:, None]
