@@ -179,10 +179,12 @@ def apply_example(obj, example_name: str, sculpt_positions=None):
     if sculpt_positions.shape != (p, 3):
         raise ShapeSpaceError(f"sculpt positions must have shape ({p}, 3)", "shape")
     rest = pre_armature_positions(obj)
-    if skin.armature_modifiers(obj):
+    if skin.armature_modifiers(obj) and modelled_exactly(obj):
         rig = skin.read_skinning(obj)
         poses = skin.modifier_poses(obj)
         result = invert_deformation(lambda x: deform(x, rig, poses), rest, sculpt_positions)
+    elif [m for m in obj.modifiers if m.show_viewport]:
+        result = _invert_through_blender(obj, rest, sculpt_positions)
     else:
         from ..core.inversion import InversionResult
         result = InversionResult(sculpt_positions - rest, 0.0, 0, 0, "no armature: the sculpt is the corrective")
@@ -192,6 +194,54 @@ def apply_example(obj, example_name: str, sculpt_positions=None):
     obj.data.update()
     st.revision += 1
     return result
+
+
+def modelled_exactly(obj) -> bool:
+    """True when ShapeSpace's skinning model reproduces the modifier stack exactly (plain Armature
+    modifiers with vertex groups, no B-Bones, no other deforming modifiers)."""
+    others = [m for m in obj.modifiers if m.show_viewport and m.type != "ARMATURE"]
+    if others:
+        return False
+    problems = skin.check_skinning(obj)
+    return not any(i.severity == "error" or i.code == "bbones" for i in problems)
+
+
+TEMP_KEY = "ShapeSpace_invert"
+
+
+def _invert_through_blender(obj, rest, sculpt):
+    """Newton inversion with Blender's own evaluation as the deformer (B-Bones, other modifiers).
+
+    Each evaluation writes the candidate pre-modifier positions into a temporary shape key and reads
+    Blender's evaluated mesh; Jacobians come from central differences of that evaluation.
+    """
+    key = obj.data.shape_keys
+    blocks = key.key_blocks
+    examples = [n for n in _example_keys(obj) if n in blocks]
+    saved = {n: blocks[n].value for n in examples}
+    for n in examples:
+        blocks[n].value = 0.0
+    tmp = obj.shape_key_add(name=TEMP_KEY, from_mix=False)
+    tmp.slider_min, tmp.slider_max = -10.0, 10.0
+    tmp.value = 1.0
+    name = tmp.name
+    basis = read_float(key.reference_key.data, "co", 3).astype(np.float64)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+
+    def blender_deform(x):
+        write_float(obj.data.shape_keys.key_blocks[name].data, "co", basis + (x - rest))
+        obj.data.update()
+        return meshes.evaluated_positions(obj, depsgraph).astype(np.float64)
+
+    try:
+        # float32 evaluation: ask for what single precision can give
+        size = float(np.linalg.norm(np.ptp(rest, axis=0))) or 1.0
+        return invert_deformation(blender_deform, rest, sculpt, tol=2e-7 * size)
+    finally:
+        obj.shape_key_remove(obj.data.shape_keys.key_blocks[name])
+        for n, v in saved.items():
+            obj.data.shape_keys.key_blocks[n].value = v
+        obj.data.update()
 
 
 def trained_deformer(obj):

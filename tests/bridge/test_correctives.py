@@ -290,3 +290,25 @@ def test_mirror_and_move_example(registered):
     assert bpy.ops.shapespace.psd_move_example() == {"FINISHED"}
     assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
     assert ob.data.shape_keys.key_blocks[st.examples[1].name].value == pytest.approx(1.0, abs=1e-6)
+
+
+def test_bbones_are_inverted_through_blenders_own_evaluation(registered):
+    ob, arm = _cesium()
+    bone = arm.pose.bones[5].name
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.mode_set(mode="EDIT")
+    for eb in arm.data.edit_bones:
+        if eb.name in (bone, arm.pose.bones[4].name, arm.pose.bones[6].name):
+            eb.bbone_segments = 6
+    bpy.ops.object.mode_set(mode="OBJECT")
+    arm.pose.bones[bone].bbone_curveinx = 0.05
+    arm.pose.bones[bone].bbone_easein = 0.8
+    bpy.context.view_layer.objects.active = ob
+    assert not posespace.modelled_exactly(ob)
+    _pose(arm, bone, (0.9, 0.3, 0.2, 0.1))
+    bpy.ops.shapespace.psd_add_example()
+    wanted = _sculpt(ob, "PSD_01", 9)
+    assert bpy.ops.shapespace.psd_apply_example() == {"FINISHED"}
+    assert "ShapeSpace_invert" not in ob.data.shape_keys.key_blocks
+    bpy.ops.shapespace.psd_update()
+    assert np.abs(evaluated(ob) - wanted).max() / bounding_box_diagonal(wanted) < TOL
