@@ -310,7 +310,7 @@ def preview(obj, deformer=None, names=None) -> np.ndarray:
         deformer, names = trained_deformer(obj)
     pose = read_pose(obj)
     if deformer.method == "wpsd":
-        disp = deformer.evaluate(pose)
+        disp = deformer.evaluate_fast(pose)
         write_wpsd_preview(obj, disp, names)
         return disp
     w = deformer.weights(pose)

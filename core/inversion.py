@@ -77,11 +77,15 @@ def invert_deformation(deform, rest, sculpt, tol: float = None, max_iter: int = 
             return InversionResult(delta, err, it - 1, 0, "converged")
         J = vertex_jacobians(deform, rest + delta, h)
         det = np.linalg.det(J)
-        bad = np.abs(det) < 1e-12 * np.abs(J).max(axis=(1, 2)) ** 3
+        bad = np.abs(det) <= 1e-12 * max(float(np.abs(J).max()), 1e-300) ** 3
         if bad.any():
             raise ShapeSpaceError(f"{int(bad.sum())} vertices are collapsed by the deformation at this pose "
                                   f"(first: {int(np.flatnonzero(bad)[0])}); they cannot be inverted", "singular")
-        step = np.linalg.solve(J, res[..., None])[..., 0]
+        try:
+            step = np.linalg.solve(J, res[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            raise ShapeSpaceError("the deformation collapses some vertices at this pose; they cannot be "
+                                  "inverted", "singular") from None
         t = 1.0
         while True:
             cand = delta + t * step

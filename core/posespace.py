@@ -97,7 +97,7 @@ def swing_twist(q, axis=(0.0, 1.0, 0.0)):
     swing : ndarray (..., 4)
         The rotation taking ``axis`` to where ``q`` takes it, with no roll.
     twist : ndarray (...,)
-        The roll angle about ``axis`` in (−π, π], the same for q and −q.
+        The roll angle about ``axis`` in [−π, π), the same for q and −q.
     """
     q = _unit_quats(q)
     a = np.asarray(axis, dtype=np.float64)
@@ -178,7 +178,12 @@ _SIDES = (("Left", "Right"), ("left", "right"), (".L", ".R"), ("_L", "_R"), (".l
 
 
 def mirror_name(name: str) -> str:
-    """The left↔right counterpart of a bone/key name (``hand.L`` ↔ ``hand.R``, ``LeftArm`` ↔ ``RightArm``)."""
+    """The left↔right counterpart of a bone/key name (``hand.L`` ↔ ``hand.R``, ``LeftArm`` ↔ ``RightArm``,
+    ``hand.L.001`` ↔ ``hand.R.001``)."""
+    import re
+    m = re.match(r"^(.*?)(\.\d{3})$", name)
+    if m:
+        return mirror_name(m.group(1)) + m.group(2)
     for a, b in _SIDES:
         for x, y in ((a, b), (b, a)):
             if name.endswith(x):

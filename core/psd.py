@@ -85,16 +85,20 @@ def example_issues(poses, correctives=None, names=None, rel_tol: float = 1e-6, o
             issues.append(Issue("info", "constant_dimension",
                                 f"{flat.size} pose-space dimensions never vary across the examples", ()))
     if D is not None and K >= 4 and not any(i.code in ("duplicate_pose", "conflicting_examples") for i in issues):
+        # 8.2.3: regularise, then flag the example farthest from the regularised fit.  Residuals are
+        # measured against the fit of all examples (no extrapolation from left-out ends) and compared
+        # with the spread of the others.
         eps = _default_epsilon(X)
         try:
-            loo = rbf.loo_errors(X, D, "gaussian", eps, -1, smoothing=1e-3)
-            res = np.linalg.norm(loo, axis=1)
+            fit = rbf.fit_rbf(X, D, "gaussian", eps, 1 if _affine_determined(X) else 0, smoothing=0.1)
+            res = np.linalg.norm(fit(X) - D, axis=1)
             worst = int(np.argmax(res))
-            med = float(np.median(res))
-            if med > 0 and res[worst] > outlier_factor * med:
+            med = float(np.median(np.delete(res, worst)))
+            if res[worst] > outlier_factor * max(med, 1e-12 * (np.abs(D).max() + 1e-300)):
                 issues.append(Issue("warning", "outlier",
-                                    f"{names[worst]} disagrees with its neighbours ({res[worst] / med:.1f}× the "
-                                    "typical leave-one-out error): check the sculpt or its pose", (names[worst],)))
+                                    f"{names[worst]} disagrees with the other examples "
+                                    f"({res[worst] / max(med, 1e-300):.1f}× their typical distance from a smooth "
+                                    "fit): check the sculpt or its pose", (names[worst],)))
         except ShapeSpaceError:
             pass
     return issues
@@ -146,6 +150,7 @@ class PoseSpaceDeformer:
     group_columns: list = None           # feature columns per group
     folded: np.ndarray = None            # (p, K, 3): A_v⁻¹ Δ_v
     diagnostics: dict = field(default_factory=dict)
+    _fast: tuple = None                  # float32 sparse weights and (3, p, K) coefficients
 
     @property
     def n_examples(self) -> int:
@@ -168,6 +173,36 @@ class PoseSpaceDeformer:
         d2 = np.einsum("pm,pmk->pk", self.vertex_weights, g2[gi])
         phi = np.exp(-(self.epsilon ** 2) * d2)
         return phi / phi.sum(axis=1, keepdims=True)
+
+    def _prepare_fast(self):
+        import scipy.sparse as sp
+        p, m = self.vertex_groups.shape
+        ok = self.vertex_groups >= 0
+        rows = np.repeat(np.arange(p), m)[ok.ravel()]
+        W = sp.csr_matrix((self.vertex_weights.ravel()[ok.ravel()],
+                           (rows, self.vertex_groups.ravel()[ok.ravel()])), shape=(p, len(self.group_columns)))
+        self._fast = (W, np.ascontiguousarray(self.folded.transpose(2, 0, 1)))
+
+    def evaluate_fast(self, pose) -> np.ndarray:
+        """Weighted PSD for live preview, (p, 3): the same result as :meth:`evaluate`, faster.
+
+        A sparse (p × joints) weight matrix gives every vertex's pose distances
+        at once; normalisation is applied to the 3 output columns instead of
+        the p × K kernel matrix.  Double precision throughout: the folded
+        coefficients A_v⁻¹Δ_v can cancel strongly, which single precision
+        would amplify.
+        """
+        if self.method != "wpsd":
+            return self.evaluate(pose).astype(np.float32)
+        if self._fast is None:
+            self._prepare_fast()
+        W, coeffs = self._fast
+        d2 = W @ self._group_d2(pose)
+        d2 *= -(self.epsilon ** 2)
+        phi = np.exp(d2, out=d2)
+        out = np.einsum("pk,cpk->pc", phi, coeffs)
+        out /= phi.sum(axis=1, keepdims=True)
+        return out
 
     def evaluate(self, pose) -> np.ndarray:
         """Rest-space corrective displacement at ``pose``, (p, 3)."""
@@ -236,8 +271,8 @@ def train_psd(poses, correctives, method: str = "psd", epsilon: float = None, sm
     if vertex_groups is None or vertex_weights is None or group_columns is None:
         raise ShapeSpaceError("weighted PSD needs per-vertex skinning weights and the joints' pose columns",
                               "wpsd_inputs")
-    gi = np.asarray(vertex_groups, dtype=np.int64)
-    gw = np.asarray(vertex_weights, dtype=np.float64)
+    gi = np.array(vertex_groups, dtype=np.int64, copy=True)
+    gw = np.array(vertex_weights, dtype=np.float64, copy=True)
     p = D.shape[1]
     if gi.shape != gw.shape or gi.shape[0] != p:
         raise ShapeSpaceError(f"vertex_groups and vertex_weights must both have shape ({p}, m)", "shape")

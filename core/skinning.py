@@ -415,3 +415,29 @@ def diagnose_weights(weights: SkinWeights, vertex_names=None, tol: float = 1e-3)
                             f"(Blender normalises them; first: vertex {int(unnorm[0])}, sum {total[unnorm[0]]:.4g})"))
     return Result(total, 1 if issues else 0, issues[0].message if issues else "weights ok",
                   {"unweighted": int(zero.size), "unnormalised": int(unnorm.size)}, issues)
+
+
+def forward_kinematics(rest, parents, basis) -> np.ndarray:
+    """Posed bone matrices (armature space) from local pose transforms, as Blender computes them.
+
+    Parameters
+    ----------
+    rest : ndarray (b, 4, 4)
+        ``Bone.matrix_local``.
+    parents : sequence of int, length b
+        Parent index per bone (−1 for roots); parents must come before children.
+    basis : ndarray (b, 4, 4)
+        ``PoseBone.matrix_basis`` (the local pose transform).
+
+    Returns
+    -------
+    ndarray (b, 4, 4)
+        ``PoseBone.matrix``: ``pose_parent · rest_parent⁻¹ · rest · basis``.
+    """
+    rest = np.asarray(rest, dtype=np.float64)
+    basis = np.asarray(basis, dtype=np.float64)
+    out = np.empty_like(rest)
+    for b, par in enumerate(parents):
+        local = rest[b] if par < 0 else np.linalg.inv(rest[par]) @ rest[b]
+        out[b] = (local if par < 0 else out[par] @ local) @ basis[b]
+    return out

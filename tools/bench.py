@@ -2,7 +2,8 @@
 
     python tools/bench.py SUITE --json FILE [--quick]
 
-Suites: ``dm`` (direct manipulation, issue #3).  Every goal metric named in
+Suites: ``dm`` (direct manipulation, issue #3), ``psd`` (pose-space correctives,
+issue #4; also writes a PNG plot next to the JSON).  Every goal metric named in
 the issue is computed in ``--quick`` mode too, with fewer repetitions.
 Reference solvers are measured in the same run, on the same machine.
 Creates ``.venv/bpy50`` on first use (Blender is needed to read the real rigs).
@@ -18,7 +19,7 @@ TOOLS = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, TOOLS)
 import env  # noqa: E402
 
-SUITES = ("dm",)
+SUITES = ("dm", "psd")
 
 
 def main(argv) -> int:
@@ -31,6 +32,9 @@ def main(argv) -> int:
     if args.suite == "dm":
         import bench_dm
         metrics = bench_dm.run(quick=args.quick)
+    else:
+        import bench_psd
+        metrics = bench_psd.run(quick=args.quick, plot_path=os.path.splitext(args.json)[0] + ".png")
     with open(args.json, "w", encoding="utf-8") as fh:
         json.dump(metrics, fh, indent=2, sort_keys=True)
     width = max(len(k) for k in metrics)

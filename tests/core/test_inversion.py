@@ -29,11 +29,23 @@ def random_world(rng):
     return mat4(rand_rot(rng) @ np.diag(rng.uniform(0.6, 1.8, size=3)), rng.normal(size=3) * 2.0)
 
 
-def random_affine_pose(rng, rest):
-    """A general (non-rigid) posed bone matrix: rigid motion, scale and a little shear in the bone frame."""
+def small_rigid(rng, max_angle=0.8):
+    axis = rng.normal(size=3)
+    r = Rotation.from_rotvec(axis / np.linalg.norm(axis) * rng.uniform(0.0, max_angle)).as_matrix()
+    return mat4(r, rng.normal(size=3) * 0.5)
+
+
+def random_affine_pose(rng, rest, common):
+    """A general (non-rigid) posed bone matrix: a motion shared by the rig (``common``), a per-bone bend of
+    up to ~45 degrees (so blended matrices stay well conditioned), and scale and shear in the bone frame."""
     S = np.eye(4)
     S[:3, :3] = np.diag(rng.uniform(0.7, 1.4, size=3)) + 0.15 * rng.normal(size=(3, 3))
-    return random_rigid(rng) @ rest @ S
+    return common @ small_rigid(rng) @ rest @ S
+
+
+def affine_poses(rng, rig):
+    common = random_rigid(rng, 2.0)
+    return np.stack([random_affine_pose(rng, r, common) for r in rig.deformers[0].rest])
 
 
 def skin(rng, p, b, k=3, zero_rows=()):
@@ -137,7 +149,7 @@ def rng():
 def test_lbs_inversion_exact_in_one_iteration(seed):
     rng = np.random.default_rng(seed)
     rig = make_rig(rng)
-    pose = np.stack([random_affine_pose(rng, r) for r in rig.deformers[0].rest])
+    pose = affine_poses(rng, rig)
     rest = rng.normal(size=(40, 3)) * 2.0
     size = size_of(rest)
     f = lambda x: deform(x, rig, [pose])
@@ -154,7 +166,7 @@ def test_lbs_inversion_exact_in_one_iteration(seed):
 
 def test_zero_weight_vertices_get_sculpt_minus_rest(rng):
     rig = make_rig(rng, zero_rows=(0, 5, 6, 30))
-    pose = np.stack([random_affine_pose(rng, r) for r in rig.deformers[0].rest])
+    pose = affine_poses(rng, rig)
     rest = rng.normal(size=(40, 3))
     f = lambda x: deform(x, rig, [pose])
     sculpt = f(rest) + rng.normal(size=rest.shape) * 0.2
@@ -165,7 +177,7 @@ def test_zero_weight_vertices_get_sculpt_minus_rest(rng):
 
 def test_already_matching_sculpt_needs_no_iteration(rng):
     rig = make_rig(rng)
-    pose = np.stack([random_affine_pose(rng, r) for r in rig.deformers[0].rest])
+    pose = affine_poses(rng, rig)
     rest = rng.normal(size=(40, 3))
     f = lambda x: deform(x, rig, [pose])
     res = invert_deformation(f, rest, f(rest))
@@ -174,7 +186,7 @@ def test_already_matching_sculpt_needs_no_iteration(rng):
 
 
 # ------------------------------------------------------------------ dual-quaternion skinning
-@pytest.mark.parametrize("seed", [3, 4])
+@pytest.mark.parametrize("seed", [3, 4, 5])
 def test_dqs_rigid_inversion(seed):
     rng = np.random.default_rng(seed)
     rig = make_rig(rng, dqs=True)
@@ -235,12 +247,25 @@ def test_custom_tolerance(rng):
 
 def test_unreachable_sculpt_is_reported_not_converged():
     rest = np.array([[0.0, 0.0, 0.0], [0.1, 0.2, 0.3], [1.0, 1.0, 1.0]])
-    sculpt = rest.copy()
-    sculpt[1] = [2.0, 2.0, 2.0]                     # outside the range of tanh
-    res = invert_deformation(np.tanh, rest, sculpt, max_iter=8)
+    sculpt = np.sin(rest)
+    sculpt[1] = [2.0, 2.0, 2.0]                     # outside the range of sin
+    res = invert_deformation(np.sin, rest, sculpt, max_iter=8)
     assert res.status == 1
-    assert res.residual > 0.5
-    assert np.abs(np.tanh(rest + res.corrective) - sculpt).max() == pytest.approx(res.residual, rel=1e-12)
+    assert res.residual >= 1.0 - 1e-12            # |sin - 2| >= 1 everywhere
+    assert np.abs(np.sin(rest + res.corrective) - sculpt).max() == pytest.approx(res.residual, rel=1e-12)
+
+
+@pytest.mark.parametrize("saturating", [np.tanh, np.arctan, lambda x: x / (1.0 + np.abs(x))],
+                         ids=["tanh", "arctan", "rational"])
+def test_saturating_deformer_does_not_leak_linalg_error(saturating):
+    rest = np.array([[0.0, 0.0, 0.0], [0.1, 0.2, 0.3], [1.0, 1.0, 1.0]])
+    sculpt = saturating(rest)
+    sculpt[1] = [2.0, 2.0, 2.0]                     # outside the deformer's range
+    try:
+        res = invert_deformation(saturating, rest, sculpt, max_iter=8)
+    except ShapeSpaceError:
+        return
+    assert res.status == 1
 
 
 # ------------------------------------------------------------------ collapse and bad input
@@ -258,13 +283,13 @@ def test_rank_deficient_bone_scale_is_singular(rng):
     assert e.value.code == "singular"
 
 
-def collapse_rig(rng):
-    rest_b = np.stack([random_rigid(rng) for _ in range(2)])
+def collapse_rig(rest_b):
+    """Vertices 0-2 follow only bone "a", which is scaled to zero; vertices 3-5 are shared with bone "b"."""
     bi = np.array([[0, -1]] * 3 + [[0, 1]] * 3)
     w = np.array([[1.0, 0.0]] * 3 + [[0.5, 0.5]] * 3)
     d = ArmatureDeform(SkinWeights(bi, w), ["a", "b"], rest_b, np.eye(4))
     pose = rest_b.copy()
-    pose[0, :3, :3] = 0.0                                    # bone "a" scaled to zero
+    pose[0, :3, :3] = 0.0
     return SkinningRig(np.eye(4), [d]), pose
 
 
@@ -274,14 +299,11 @@ def collapse_to_point(x):
     return out
 
 
-@pytest.mark.xfail(strict=True, raises=np.linalg.LinAlgError,
-                   reason="BUG: invert_deformation's collapse test `|det J| < 1e-12 * max|J|**3` is relative to "
-                   "each vertex's own Jacobian, so a vertex collapsed to a point (J == 0 exactly: 0 < 0 is False) "
-                   "is not detected and np.linalg.solve raises LinAlgError instead of ShapeSpaceError('singular')")
 @pytest.mark.parametrize("case", ["zero_scale_bone", "callable"])
 def test_vertex_collapsed_to_a_point_is_singular(rng, case):
     if case == "zero_scale_bone":
-        rig, pose = collapse_rig(rng)
+        # identity rest matrices and world matrices: the collapsed vertices land exactly on the origin
+        rig, pose = collapse_rig(np.stack([np.eye(4), mat4(t=(0.5, 0.0, 0.0))]))
         f = lambda x: deform(x, rig, [pose])
     else:
         f = collapse_to_point
@@ -289,6 +311,17 @@ def test_vertex_collapsed_to_a_point_is_singular(rng, case):
     with pytest.raises(ShapeSpaceError) as e:
         invert_deformation(f, rest, f(rest) + 0.1)
     assert e.value.code == "singular"
+
+
+def test_zero_scale_bone_with_general_rest_matrices_is_singular():
+    for seed in range(12):
+        rng = np.random.default_rng(seed)
+        rig, pose = collapse_rig(np.stack([random_rigid(rng) for _ in range(2)]))
+        f = lambda x: deform(x, rig, [pose])
+        rest = rng.normal(size=(6, 3))
+        with pytest.raises(ShapeSpaceError) as e:
+            invert_deformation(f, rest, f(rest) + 0.1)
+        assert e.value.code == "singular"
 
 
 @pytest.mark.parametrize("case, code", [
@@ -344,7 +377,7 @@ def test_vertex_jacobians_of_quadratic_map_are_exact(rng):
 def test_vertex_jacobians_of_lbs_equal_blended_matrix(rng):
     rig = make_rig(rng)
     d = rig.deformers[0]
-    pose = np.stack([random_affine_pose(rng, r) for r in d.rest])
+    pose = affine_poses(rng, rig)
     x = rng.normal(size=(40, 3))
     J = vertex_jacobians(lambda y: deform(y, rig, [pose]), x, 1e-3)
     P = np.linalg.inv(d.armature_world) @ rig.mesh_world

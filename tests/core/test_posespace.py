@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core.posespace import (READER_DIMS, PoseReader, feature_groups, pose_features, quaternion_distance,
-                            quaternion_to_matrix, reader_features, swing_twist)
+from core.posespace import (READER_DIMS, PoseReader, feature_groups, mirror_features, mirror_name, mirror_pose,
+                            pose_features, quaternion_distance, quaternion_to_matrix, reader_features,
+                            swing_twist)
 from core.result import ShapeSpaceError
 
 Y = np.array([0.0, 1.0, 0.0])
@@ -199,11 +200,9 @@ def test_twist_angle_within_pi():
     assert np.all(np.abs(tau) <= np.pi + 1e-15)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG (docs): swing_twist documents the twist range as (−π, π] but "
-                   "`(angle + π) % 2π − π` returns [−π, π): a half-turn about Y gives −π, not π")
-def test_half_turn_twist_is_plus_pi_as_documented():
-    _, tau = swing_twist([0.0, 0.0, 1.0, 0.0])
-    assert tau == pytest.approx(np.pi, abs=1e-12)
+def test_half_turn_twist_is_minus_pi_as_documented():
+    _, tau = swing_twist([0.0, 0.0, 1.0, 0.0])      # documented range [−π, π)
+    assert tau == pytest.approx(-np.pi, abs=1e-12)
 
 
 # ------------------------------------------------------------------ reader_features
@@ -425,3 +424,85 @@ def test_feature_groups_non_adjacent_same_source():
     groups = feature_groups(readers)
     np.testing.assert_array_equal(groups["arm"], [0, 1, 2, 4, 5])
     np.testing.assert_array_equal(groups["p"], [3])
+
+
+# ------------------------------------------------------------------ mirroring (X mirror, Blender's flipped pose)
+MX = np.diag([-1.0, 1.0, 1.0])
+
+
+def flip_quat(q):
+    """Blender's flipped pose of a local quaternion: (w, x, -y, -z)."""
+    return np.asarray(q, float) * np.array([1.0, 1.0, -1.0, -1.0])
+
+
+def test_flipped_quaternion_is_the_reflected_rotation():
+    r = random_rots(20, 30)
+    np.testing.assert_allclose(to_rot(flip_quat(to_wxyz(r))).as_matrix(), MX @ r.as_matrix() @ MX, atol=1e-12)
+
+
+@pytest.mark.parametrize("name, mirrored", [
+    ("hand.L", "hand.R"), ("hand.R", "hand.L"), ("arm_L", "arm_R"), ("foot.l", "foot.r"), ("toe_r", "toe_l"),
+    ("LeftArm", "RightArm"), ("RightUpLeg", "LeftUpLeg"), ("L_eye", "R_eye"), ("r_ear", "l_ear"),
+    ("mixamorig:LeftHand", "mixamorig:RightHand"), ("brow_left", "brow_right"), ("spine", "spine"),
+    ("exertion", "exertion"),
+])
+def test_mirror_name(name, mirrored):
+    assert mirror_name(name) == mirrored
+    assert mirror_name(mirrored) == name
+
+
+@pytest.mark.parametrize("kind", ["rotation", "swing", "twist"])
+@pytest.mark.parametrize("scale", [1.0, 2.5])
+def test_mirror_features_of_bone_rotations(kind, scale):
+    reader = PoseReader(kind, "arm.L", scale=scale)
+    for q in to_wxyz(random_rots(25, 31)):
+        got = mirror_features(reader, reader_features(reader, q))
+        np.testing.assert_allclose(got, reader_features(reader, flip_quat(q)), atol=1e-12)
+    R = random_rots(1, 32).as_matrix()[0]
+    q = to_wxyz(Rotation.from_matrix(R))[0]
+    Rm = MX @ R @ MX
+    if kind == "rotation":
+        ref = (Rm - np.eye(3)).ravel() / np.sqrt(2.0)
+    elif kind == "swing":
+        ref = Rm @ Y - Y
+    else:
+        tau = swing_twist(q)[1]
+        ref = np.array([np.cos(-tau) - 1.0, np.sin(-tau)])      # a roll about Y reverses in the mirror
+    np.testing.assert_allclose(mirror_features(reader, reader_features(reader, q)), scale * ref, atol=1e-12)
+
+
+def test_mirror_features_location_and_scalars():
+    loc = PoseReader("location", "hand.L", scale=0.5)
+    np.testing.assert_allclose(mirror_features(loc, reader_features(loc, [1.0, 2.0, -3.0])),
+                               0.5 * np.array([-1.0, 2.0, -3.0]), atol=1e-15)
+    for kind in ("property", "shape_key"):
+        r = PoseReader(kind, "exertion", scale=2.0)
+        np.testing.assert_allclose(mirror_features(r, reader_features(r, 0.3)), [0.6], atol=1e-15)
+
+
+def mirror_setup():
+    readers = [PoseReader("rotation", "arm.L"), PoseReader("rotation", "arm.R"),
+               PoseReader("twist", "forearm.L", scale=2.0), PoseReader("twist", "forearm.R", scale=2.0),
+               PoseReader("location", "LeftHand"), PoseReader("location", "RightHand"),
+               PoseReader("property", "exertion"), PoseReader("swing", "spine")]
+    q = to_wxyz(random_rots(5, 33))
+    values = [q[0], q[1], q[2], q[3], [0.1, 0.2, 0.3], [-0.4, 0.5, 0.6], 0.7, q[4]]
+    return readers, values
+
+
+def test_mirror_pose_swaps_sides_and_flips():
+    readers, v = mirror_setup()
+    mirrored_values = [flip_quat(v[1]), flip_quat(v[0]), flip_quat(v[3]), flip_quat(v[2]),
+                       [0.4, 0.5, 0.6], [-0.1, 0.2, 0.3], 0.7, flip_quat(v[7])]
+    pose = pose_features(readers, v)
+    np.testing.assert_allclose(mirror_pose(readers, pose), pose_features(readers, mirrored_values), atol=1e-12)
+    # mirroring twice gives the pose back
+    np.testing.assert_allclose(mirror_pose(readers, mirror_pose(readers, pose)), pose, atol=1e-12)
+
+
+def test_mirror_pose_without_counterpart():
+    readers = [PoseReader("rotation", "arm.L"), PoseReader("swing", "arm.R")]    # same bone pair, other kind
+    pose = pose_features(readers, [[1.0, 0, 0, 0], [1.0, 0, 0, 0]])
+    with pytest.raises(ShapeSpaceError) as e:
+        mirror_pose(readers, pose)
+    assert e.value.code == "no_mirror"
