@@ -226,7 +226,9 @@ def train_psd(poses, correctives, method: str = "psd", epsilon: float = None, sm
     method : {"psd", "sbe", "wpsd"}
     epsilon : float, optional
         Kernel width (PSD/WPSD Gaussian, SbE radial part); default: by
-        leave-one-out cross validation (PSD, SbE) or 1 / median distance (WPSD).
+        leave-one-out cross validation (PSD, SbE) or 2 / median distance
+        between the examples (WPSD: each vertex sees only its joints' part of
+        the pose, so its distances are shorter).
     smoothing : float
         Weight decay (Eq. 8.3); raised automatically for (near-)duplicate poses.
     kernel : str, optional

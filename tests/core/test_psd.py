@@ -192,7 +192,7 @@ def test_wpsd_exact_at_examples(rng):
     assert m.method == "wpsd"
     assert m.diagnostics["unweighted_vertices"] == 0
     d = cdist(X, X)
-    assert m.epsilon == pytest.approx(1.0 / np.median(d[d > 0]), rel=1e-14)   # documented default
+    assert m.epsilon == pytest.approx(2.0 / np.median(d[d > 0]), rel=1e-14)   # documented default
     for k in range(len(X)):
         np.testing.assert_allclose(m.evaluate(X[k]), D[k], rtol=0, atol=1e-8)
 
