@@ -25,7 +25,11 @@ def test_demo_writes_blend_renders_and_report(tmp_path):
     assert dm["drags"] == 5 and len(errs) == 6
     assert errs[-1] < 0.5 * errs[0]  # the drags bring the neutral toward the captured expression
     assert (out / "demo.blend").stat().st_size > 0
-    for png in [report["outputs"][k] for k in ("neutral_png", "frame_png")] + list(dm["renders"].values()):
+    pc = report["pose_space_correctives"]
+    assert len(pc["examples"]) == 3
+    assert pc["max_error_rel_corrected"] < 0.25 * pc["max_error_rel_lbs"]   # the held-out bend is fixed
+    renders = list(dm["renders"].values()) + list(pc["renders"].values())
+    for png in [report["outputs"][k] for k in ("neutral_png", "frame_png")] + renders:
         with open(png, "rb") as fh:
             assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
     # the saved file reopens and still plays the capture on the head
