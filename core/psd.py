@@ -32,6 +32,9 @@ from .result import Issue, ShapeSpaceError
 __all__ = ["PoseSpaceDeformer", "train_psd", "example_issues", "ScalarDriver", "train_driver"]
 
 METHODS = ("psd", "sbe", "wpsd")
+#: Weighted PSD: per-vertex coefficients larger than this times the vertex's largest corrective
+#: mark an ill-conditioned vertex system (see train_psd's ``vertex_ridge``).
+AMPLIFICATION_LIMIT = 2000.0
 
 
 def _check_examples(poses, correctives):
@@ -248,12 +251,12 @@ def train_psd(poses, correctives, method: str = "psd", epsilon: float = None, sm
     group_columns : list of index arrays
         Weighted PSD: the feature columns of each joint.
     vertex_ridge : float
-        Weighted PSD: ridge for the vertices whose examples nearly coincide in
-        that vertex's own (skin-weighted) pose metric (closest pair's squared
-        distance under 1e-4 of the mean squared distance, i.e. 1% in distance).  Without it those vertices' systems are nearly
-        singular and blow up between examples; with it they reproduce their
-        examples to about the ridge's size instead of exactly.  All other
-        vertices interpolate exactly.  0 turns it off.
+        Weighted PSD: starting ridge for the vertices whose examples nearly
+        coincide in that vertex's own (skin-weighted) pose metric, detected by
+        coefficients over :data:`AMPLIFICATION_LIMIT` × the vertex's largest
+        corrective; the ridge grows ×10 until they are tame.  Those vertices
+        reproduce their examples approximately instead of blowing up between
+        them; all other vertices interpolate exactly.  0 turns it off.
     """
     X, D = _check_examples(poses, correctives)
     if method not in METHODS:
@@ -313,7 +316,6 @@ def train_psd(poses, correctives, method: str = "psd", epsilon: float = None, sm
     folded = np.empty((p, K, 3))
     # squared distances between examples, per joint: (G, K, K)
     pair = np.stack([rbf.pairwise_distances(X[:, c], X[:, c]) ** 2 for c in model.group_columns])
-    off = ~np.eye(K, dtype=bool)
     pair_flat = pair.reshape(pair.shape[0], -1)                            # (G, K·K)
     model._prepare_fast_weights()
     ridged = 0
@@ -322,21 +324,33 @@ def train_psd(poses, correctives, method: str = "psd", epsilon: float = None, sm
         d2 = (model._W[sl] @ pair_flat).reshape(-1, K, K)                  # vertex metric, example pairs
         A = np.exp(-(epsilon ** 2) * d2)
         A /= A.sum(axis=2, keepdims=True)                                  # normalised rows (i: at example i)
-        # Examples that differ only in joints a vertex ignores are near-duplicates *for that vertex*;
-        # such vertices (and only those) get ``vertex_ridge``, trading exactness for stability.
-        lam = np.full(A.shape[0], smoothing)
-        if K > 2 and vertex_ridge > 0:
-            diag_big = d2 + np.where(off, 0.0, np.inf)                     # ignore i == k
-            near = diag_big.min(axis=(1, 2)) < 1e-4 * d2.sum(axis=(1, 2)) / (K * (K - 1))
-            lam = np.where(near, np.maximum(lam, vertex_ridge), lam)
-            ridged += int(near.sum())
-        A = A + lam[:, None, None] * np.eye(K)
+        if smoothing > 0:
+            A = A + smoothing * np.eye(K)
         rhs = np.transpose(D[:, sl, :], (1, 0, 2))                               # (chunk, K, 3)
         try:
-            folded[sl] = np.linalg.solve(A, rhs)
+            coeff = np.linalg.solve(A, rhs)
         except np.linalg.LinAlgError:
-            raise ShapeSpaceError("a vertex's interpolation system is singular: examples too close together "
-                                  "for its joints; add smoothing or remove an example", "singular") from None
+            if vertex_ridge <= 0:
+                raise ShapeSpaceError("a vertex's interpolation system is singular: examples too close together "
+                                      "for its joints; add smoothing or remove an example", "singular") from None
+            coeff = np.linalg.solve(A + 1e-12 * np.eye(K), rhs)   # the ridge pass below tames these
+        if vertex_ridge > 0:
+            # Examples that differ mostly in joints a vertex ignores are near-duplicates *for that
+            # vertex*: its system is ill-conditioned and its coefficients blow up (large values that
+            # cancel at the examples and swing wildly between them).  Those vertices, and only those,
+            # are solved again with a growing ridge until the coefficients are tame.
+            scale = np.abs(rhs).max(axis=(1, 2)) + 1e-300
+            wild = np.abs(coeff).max(axis=(1, 2)) > AMPLIFICATION_LIMIT * scale
+            lam = vertex_ridge
+            while wild.any() and lam <= 1.0:
+                idx = np.flatnonzero(wild)
+                coeff[idx] = np.linalg.solve(A[idx] + lam * np.eye(K), rhs[idx])
+                ridged_now = idx[np.abs(coeff[idx]).max(axis=(1, 2)) <= AMPLIFICATION_LIMIT * scale[idx]]
+                ridged += ridged_now.size
+                wild[ridged_now] = False
+                lam *= 10.0
+            ridged += int(wild.sum())
+        folded[sl] = coeff
     model.folded = folded
     model.diagnostics["ridged_vertices"] = ridged
     return model

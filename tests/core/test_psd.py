@@ -199,7 +199,9 @@ def test_wpsd_exact_at_examples(rng):
 
 def test_wpsd_per_vertex_equals_independent_computation(rng):
     X, D, gi, gw = wpsd_setup(rng)
-    m = train_psd(X, D, "wpsd", epsilon=0.45, vertex_groups=gi, vertex_weights=gw, group_columns=GROUP_COLUMNS)
+    # vertex_ridge=0: the exact Kurihara–Miyata interpolant, compared with the independent reference
+    m = train_psd(X, D, "wpsd", epsilon=0.45, vertex_ridge=0.0, vertex_groups=gi, vertex_weights=gw,
+                  group_columns=GROUP_COLUMNS)
     for x in rng.normal(size=(4, 6)):
         got = m.evaluate(x)
         cw = m.vertex_weights_at(x)
@@ -237,7 +239,8 @@ def test_wpsd_unweighted_vertices_use_equal_joint_weights(rng):
     gw[3] = 0.0                 # no weight at all
     gi[7] = [-1, -1]            # only padding
     gw[7] = [0.5, 0.5]
-    m = train_psd(X, D, "wpsd", epsilon=0.5, vertex_groups=gi.copy(), vertex_weights=gw,
+    # vertex_ridge=0: the exact Kurihara–Miyata interpolant, compared with the independent reference
+    m = train_psd(X, D, "wpsd", epsilon=0.5, vertex_ridge=0.0, vertex_groups=gi.copy(), vertex_weights=gw,
                   group_columns=GROUP_COLUMNS)
     assert m.diagnostics["unweighted_vertices"] == 2
     for k in range(len(X)):
@@ -257,7 +260,7 @@ def test_wpsd_unweighted_vertex_with_as_many_influences_as_joints(rng):
     X, D = rng.normal(size=(6, 6)), rng.normal(size=(6, 4, 3))
     gi = np.array([[0, 1, 2], [1, -1, -1], [-1, -1, -1], [1, 0, -1]])
     gw = np.array([[0.2, 0.3, 0.5], [1.0, 0, 0], [0.0, 0, 0], [0.5, 0.5, 0]])
-    m = train_psd(X, D, "wpsd", epsilon=0.6, vertex_groups=gi.copy(), vertex_weights=gw,
+    m = train_psd(X, D, "wpsd", epsilon=0.6, vertex_ridge=0.0, vertex_groups=gi.copy(), vertex_weights=gw,
                   group_columns=GROUP_COLUMNS)
     assert m.diagnostics["unweighted_vertices"] == 1
     x = rng.normal(size=6)
@@ -557,3 +560,17 @@ def test_train_driver_duplicate_pose_regularised(rng):
     ref = RBFInterpolator(X, V, kernel="thin_plate_spline", epsilon=1.0, degree=1, smoothing=lam)
     for x in np.vstack([X[1], rng.normal(size=(4, 2))]):
         assert drv(x)["k"] == pytest.approx(ref(x[None])[0, 0], abs=1e-7)
+
+
+def test_wpsd_stabiliser_leaves_well_conditioned_vertices_exact_and_tames_the_rest(rng):
+    """The default per-vertex ridge only touches vertices whose coefficients blow up."""
+    X, D, gi, gw = wpsd_setup(rng)
+    exact = train_psd(X, D, "wpsd", vertex_ridge=0.0, vertex_groups=gi, vertex_weights=gw,
+                      group_columns=GROUP_COLUMNS)
+    tamed = train_psd(X, D, "wpsd", vertex_groups=gi, vertex_weights=gw, group_columns=GROUP_COLUMNS)
+    from core.psd import AMPLIFICATION_LIMIT
+    scale = np.abs(D).max(axis=(0, 2))
+    wild = np.abs(exact.folded).max(axis=(1, 2)) > AMPLIFICATION_LIMIT * scale
+    np.testing.assert_array_equal(tamed.folded[~wild], exact.folded[~wild])
+    assert np.all(np.abs(tamed.folded).max(axis=(1, 2)) <= AMPLIFICATION_LIMIT * scale + 1e-12) or wild.any()
+    assert tamed.diagnostics["ridged_vertices"] == int(wild.sum())
