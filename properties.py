@@ -60,6 +60,15 @@ class SHAPESPACE_PG_reader(bpy.types.PropertyGroup):
     scale: bpy.props.FloatProperty(name="Scale", default=1.0, min=1e-6, description="Weight of this control")
 
 
+class SHAPESPACE_PG_target(bpy.types.PropertyGroup):
+    """A value driven from pose space (a shape-key value, bone channel or custom property; thesis 7.3.3)"""
+
+    owner: bpy.props.PointerProperty(name="Owner", type=bpy.types.ID,
+                                     description="Datablock that holds the value (object, armature, shape keys)")
+    data_path: bpy.props.StringProperty(name="Data Path", description='e.g. pose.bones["Arm"].scale')
+    index: bpy.props.IntProperty(name="Index", default=-1, min=-1, description="Array index, −1 for a scalar")
+
+
 class SHAPESPACE_PG_example(bpy.types.PropertyGroup):
     """A sculpted corrective at a pose (its shape key has the same name)"""
 
@@ -71,6 +80,8 @@ class SHAPESPACE_PG_example(bpy.types.PropertyGroup):
     flags: bpy.props.StringProperty(name="Flags", description="Duplicate, conflicting or outlier example")
     sculpt: bpy.props.PointerProperty(name="Sculpt", type=bpy.types.Object,
                                       description="Posed copy to sculpt the wanted shape on")
+    target_values: bpy.props.StringProperty(name="Target Values", options={"HIDDEN"},
+                                            description="Values of the driven targets at this example")
 
 
 class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
@@ -86,14 +97,15 @@ class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
     readers: bpy.props.CollectionProperty(type=SHAPESPACE_PG_reader)
     active_reader: bpy.props.IntProperty(name="Active Reader")
     examples: bpy.props.CollectionProperty(type=SHAPESPACE_PG_example)
+    targets: bpy.props.CollectionProperty(type=SHAPESPACE_PG_target)
     active_example: bpy.props.IntProperty(name="Active Example")
     live_preview: bpy.props.BoolProperty(
         name="Live Preview", description="Update the correctives while posing and scrubbing")
     revision: bpy.props.IntProperty(options={"HIDDEN"}, description="Bumped when examples change")
 
 
-classes = (SHAPESPACE_PG_pin, SHAPESPACE_PG_settings, SHAPESPACE_PG_reader, SHAPESPACE_PG_example,
-           SHAPESPACE_PG_psd)
+classes = (SHAPESPACE_PG_pin, SHAPESPACE_PG_settings, SHAPESPACE_PG_reader, SHAPESPACE_PG_target,
+           SHAPESPACE_PG_example, SHAPESPACE_PG_psd)
 
 
 def register():

@@ -6,6 +6,7 @@ import json
 import bpy
 import numpy as np
 
+from ..core import rbf
 from ..core.inversion import invert_deformation
 from ..core.posespace import PoseReader, pose_features
 from ..core.psd import example_issues, train_psd
@@ -133,6 +134,7 @@ def add_example(obj, name: str = None, make_sculpt_copy: bool = True):
     ex = st.examples.add()
     ex.name = kb.name
     ex.pose = json.dumps([float(v) for v in pose])
+    ex.target_values = json.dumps(read_targets(obj))
     st.active_example = len(st.examples) - 1
     st.revision += 1
     copy = make_sculpt_copy and posed_copy(obj, kb.name + SCULPT_SUFFIX)
@@ -304,11 +306,17 @@ def flag_examples(obj) -> list:
     return issues
 
 
-def preview(obj, deformer=None, names=None) -> np.ndarray:
-    """Set the correctives for the current pose; returns the applied weights (PSD/SbE) or displacement."""
+def preview(obj, deformer=None, names=None, driver=None) -> np.ndarray:
+    """Set the correctives (and driven targets) for the current pose.
+
+    Returns the applied weights (PSD/SbE) or displacement (weighted PSD).
+    """
     if deformer is None:
         deformer, names = trained_deformer(obj)
     pose = read_pose(obj)
+    driver = driver if driver is not None else target_driver(obj)
+    if driver is not None:
+        write_targets(obj, list(driver(pose).values()))
     if deformer.method == "wpsd":
         disp = deformer.evaluate_fast(pose)
         write_wpsd_preview(obj, disp, names)
@@ -346,12 +354,19 @@ def bake_weights(obj, scene, start: int, end: int) -> int:
     frames = np.arange(start, end + 1, dtype=np.float64)
     current = scene.frame_current
     weights = np.empty((frames.size, len(names)))
+    driver = target_driver(obj)
+    targets = np.empty((frames.size, len(settings(obj).targets)))
     try:
         for i, f in enumerate(frames):
             scene.frame_set(int(f))
-            weights[i] = deformer.weights(read_pose(obj))
+            pose = read_pose(obj)
+            weights[i] = deformer.weights(pose)
+            if driver is not None:
+                targets[i] = list(driver(pose).values())
     finally:
         scene.frame_set(current)
+    for j, t in enumerate(settings(obj).targets):
+        actions.write_curve(t.owner, t.data_path, frames, targets[:, j], index=max(t.index, 0))
     key = obj.data.shape_keys
     action = actions.active_action(key)
     if action is None:
@@ -458,3 +473,68 @@ def mirror_example(obj, example_name: str, tolerance: float = 1e-4) -> str:
     st.active_example = len(st.examples) - 1
     st.revision += 1
     return kb.name
+
+
+# ----------------------------------------------------------------------------- driven targets (7.3.3)
+def _target_ref(t):
+    if t.owner is None:
+        raise ShapeSpaceError(f"driven target {t.data_path!r} has no owner", "missing_target")
+    try:
+        value = t.owner.path_resolve(t.data_path)
+    except ValueError:
+        raise ShapeSpaceError(f"{t.owner.name!r} has no property {t.data_path!r}", "missing_target") from None
+    return value
+
+
+def read_targets(obj) -> list:
+    """Current values of the driven targets (one float each)."""
+    out = []
+    for t in settings(obj).targets:
+        value = _target_ref(t)
+        out.append(float(value[t.index] if t.index >= 0 else value))
+    return out
+
+
+def write_targets(obj, values) -> None:
+    for t, v in zip(settings(obj).targets, values):
+        if t.index >= 0:
+            arr = _target_ref(t)
+            arr[t.index] = float(v)
+        else:
+            path, _, prop = t.data_path.rpartition(".")
+            holder = t.owner.path_resolve(path) if path else t.owner
+            if prop.startswith("["):   # custom property: owner["name"]
+                holder[prop[2:-2]] = float(v)
+            else:
+                setattr(holder, prop, float(v))
+
+
+def record_targets(obj, example_name: str) -> list:
+    """Store the driven targets' current values as the example's (after the rigger set them at its pose)."""
+    st = settings(obj)
+    ex = st.examples.get(example_name)
+    if ex is None:
+        raise ShapeSpaceError(f"there is no example {example_name!r}", "missing_example")
+    values = read_targets(obj)
+    ex.target_values = json.dumps(values)
+    st.revision += 1
+    return values
+
+
+def target_driver(obj):
+    """The pose-space interpolant of the driven targets, or None when there are none."""
+    from ..core.psd import train_driver
+    st = settings(obj)
+    if not len(st.targets):
+        return None
+    active = [ex for ex in st.examples if not ex.mute]
+    rows = [json.loads(ex.target_values or "[]") for ex in active]
+    if not active or any(len(r) != len(st.targets) for r in rows):
+        raise ShapeSpaceError("some examples have no recorded values for the driven targets: pose each and use "
+                              "Record Targets", "stale_targets")
+    poses = np.array([json.loads(ex.pseudo_pose or ex.pose) for ex in active])
+    names = [f"{t.data_path}[{t.index}]" for t in st.targets]
+    d = rbf.pairwise_distances(poses, poses) if len(poses) > 1 else np.ones((1, 1))
+    eps = 1.0 / float(np.median(d[d > 0])) if np.any(d > 0) else 1.0
+    return train_driver(poses, np.array(rows), names, kernel="gaussian", epsilon=eps, degree=-1 if len(poses) < 3
+                        else None)

@@ -9,11 +9,13 @@ from .clear_pins import SHAPESPACE_OT_clear_pins
 from .drag_pins import SHAPESPACE_OT_drag_pins
 from .key_sliders import SHAPESPACE_OT_key_sliders
 from .psd_add_example import SHAPESPACE_OT_psd_add_example
+from .psd_add_target import SHAPESPACE_OT_psd_add_target
 from .psd_apply_example import SHAPESPACE_OT_psd_apply_example
 from .psd_bake import SHAPESPACE_OT_psd_bake
 from .psd_bake_cache import SHAPESPACE_OT_psd_bake_cache
 from .psd_mirror_example import SHAPESPACE_OT_psd_mirror_example
 from .psd_move_example import SHAPESPACE_OT_psd_move_example
+from .psd_record_targets import SHAPESPACE_OT_psd_record_targets
 from .psd_remove_example import SHAPESPACE_OT_psd_remove_example
 from .psd_update import SHAPESPACE_OT_psd_update
 from .remove_pin import SHAPESPACE_OT_remove_pin
@@ -37,6 +39,8 @@ classes = (
     SHAPESPACE_OT_psd_bake_cache,
     SHAPESPACE_OT_psd_move_example,
     SHAPESPACE_OT_psd_mirror_example,
+    SHAPESPACE_OT_psd_add_target,
+    SHAPESPACE_OT_psd_record_targets,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

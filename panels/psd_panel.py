@@ -52,6 +52,13 @@ class SHAPESPACE_PT_correctives(bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("shapespace.psd_move_example", icon="EMPTY_ARROWS")
         row.operator("shapespace.psd_mirror_example", icon="MOD_MIRROR")
+        box = layout.box()
+        box.label(text=f"Driven targets: {len(st.targets)}", icon="DRIVER")
+        for t in st.targets:
+            box.label(text=f"{t.owner.name if t.owner else '?'}: {t.data_path}" + (f"[{t.index}]" if t.index >= 0 else ""))
+        row = box.row(align=True)
+        row.operator("shapespace.psd_add_target", icon="ADD")
+        row.operator("shapespace.psd_record_targets", icon="REC")
         row = layout.row(align=True)
         row.operator("shapespace.psd_update", icon="FILE_REFRESH")
         row.operator("shapespace.psd_bake", icon="REC")

@@ -312,3 +312,52 @@ def test_bbones_are_inverted_through_blenders_own_evaluation(registered):
     assert "ShapeSpace_invert" not in ob.data.shape_keys.key_blocks
     bpy.ops.shapespace.psd_update()
     assert np.abs(evaluated(ob) - wanted).max() / bounding_box_diagonal(wanted) < TOL
+
+
+def test_driven_targets_follow_pose_space_and_bake(registered, tmp_path):
+    """7.3.3: a bone channel and a custom property driven from pose-space examples."""
+    ob, arm = _cesium()
+    st = ob.shapespace_psd
+    bone = arm.pose.bones[5].name
+    other = arm.pose.bones[6].name
+    arm["exertion"] = 0.0
+    st.readers.add().source = bone
+    assert bpy.ops.shapespace.psd_add_target(data_path=f'pose.bones["{other}"].scale', index=0) == {"FINISHED"}
+    assert bpy.ops.shapespace.psd_add_target(data_path='["exertion"]') == {"FINISHED"}
+    with pytest.raises(RuntimeError, match="no property"):
+        bpy.ops.shapespace.psd_add_target(data_path="not.a.path")
+    values = [(1.0, 0.0), (1.4, 0.8)]
+    poses = [(1, 0, 0, 0), (0.8, 0.6, 0.0, 0.0)]
+    for i, (q, (sx, ex)) in enumerate(zip(poses, values)):
+        _pose(arm, bone, q)
+        bpy.ops.shapespace.psd_add_example(sculpt_copy=False)
+        arm.pose.bones[other].scale[0] = sx
+        arm["exertion"] = ex
+        assert bpy.ops.shapespace.psd_record_targets() == {"FINISHED"}
+    for q, (sx, ex) in zip(poses, values):
+        arm.pose.bones[other].scale[0] = 0.5
+        _pose(arm, bone, q)
+        bpy.ops.shapespace.psd_update()
+        assert arm.pose.bones[other].scale[0] == pytest.approx(sx, abs=1e-6)
+        assert arm["exertion"] == pytest.approx(ex, abs=1e-6)   # stored in single precision
+    _pose(arm, bone, (0.95, 0.31, 0.0, 0.0))                   # between the examples
+    bpy.ops.shapespace.psd_update()
+    assert 1.0 < arm.pose.bones[other].scale[0] < 1.4 and 0.0 < arm["exertion"] < 0.8
+    # bake: the targets are keyed and play without the add-on
+    pb = arm.pose.bones[bone]
+    for f, q in ((1, poses[0]), (10, poses[1])):
+        pb.rotation_quaternion = q
+        pb.keyframe_insert("rotation_quaternion", frame=f)
+    bpy.context.scene.frame_set(5)
+    bpy.ops.shapespace.psd_update()
+    want = arm.pose.bones[other].scale[0]
+    assert bpy.ops.shapespace.psd_bake(frame_start=1, frame_end=10) == {"FINISHED"}
+    path = str(tmp_path / "targets.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    SS.unregister()
+    try:
+        bpy.ops.wm.open_mainfile(filepath=path)
+        bpy.context.scene.frame_set(5)
+        assert bpy.data.objects["Armature"].pose.bones[other].scale[0] == pytest.approx(want, abs=1e-5)
+    finally:
+        SS.register()
