@@ -361,3 +361,30 @@ def test_driven_targets_follow_pose_space_and_bake(registered, tmp_path):
         assert bpy.data.objects["Armature"].pose.bones[other].scale[0] == pytest.approx(want, abs=1e-5)
     finally:
         SS.register()
+
+
+def test_property_shape_key_swing_and_twist_readers(registered):
+    """Adjective (custom property), weighted-pose-space (shape key), swing and twist readers read Blender."""
+    from shapespace.core.posespace import PoseReader, pose_features, swing_twist
+    ob, arm = _cesium()
+    st = ob.shapespace_psd
+    bone = arm.pose.bones[5].name
+    arm["exertion"] = 0.25
+    ob.shape_key_add(name="Basis")
+    ob.shape_key_add(name="smile").value = 0.6
+    for kind, source in (("PROPERTY", '["exertion"]'), ("SHAPE_KEY", "smile"), ("SWING", bone), ("TWIST", bone)):
+        r = st.readers.add()
+        r.kind, r.source = kind, source
+    q = np.array([0.8, 0.2, 0.5, 0.26])
+    q /= np.linalg.norm(q)
+    _pose(arm, bone, tuple(q))
+    got = posespace.read_pose(ob)
+    want = pose_features([PoseReader("property", "x"), PoseReader("shape_key", "smile"),
+                          PoseReader("swing", bone), PoseReader("twist", bone)], [0.25, 0.6, q, q])
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    # a pure roll (twist about the bone's Y axis) leaves the swing reader still
+    twist_only = np.array([np.cos(0.4), 0.0, np.sin(0.4), 0.0])
+    _pose(arm, bone, tuple(twist_only))
+    swing_part = posespace.read_pose(ob)[2:5]
+    np.testing.assert_allclose(swing_part, 0.0, atol=1e-6)
+    assert abs(swing_twist(twist_only)[1] - 0.8) < 1e-9
