@@ -1,8 +1,8 @@
 import bpy
 
 from ..bridge import posespace
-from ..core.result import ShapeSpaceError
 from .polls import psd_mesh
+from .reporting import FAILED, attempt, report_issues
 
 
 class SHAPESPACE_OT_psd_add_example(bpy.types.Operator):
@@ -23,13 +23,9 @@ of the mesh to sculpt the wanted shape on"""
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            name = posespace.add_example(ob, self.name or None, self.sculpt_copy)
-            issues = posespace.flag_examples(ob)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        name = attempt(self, posespace.add_example, ob, self.name or None, self.sculpt_copy)
+        if name is FAILED:
             return {"CANCELLED"}
-        for issue in issues:
-            self.report({"WARNING"}, issue.message)
+        report_issues(self, posespace.flag_examples(ob))
         self.report({"INFO"}, f"Added example {name}: sculpt {name}{posespace.SCULPT_SUFFIX}, then Apply")
         return {"FINISHED"}

@@ -1,8 +1,8 @@
 import bpy
 
 from ..bridge import posespace
-from ..core.result import ShapeSpaceError
 from .polls import psd_mesh
+from .reporting import FAILED, attempt, report_issues
 
 
 class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
@@ -30,16 +30,12 @@ class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
         ob = context.active_object
         st = ob.shapespace_psd
         ex = st.examples[st.active_example]
-        try:
-            result = posespace.apply_example(ob, ex.name)
-            issues = posespace.flag_examples(ob)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        result = attempt(self, posespace.apply_example, ob, ex.name)
+        if result is FAILED:
             return {"CANCELLED"}
         if self.remove_copy and ex.sculpt is not None:
             bpy.data.objects.remove(ex.sculpt)
-        for issue in issues:
-            self.report({"WARNING"}, issue.message)
+        report_issues(self, posespace.flag_examples(ob))
         level = {"INFO"} if result.status == 0 else {"WARNING"}
         self.report(level, f"{ex.name}: {result.message} (largest error {result.residual:.3g})")
         return {"FINISHED"}

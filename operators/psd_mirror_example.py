@@ -1,8 +1,8 @@
 import bpy
 
 from ..bridge import posespace
-from ..core.result import ShapeSpaceError
 from .polls import psd_mesh
+from .reporting import FAILED, attempt, report_issues
 
 
 class SHAPESPACE_OT_psd_mirror_example(bpy.types.Operator):
@@ -23,13 +23,9 @@ class SHAPESPACE_OT_psd_mirror_example(bpy.types.Operator):
     def execute(self, context):
         ob = context.active_object
         st = ob.shapespace_psd
-        try:
-            name = posespace.mirror_example(ob, st.examples[st.active_example].name, self.tolerance)
-            issues = posespace.flag_examples(ob)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        name = attempt(self, posespace.mirror_example, ob, st.examples[st.active_example].name, self.tolerance)
+        if name is FAILED:
             return {"CANCELLED"}
-        for issue in issues:
-            self.report({"WARNING"}, issue.message)
+        report_issues(self, posespace.flag_examples(ob))
         self.report({"INFO"}, f"Added mirrored example {name}")
         return {"FINISHED"}

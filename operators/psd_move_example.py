@@ -1,8 +1,8 @@
 import bpy
 
 from ..bridge import posespace
-from ..core.result import ShapeSpaceError
 from .polls import psd_mesh
+from .reporting import FAILED, attempt, report_issues
 
 
 class SHAPESPACE_OT_psd_move_example(bpy.types.Operator):
@@ -22,12 +22,7 @@ Reset puts it back where it was sculpted"""
     def execute(self, context):
         ob = context.active_object
         st = ob.shapespace_psd
-        try:
-            posespace.move_example(ob, st.examples[st.active_example].name, self.reset)
-            issues = posespace.flag_examples(ob)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        if attempt(self, posespace.move_example, ob, st.examples[st.active_example].name, self.reset) is FAILED:
             return {"CANCELLED"}
-        for issue in issues:
-            self.report({"WARNING"}, issue.message)
+        report_issues(self, posespace.flag_examples(ob))
         return {"FINISHED"}
