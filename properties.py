@@ -86,8 +86,9 @@ class SHAPESPACE_PG_example(bpy.types.PropertyGroup):
 
 class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
     armature: bpy.props.PointerProperty(
-        name="Armature", type=bpy.types.Object, poll=lambda self, ob: ob.type == "ARMATURE",
+        name="Armature", type=bpy.types.Object,
         description="Armature whose pose drives the correctives (default: the Armature modifier's)")
+    # (no poll function on this pointer: bpy 4.2 crashes at exit with one registered; armature_of checks)
     method: bpy.props.EnumProperty(
         name="Method",
         items=[("PSD", "PSD", "Pose space deformation: Gaussian RBF per vertex"),

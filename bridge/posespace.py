@@ -25,6 +25,9 @@ def settings(obj):
 def armature_of(obj):
     st = settings(obj)
     if st.armature is not None:
+        if st.armature.type != "ARMATURE":
+            raise ShapeSpaceError(f"{st.armature.name!r}, chosen as the pose-space armature, is not an armature",
+                                  "not_armature")
         return st.armature
     mods = skin.armature_modifiers(obj)
     return mods[0].object if mods else None
