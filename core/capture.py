@@ -59,7 +59,7 @@ def parse_timecode(text: str, fps: float = LLF_TIMECODE_FPS) -> float:
         frames = float(parts[3])
     except ValueError:
         raise ShapeSpaceError(f"timecode {text!r} is not HH:MM:SS:FF", "timecode") from None
-    if not (0 <= m < 60 and 0 <= s < 60 and 0 <= frames < fps + 1e-9):
+    if not (h >= 0 and 0 <= m < 60 and 0 <= s < 60 and 0 <= frames < fps):
         raise ShapeSpaceError(f"timecode {text!r} is out of range", "timecode")
     return h * 3600.0 + m * 60.0 + s + frames / fps
 
@@ -79,8 +79,9 @@ def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS)
     - fewer than 3 frames → error (nothing to retarget).
     """
     text = _read_text(source)
-    rows = list(csv.reader(io.StringIO(text)))
-    rows = [r for r in rows if any(c.strip() for c in r)]
+    numbered = [(i, r) for i, r in enumerate(csv.reader(io.StringIO(text)), start=1) if any(c.strip() for c in r)]
+    rows = [r for _, r in numbered]
+    line_of = [i for i, _ in numbered]
     if not rows:
         raise ShapeSpaceError("the CSV file is empty", "empty")
     header = [h.strip() for h in rows[0]]
@@ -89,13 +90,15 @@ def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS)
     t_col = header.index("Timecode")
     wanted = {canonical_name(n): n for n in required}
     cols, names, issues = [], [], []
+    seen = set()
     for j, h in enumerate(header):
         if j == t_col or h == "BlendShapeCount":
             continue
         canon = canonical_name(h)
-        if canon in wanted and h not in names:
+        if canon in wanted and canon not in seen:
             cols.append(j)
             names.append(h)
+            seen.add(canon)
     if not cols:
         raise ShapeSpaceError("the CSV has no ARKit blendshape columns", "no_channels")
     missing = [n for c, n in wanted.items() if c not in {canonical_name(x) for x in names}]
@@ -108,7 +111,8 @@ def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS)
         issues.append(Issue("info", "extra_columns", f"ignored {len(extra)} non-blendshape columns "
                             f"({', '.join(extra[:4])}{' …' if len(extra) > 4 else ''})", tuple(extra)))
     times, values = [], []
-    for i, r in enumerate(rows[1:], start=2):
+    for k, r in enumerate(rows[1:], start=1):
+        i = line_of[k]
         if len(r) < len(header):
             raise ShapeSpaceError(f"line {i} has {len(r)} cells, the header has {len(header)}", "ragged")
         times.append(parse_timecode(r[t_col], fps))
@@ -153,6 +157,9 @@ def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS)
 
 
 def _read_text(source) -> str:
+    import os
+    if isinstance(source, os.PathLike):
+        source = os.fspath(source)
     if isinstance(source, str) and "\n" not in source and len(source) < 4096:
         try:
             with open(source, encoding="utf-8-sig", newline="") as fh:

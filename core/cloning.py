@@ -89,7 +89,12 @@ def key_poses(weights, components: int = 3) -> np.ndarray:
 
 
 def fit_frames(B, neutral, frames, lo, hi, reg: float = 1e-6) -> np.ndarray:
-    """Per-frame bounded least squares: ``min ‖B w − (s_f − b0)‖² + reg·‖w‖²`` with lo ≤ w ≤ hi.
+    """Per-frame bounded least squares: ``min ‖B w − (s_f − b0)‖² + reg·(tr(BᵀB)/n)·‖w‖²``, lo ≤ w ≤ hi.
+
+    The regulariser is relative to the mean diagonal of ``BᵀB`` (so results do
+    not depend on units) and floored at 1e-10 of it for a well-posed QP; a frame
+    the QP solver cannot finish is solved again with scipy's bounded least
+    squares (BVLS).
 
     Parameters
     ----------
@@ -103,7 +108,7 @@ def fit_frames(B, neutral, frames, lo, hi, reg: float = 1e-6) -> np.ndarray:
     rhs = S - np.asarray(neutral, dtype=np.float64)
     G = B.T @ B
     scale = max(np.trace(G) / G.shape[0], 1e-300)
-    a = reg * scale
+    a = max(reg, 1e-10) * scale
     lam, Q = np.linalg.eigh(G)
     keep = lam > 1e-12 * lam.max()
     V, s = Q[:, keep], lam[keep]
@@ -111,7 +116,15 @@ def fit_frames(B, neutral, frames, lo, hi, reg: float = 1e-6) -> np.ndarray:
     x = np.clip(np.zeros(B.shape[1]), lo, hi)
     for f in range(S.shape[0]):
         g = B.T @ rhs[f]
-        x = solve_box_qp(2 * a, V, 2 * s, 2 * g, lo, hi, x0=x).x
+        res = solve_box_qp(2 * a, V, 2 * s, 2 * g, lo, hi, x0=x)
+        if res.status != 0:
+            from scipy.optimize import lsq_linear
+            A = np.vstack([B, np.sqrt(a) * np.eye(B.shape[1])])
+            b = np.concatenate([rhs[f], np.zeros(B.shape[1])])
+            res_x = lsq_linear(A, b, bounds=(lo, hi), method="bvls", tol=1e-12).x
+        else:
+            res_x = res.x
+        x = res_x
         out[f] = x
     return out
 
@@ -220,6 +233,8 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
         W = np.empty((F, n))
         W[0], W[-1] = first, last
         W[1:-1] = Y_inner * sig
+        if bounded:  # undo the rounding of the whitened bounds (lo/σ)·σ
+            np.clip(W, lo, hi, out=W)
         return W
 
     Y = solve_modes(0.0, None)
@@ -278,10 +293,10 @@ def reduce_keys(times, values, tol: float):
     n = t.size
     if n != v.size or n < 1:
         raise ShapeSpaceError("times and values must be non-empty and of equal length", "shape")
-    if n <= 2:
-        return np.arange(n)
     if tol < 0:
         raise ShapeSpaceError(f"tol must be non-negative, got {tol}", "range")
+    if n <= 2:
+        return np.arange(n)
     best = np.full(n, np.iinfo(np.int64).max)
     prev = np.full(n, -1)
     best[0] = 1
