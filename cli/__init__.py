@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
 import bpy
@@ -32,6 +33,18 @@ def build_parser() -> argparse.ArgumentParser:
     info = sub.add_parser("info", help="list the rigs (shape-key meshes, armatures, skins, actions) as JSON")
     info.add_argument("files", nargs="*", help=".blend/.glb/.gltf/.fbx/.bvh files; default: the open file")
     info.add_argument("--out", help="write the JSON here instead of stdout")
+    rt = sub.add_parser("retarget", help="retarget capture files or actions onto a shape-key rig, one action each")
+    rt.add_argument("--source", action="append", required=True,
+                    help="Live Link Face CSV or action name (repeat for a batch)")
+    rt.add_argument("--object", help="target mesh (default: the only mesh with shape keys)")
+    rt.add_argument("--method", choices=("copy", "perframe", "spacetime"), default="spacetime")
+    rt.add_argument("--lam", type=float, default=1e-7,
+                    help="space-time regulariser λ, relative to the data (small: the motion is kept)")
+    rt.add_argument("--key-tolerance", type=float, default=0.0,
+                    help="reduce keys to this max slider error (0 keeps every frame)")
+    rt.add_argument("--target", help="target .blend to open first (default: the open file)")
+    rt.add_argument("--out", help="save the result as this .blend")
+    rt.add_argument("--report", help="write a JSON report here")
     return parser
 
 
@@ -58,7 +71,48 @@ def _cmd_info(args) -> int:
     return 0
 
 
-COMMANDS = {"info": _cmd_info}
+def _target_object(name):
+    meshes = [ob for ob in bpy.data.objects if ob.type == "MESH" and ob.data.shape_keys is not None
+              and len(ob.data.shape_keys.key_blocks) > 1]
+    if name:
+        ob = bpy.data.objects.get(name)
+        if ob is None or ob not in meshes:
+            raise ShapeSpaceError(f"no mesh with shape keys named {name!r}", "missing_object")
+        return ob
+    if len(meshes) != 1:
+        raise ShapeSpaceError(f"{len(meshes)} meshes have shape keys; choose one with --object", "ambiguous_object")
+    return meshes[0]
+
+
+def _cmd_retarget(args) -> int:
+    from ..bridge import assets, retarget
+    if args.target:
+        assets.load(args.target)
+    obj = _target_object(args.object)
+    results, failed = [], 0
+    for k, src in enumerate(args.source, start=1):
+        print(f"shapespace: [{k}/{len(args.source)}] {src} → {obj.name} ({args.method})", file=sys.stderr)
+        try:
+            rep = retarget.retarget(obj, src, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
+                                    action_name=f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}")
+            rep["ok"] = True
+        except ShapeSpaceError as exc:
+            print(f"shapespace: error: {src}: {exc}", file=sys.stderr)
+            rep = {"source": src, "ok": False, "error": str(exc)}
+            failed += 1
+        results.append(rep)
+    if args.out:
+        bpy.ops.wm.save_as_mainfile(filepath=os.path.abspath(args.out), check_existing=False)
+    payload = {"target": obj.name, "method": args.method, "results": results}
+    if args.report:
+        with open(args.report, "w", encoding="utf-8") as fh:
+            json.dump(payload, fh, indent=2)
+    else:
+        print(json.dumps(payload, indent=2))
+    return 1 if failed else 0
+
+
+COMMANDS = {"info": _cmd_info, "retarget": _cmd_retarget}
 
 
 def main(argv) -> int:

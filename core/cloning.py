@@ -149,7 +149,7 @@ def _second_difference_banded(F):
 
 
 def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=None, lo=None, hi=None,
-              rho: float = None, tol: float = 1e-4, max_iter: int = 2000) -> SpacetimeResult:
+              rho: float = None, tol: float = 1e-4, max_iter: int = 2000, relative: bool = False) -> SpacetimeResult:
     """Space-time expression cloning (thesis ch. 5), optionally with slider bounds.
 
     Minimises ``‖D (W Bᵀ − S)‖² + λ Σ_f Σ_k (w_fk / σ_k)²`` over the interior
@@ -178,6 +178,9 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     frames : ndarray (f, 3m)
     sigma : ndarray (n,)
         Per-slider scale σ_k (e.g. standard deviations of training weights, 5.5).
+    relative : bool
+        Read ``lam`` relative to the data: λ · mean eigenvalue of ``ΣBᵀBΣ``
+        (unit-free; used by the retarget command).
     """
     B = np.asarray(B, dtype=np.float64)
     S = np.asarray(frames, dtype=np.float64) - np.asarray(neutral, dtype=np.float64)
@@ -200,6 +203,8 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     M = sig[:, None] * G * sig[None, :]
     mu, Q = np.linalg.eigh(M)
     mu = np.maximum(mu, 0.0)
+    if relative:  # λ relative to the data's scale: the mean eigenvalue of ΣBᵀBΣ
+        lam = lam * max(float(mu.mean()), 1e-300)
     # right-hand side DᵀD S B Σ, for all frames, then restricted to the interior
     SB = S @ B * sig                                                  # (F, n)
     DtD_SB = np.empty_like(SB)

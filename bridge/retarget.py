@@ -1,0 +1,147 @@
+"""Retargeting weight streams (Live Link Face CSV, actions) onto a shape-key rig (thesis 3.5, ch. 5)."""
+from __future__ import annotations
+
+import json
+import os
+
+import bpy
+import numpy as np
+
+from ..core.capture import WeightStream, read_live_link_csv, resample
+from ..core.cloning import copy_weights, fit_frames, reduce_keys, spacetime
+from ..core.direct import NORMALISED_DIAGONAL
+from ..core.names import match_channels
+from ..core.result import ShapeSpaceError
+from . import actions, shapekeys
+
+METHODS = ("copy", "perframe", "spacetime")
+MAPPING_PROP = "shapespace_mapping"
+
+
+def read_source(path_or_action, scene) -> tuple:
+    """A source as ``(names, scene frames, weights)``: a Live Link Face CSV path or an action name.
+
+    CSV timecode (60 fps) is resampled to the scene's frame rate starting at the scene's start frame.
+    """
+    if isinstance(path_or_action, str) and path_or_action.lower().endswith(".csv"):
+        if not os.path.isfile(path_or_action):
+            raise ShapeSpaceError(f"file not found: {path_or_action}", "missing_file")
+        stream = read_live_link_csv(path_or_action)
+        frames, w = resample(stream.times, stream.weights, scene.render.fps, scene.frame_start,
+                             scene.render.fps_base)
+        return stream.names, frames, w, stream.issues
+    action = bpy.data.actions.get(path_or_action) if isinstance(path_or_action, str) else path_or_action
+    if action is None:
+        raise ShapeSpaceError(f"no CSV file or action named {path_or_action!r}", "missing_source")
+    curves = {}
+    for fc in _all_fcurves(action):
+        path = fc.data_path
+        if path.startswith('key_blocks["') and path.endswith('"].value'):
+            curves[path[len('key_blocks["'):-len('"].value')]] = fc
+    if not curves:
+        raise ShapeSpaceError(f"action {action.name!r} animates no shape keys", "no_channels")
+    first, last = actions.frame_range(action)
+    frames = np.arange(np.ceil(first), np.floor(last) + 1)
+    if frames.size < 3:
+        raise ShapeSpaceError(f"action {action.name!r} spans {frames.size} frames; at least 3 are needed",
+                              "too_short")
+    names = sorted(curves)
+    w = np.stack([actions.sample_curve(curves[n], frames) for n in names], axis=1)
+    return names, frames, w, []
+
+
+def _all_fcurves(action):
+    if not actions.LAYERED:
+        return list(action.fcurves)
+    out = []
+    for slot in action.slots:
+        bag = actions._channelbag(action, slot)
+        out += list(bag.fcurves) if bag is not None else []
+    return out
+
+
+def channel_mapping(obj, source_names, target_names) -> list:
+    """``[(source index, target index, gain, offset)]``: stored overrides first, then name matching."""
+    key = obj.data.shape_keys
+    stored = json.loads(key.get(MAPPING_PROP, "{}")) if key is not None else {}
+    auto, _, _ = match_channels(source_names, target_names)
+    out = []
+    for i, s in enumerate(source_names):
+        if s in stored:
+            entry = stored[s]
+            if entry.get("target") in target_names:
+                out.append((i, target_names.index(entry["target"]), float(entry.get("gain", 1.0)),
+                            float(entry.get("offset", 0.0))))
+            continue
+        if s in auto:
+            out.append((i, target_names.index(auto[s]), 1.0, 0.0))
+    if not out:
+        raise ShapeSpaceError("the source and the target share no channels (check the names or the mapping)",
+                              "no_mapping")
+    return out
+
+
+def set_mapping(obj, source: str, target: str, gain: float = 1.0, offset: float = 0.0) -> None:
+    """Store a channel mapping override (kept in the .blend on the shape-key datablock)."""
+    key = obj.data.shape_keys
+    data = json.loads(key.get(MAPPING_PROP, "{}"))
+    data[source] = {"target": target, "gain": float(gain), "offset": float(offset)}
+    key[MAPPING_PROP] = json.dumps(data, sort_keys=True)
+
+
+def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e-7, key_tolerance: float = 0.0,
+             action_name: str = None) -> dict:
+    """Retarget ``source`` onto ``obj``'s sliders and write a new action; returns a report dict."""
+    if method not in METHODS:
+        raise ShapeSpaceError(f"method must be one of {', '.join(METHODS)}, got {method!r}", "method")
+    scene = scene or bpy.context.scene
+    model = shapekeys.read_blendshape_model(obj)
+    if not model.is_linear:
+        raise ShapeSpaceError("the target has in-between or combination shapes: retarget onto its primary "
+                              "sliders is not supported yet", "nonlinear")
+    names, frames, src, issues = read_source(source, scene)
+    mapping = channel_mapping(obj, names, model.names)
+    gain = np.ones(model.n_targets)
+    offset = np.zeros(model.n_targets)
+    for _, j, g, o in mapping:
+        gain[j], offset[j] = g, o
+    pairs = [(i, j) for i, j, _, _ in mapping]
+    raw = copy_weights(src, pairs, model.n_targets, gain, offset)                 # unbounded ideal
+    lo, hi = model.slider_min, model.slider_max
+    report = {"source": str(source), "method": method, "frames": int(frames.size),
+              "mapped_channels": len(pairs), "issues": [i.message for i in issues]}
+    if method == "copy":
+        W = np.clip(raw, lo, hi)
+    else:
+        # the source performance as geometry on the target: the copied weights without limits, in
+        # size-normalised units (the model's diagonal measures 30) so λ means the same for any rig
+        unit = (model.scale or NORMALISED_DIAGONAL) / NORMALISED_DIAGONAL
+        B = model.delta_matrix / unit
+        b0 = model.neutral.ravel() / unit
+        S = b0 + raw @ B.T
+        if method == "perframe":
+            W = fit_frames(B, b0, S, lo, hi)
+        else:
+            sigma = np.maximum(raw.std(axis=0), 0.05 * (hi - lo))
+            res = spacetime(B, b0, S, sigma, lam, lo=lo, hi=hi, relative=True)
+            W = res.weights
+            report["admm_iterations"] = res.iterations
+            report["status"] = res.message
+    # errors against the ideal (unlimited) performance, at every vertex, relative to the model size
+    pos_err = np.linalg.norm((W - raw) @ model.delta_matrix.T, axis=1)
+    vel = np.diff(W - raw, axis=0) @ model.delta_matrix.T
+    report["position_error_rms"] = float(np.sqrt(np.mean(pos_err ** 2)) / model.scale)
+    report["velocity_error_rms"] = float(np.sqrt(np.mean(np.sum(vel ** 2, axis=1))) / model.scale)
+    report["clipping_frames"] = int(np.sum(np.any((raw < lo - 1e-9) | (raw > hi + 1e-9), axis=1)))
+    action = actions.key_shape_values(obj, model.names, frames, W,
+                                      action_name or f"{obj.name}_{method}")
+    kept = total = 0
+    if key_tolerance > 0:
+        for j, name in enumerate(model.names):
+            idx = reduce_keys(frames, W[:, j], key_tolerance)
+            actions.write_curve(obj.data.shape_keys, actions.shape_key_path(name), frames[idx], W[idx, j])
+            kept += idx.size
+            total += frames.size
+        report["keys_kept_frac"] = kept / max(total, 1)
+    report["action"] = action.name
+    return report
