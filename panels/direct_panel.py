@@ -1,5 +1,7 @@
 import bpy
 
+from .base import ShapeSpaceSidebar
+
 
 class SHAPESPACE_UL_pins(bpy.types.UIList):
     """Pins of the active mesh"""
@@ -10,14 +12,11 @@ class SHAPESPACE_UL_pins(bpy.types.UIList):
                      icon="PINNED" if item.stationary else "UNPINNED")
 
 
-class SHAPESPACE_PT_direct(bpy.types.Panel):
+class SHAPESPACE_PT_direct(ShapeSpaceSidebar, bpy.types.Panel):
     """Pin-and-drag direct manipulation of the shape-key sliders"""
 
     bl_label = "Direct Manipulation"
     bl_idname = "SHAPESPACE_PT_direct"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "ShapeSpace"
 
     @classmethod
     def poll(cls, context):

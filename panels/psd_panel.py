@@ -1,5 +1,7 @@
 import bpy
 
+from .base import ShapeSpaceSidebar
+
 
 class SHAPESPACE_UL_examples(bpy.types.UIList):
     """Pose-space examples of the active mesh"""
@@ -22,14 +24,11 @@ class SHAPESPACE_UL_readers(bpy.types.UIList):
         row.prop(item, "scale", text="")
 
 
-class SHAPESPACE_PT_correctives(bpy.types.Panel):
+class SHAPESPACE_PT_correctives(ShapeSpaceSidebar, bpy.types.Panel):
     """Pose-space correctives: sculpt at a pose, interpolate in pose space"""
 
     bl_label = "Pose-Space Correctives"
     bl_idname = "SHAPESPACE_PT_correctives"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "ShapeSpace"
 
     @classmethod
     def poll(cls, context):

@@ -1,14 +1,13 @@
 import bpy
 
+from .base import ShapeSpaceSidebar
 
-class SHAPESPACE_PT_rig(bpy.types.Panel):
+
+class SHAPESPACE_PT_rig(ShapeSpaceSidebar, bpy.types.Panel):
     """The active mesh's shape-key rig and skin at a glance"""
 
     bl_label = "Rig"
     bl_idname = "SHAPESPACE_PT_rig"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "ShapeSpace"
 
     def draw(self, context):
         layout = self.layout
