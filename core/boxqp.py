@@ -102,7 +102,9 @@ def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=500) -> BoxQPR
     x = np.clip(np.zeros(n) if x0 is None else np.asarray(x0, dtype=np.float64), lo, hi)
     scale = max(1.0, float(np.abs(g).max(initial=0.0)))
     sigma = 1e-4
-    gram = V.T @ V                      # r × r, reused for every free-set solve
+    dense = V.shape[1] >= n             # low rank buys nothing: solve the free block directly
+    H = a * np.eye(n) + (V * s) @ V.T if dense else None
+    gram = None if dense else V.T @ V   # r × r, reused for every free-set solve
     vx = V.T @ x
     f = 0.5 * (a * (x @ x) + (s * vx) @ vx) - g @ x
     for it in range(1, max_iter + 1):
@@ -114,7 +116,11 @@ def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=500) -> BoxQPR
         active = ((x <= lo + eps) & (grad > 0)) | ((x >= hi - eps) & (grad < 0))
         d = -grad / a
         n_act = int(active.sum())
-        if n_act < n:
+        if n_act < n and dense:
+            free_idx = np.flatnonzero(~active)
+            d = d.copy()
+            d[free_idx] = -np.linalg.solve(H[np.ix_(free_idx, free_idx)], grad[free_idx])
+        elif n_act < n:
             # Woodbury on the free block: (aI + Vf S Vfᵀ)⁻¹ q = (q − Vf (aS⁻¹ + VfᵀVf)⁻¹ Vfᵀ q) / a,
             # with VfᵀVf = VᵀV − VaᵀVa (cheaper when few variables are bound).
             Va = V[active]

@@ -117,7 +117,7 @@ def fit_frames(B, neutral, frames, lo, hi, reg: float = 1e-6) -> np.ndarray:
     for f in range(S.shape[0]):
         g = B.T @ rhs[f]
         res = solve_box_qp(2 * a, V, 2 * s, 2 * g, lo, hi, x0=x)
-        if res.status != 0:
+        if res.status != 0 and res.residual > 1e-7 * max(1.0, 2 * float(np.abs(g).max())):
             from scipy.optimize import lsq_linear
             A = np.vstack([B, np.sqrt(a) * np.eye(B.shape[1])])
             b = np.concatenate([rhs[f], np.zeros(B.shape[1])])
@@ -183,7 +183,8 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
         (unit-free; used by the retarget command).
     """
     B = np.asarray(B, dtype=np.float64)
-    S = np.asarray(frames, dtype=np.float64) - np.asarray(neutral, dtype=np.float64)
+    S = np.asarray(frames)                       # not copied: only S·B is needed (memory for long shots)
+    b0 = np.asarray(neutral, dtype=np.float64)
     F, n = S.shape[0], B.shape[1]
     if F < 3:
         raise ShapeSpaceError(f"space-time cloning needs at least 3 frames, got {F}", "too_short")
@@ -194,7 +195,7 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     lo = np.full(n, -np.inf) if lo is None else np.asarray(lo, dtype=np.float64)
     hi = np.full(n, np.inf) if hi is None else np.asarray(hi, dtype=np.float64)
     if first is None or last is None:
-        ends = fit_frames(B, np.zeros(B.shape[0]), S[[0, -1]], lo if bounded else np.full(n, -1e6),
+        ends = fit_frames(B, b0, S[[0, -1]].astype(np.float64), lo if bounded else np.full(n, -1e6),
                           hi if bounded else np.full(n, 1e6))
         first = ends[0] if first is None else first
         last = ends[1] if last is None else last
@@ -206,7 +207,12 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     if relative:  # λ relative to the data's scale: the mean eigenvalue of ΣBᵀBΣ
         lam = lam * max(float(mu.mean()), 1e-300)
     # right-hand side DᵀD S B Σ, for all frames, then restricted to the interior
-    SB = S @ B * sig                                                  # (F, n)
+    Bs = B * sig
+    SB = np.empty((F, n))                                             # (S − b0)·B·Σ, in row chunks
+    offset = b0 @ Bs
+    for start in range(0, F, 2048):
+        rows = slice(start, min(start + 2048, F))
+        SB[rows] = np.asarray(S[rows], dtype=np.float64) @ Bs - offset
     DtD_SB = np.empty_like(SB)
     DtD_SB[0] = SB[0] - SB[1]
     DtD_SB[-1] = SB[-1] - SB[-2]

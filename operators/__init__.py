@@ -19,6 +19,7 @@ from .psd_record_targets import SHAPESPACE_OT_psd_record_targets
 from .psd_remove_example import SHAPESPACE_OT_psd_remove_example
 from .psd_update import SHAPESPACE_OT_psd_update
 from .remove_pin import SHAPESPACE_OT_remove_pin
+from .retarget import SHAPESPACE_OT_retarget
 from .solve_pins import SHAPESPACE_OT_solve_pins
 
 classes = (
@@ -41,6 +42,7 @@ classes = (
     SHAPESPACE_OT_psd_mirror_example,
     SHAPESPACE_OT_psd_add_target,
     SHAPESPACE_OT_psd_record_targets,
+    SHAPESPACE_OT_retarget,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

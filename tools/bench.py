@@ -3,7 +3,7 @@
     python tools/bench.py SUITE --json FILE [--quick]
 
 Suites: ``dm`` (direct manipulation, issue #3), ``psd`` (pose-space correctives,
-issue #4; also writes a PNG plot next to the JSON).  Every goal metric named in
+issue #4; also writes a PNG plot next to the JSON), ``retarget`` (expression cloning, issue #5).  Every goal metric named in
 the issue is computed in ``--quick`` mode too, with fewer repetitions.
 Reference solvers are measured in the same run, on the same machine.
 Creates ``.venv/bpy50`` on first use (Blender is needed to read the real rigs).
@@ -19,7 +19,7 @@ TOOLS = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, TOOLS)
 import env  # noqa: E402
 
-SUITES = ("dm", "psd")
+SUITES = ("dm", "psd", "retarget")
 
 
 def main(argv) -> int:
@@ -32,6 +32,9 @@ def main(argv) -> int:
     if args.suite == "dm":
         import bench_dm
         metrics = bench_dm.run(quick=args.quick)
+    elif args.suite == "retarget":
+        import bench_retarget
+        metrics = bench_retarget.run(quick=args.quick)
     else:
         import bench_psd
         metrics = bench_psd.run(quick=args.quick, plot_path=os.path.splitext(args.json)[0] + ".png")

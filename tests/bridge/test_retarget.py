@@ -91,3 +91,15 @@ def test_unknown_method_and_ambiguous_target(tmp_path):
     assert code == 2
     code, _, err = _cli(shared("robot_expressive", "RobotExpressive.glb"), "--", "retarget", "--source", CSV)
     assert code == 1 and "choose one with --object" in err
+
+
+def test_retarget_operator_and_its_bad_input(registered):
+    import_file(BLEND)
+    ob = bpy.data.objects["FBHead"]
+    bpy.context.view_layer.objects.active = ob
+    assert bpy.ops.shapespace.retarget(filepath=CSV, method="copy") == {"FINISHED"}
+    assert actions.active_action(ob.data.shape_keys) is not None
+    with pytest.raises(RuntimeError, match="choose a CSV file or an action"):
+        bpy.ops.shapespace.retarget()
+    with pytest.raises(RuntimeError, match="no CSV file or action named"):
+        bpy.ops.shapespace.retarget(action="nothing")

@@ -1,0 +1,117 @@
+"""Retargeting benchmark (issue #5): space-time speed vs explicit and per-frame solves, memory, bounds,
+velocity error on real captures, key reduction."""
+from __future__ import annotations
+
+import os
+import time
+import tracemalloc
+
+import numpy as np
+
+import env
+
+ASSETS = os.path.join(env.ROOT, "assets")
+
+
+def _problem(F, n, m3, seed=0, dtype=np.float64):
+    rng = np.random.default_rng(seed)
+    B = rng.normal(size=(m3, n)) * 0.1
+    b0 = rng.normal(size=m3)
+    W = np.cumsum(rng.normal(size=(F, n)) * 0.05, axis=0)
+    S = np.empty((F, m3), dtype=dtype)
+    for start in range(0, F, 1024):
+        rows = slice(start, min(start + 1024, F))
+        S[rows] = b0 + W[rows] @ B.T + rng.normal(size=(rows.stop - rows.start, m3)) * 0.01
+    return B, b0, S, W
+
+
+def _explicit(B, b0, S, sigma, lam, first, last):
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import spsolve
+    F, n = S.shape[0], B.shape[1]
+    D = sp.diags([-np.ones(F - 1), np.ones(F - 1)], [0, 1], shape=(F - 1, F))
+    DtD = (D.T @ D).tocsc()
+    G = B.T @ B
+    inner = slice(1, F - 1)
+    K = sp.kron(DtD[inner][:, inner], sp.csc_matrix(G)) + lam * sp.kron(sp.eye(F - 2), sp.diags(1 / sigma ** 2))
+    rhs = (DtD @ ((S - b0) @ B))[1:-1]
+    rhs[0] += first @ G
+    rhs[-1] += last @ G
+    return spsolve(K.tocsc(), rhs.ravel()).reshape(F - 2, n)
+
+
+def speed(quick):
+    from shapespace.core.cloning import spacetime
+    reps = 2 if quick else 5
+    out = {}
+    B, b0, S, W = _problem(500, 52, 3000)
+    sigma, lam = np.full(52, 0.3), 1e-3
+    best = lambda f: min(_timed(f) for _ in range(reps))  # noqa: E731
+    res = spacetime(B, b0, S, sigma, lam)
+    out["spacetime_s_500x52"] = best(lambda: spacetime(B, b0, S, sigma, lam))
+    ref = _explicit(B, b0, S, sigma, lam, res.weights[0], res.weights[-1])
+    out["explicit_s_500x52"] = best(lambda: _explicit(B, b0, S, sigma, lam, res.weights[0], res.weights[-1]))
+    out["spacetime_vs_explicit_max_abs_diff"] = float(np.abs(ref - res.weights[1:-1]).max())
+    G = B.T @ B
+    out["perframe_s_500x52"] = best(lambda: np.linalg.solve(G, ((S - b0) @ B).T).T)   # per-frame least squares
+    out["explicit_over_spacetime"] = out["explicit_s_500x52"] / out["spacetime_s_500x52"]
+    out["spacetime_over_perframe"] = out["spacetime_s_500x52"] / out["perframe_s_500x52"]
+    lo, hi = np.full(52, -0.5), np.full(52, 0.5)
+    t = time.perf_counter()
+    bounded = spacetime(B, b0, S, sigma, lam, lo=lo, hi=hi)
+    out["bounded_s_500x52"] = time.perf_counter() - t
+    out["bounded_admm_iterations"] = bounded.iterations
+    out["bounded_over_unbounded"] = out["bounded_s_500x52"] / out["spacetime_s_500x52"]
+    # a long shot: 10,000 frames × 150 targets × 15k coordinates (source kept in float32)
+    B, b0, S, W = _problem(10000, 150, 15000, seed=1, dtype=np.float32)
+    tracemalloc.start()
+    t = time.perf_counter()
+    spacetime(B, b0, S, np.full(150, 0.3), lam)
+    out["spacetime_s_10000x150"] = time.perf_counter() - t
+    out["spacetime_peak_gb_10000x150"] = tracemalloc.get_traced_memory()[1] / 1e9
+    tracemalloc.stop()
+    out["source_gb_10000x150"] = S.nbytes / 1e9
+    return out
+
+
+def _timed(fn):
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
+
+
+def quality():
+    """Real captures: facecap's capture onto facecap with reduced slider ranges; LLF onto FBHead."""
+    import bpy
+    from shapespace.bridge import actions, assets, retarget
+    out = {}
+    assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
+    ob = bpy.data.objects["Mesh_2"]
+    key = ob.data.shape_keys
+    capture = actions.active_action(key)
+    key.animation_data.action = None
+    for name in ("jawOpen", "mouthSmile_L", "mouthSmile_R", "eyeBlink_L", "eyeBlink_R", "browInnerUp"):
+        key.key_blocks[name].slider_max = 0.4
+    for method in ("perframe", "spacetime"):
+        rep = retarget.retarget(ob, capture, method, key_tolerance=0.01 if method == "spacetime" else 0.0)
+        out[f"velocity_err_{method}_facecap_reduced"] = rep["velocity_error_rms"]
+        out[f"position_err_{method}_facecap_reduced"] = rep["position_error_rms"]
+        out["clipping_frames_facecap_reduced"] = rep["clipping_frames"]
+        if method == "spacetime":
+            out["keys_kept_frac_ours"] = rep["keys_kept_frac"]
+    assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
+    ob = bpy.data.objects["FBHead"]
+    csv = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+    for method in ("perframe", "spacetime"):
+        rep = retarget.retarget(ob, csv, method)
+        out[f"velocity_err_{method}_llf_fbhead"] = rep["velocity_error_rms"]
+        out[f"position_err_{method}_llf_fbhead"] = rep["position_error_rms"]
+    return out
+
+
+def run(quick=False) -> dict:
+    import package
+    package.load()
+    metrics = speed(quick)
+    metrics.update(quality())
+    return metrics
