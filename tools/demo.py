@@ -185,6 +185,51 @@ def _corrective_demo(bpy, np, out_dir, size):
             "renders": {"lbs": lbs_png, "corrected": fixed_png}}
 
 
+def _retarget_demo(bpy, np, out_dir, size):
+    """The Live Link Face recording onto the Face Cap head, and the Face Cap capture onto FBHead."""
+    from shapespace.bridge import actions, assets, retarget
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assets.load(os.path.join(env.ROOT, "assets", "llf_fbhead", "Live_Link_Face.blend"))
+    fbhead = bpy.data.objects["FBHead"]
+    assets.load(FACECAP, replace=False)
+    head = bpy.data.objects[HEAD]
+    capture = actions.active_action(head.data.shape_keys)
+    scene = bpy.context.scene
+    scene.frame_start = 1
+    csv = os.path.join(env.ROOT, "assets", "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+    onto_facecap = retarget.retarget(head, csv, "spacetime", key_tolerance=0.01)
+    onto_fbhead = retarget.retarget(fbhead, capture, "spacetime", key_tolerance=0.01)
+    # side by side: facecap (left, LLF performance) and FBHead (right, the Face Cap capture)
+    fbhead.location = (0.0, 0.0, 0.0)
+    for ob in bpy.data.objects:
+        ob.hide_render = ob.type == "EMPTY" or ob.name.startswith("marker_")
+    renders = {}
+    facecap_parts = {"Mesh_0", "Mesh_1", "Mesh_2", "Mesh_3"}
+    for label, obj, rep in (("llf_on_facecap", head, onto_facecap), ("facecap_on_fbhead", fbhead, onto_fbhead)):
+        mine = facecap_parts if obj is head else {obj.name}
+        others = [o for o in bpy.data.objects if o.type == "MESH" and o.name not in mine]
+        hidden = {o.name: o.hide_render for o in others}
+        for o in others:
+            o.hide_render = True
+        parts = [o for o in bpy.data.objects if o.type == "MESH" and not o.hide_render]
+        for cam in [o for o in bpy.data.objects if o.type == "CAMERA"]:
+            bpy.data.objects.remove(cam)
+        _setup_render(bpy, np, parts, size // 2)
+        paths = []
+        frames = np.linspace(scene.frame_start + 5, scene.frame_start + rep["frames"] - 5, 3).astype(int)
+        for f in frames:
+            scene.frame_set(int(f))
+            paths.append(_render(bpy, os.path.join(out_dir, f"{label}_{int(f)}.png")))
+        renders[label] = paths
+        for o in others:
+            o.hide_render = hidden[o.name]
+    bpy.ops.wm.save_as_mainfile(filepath=os.path.join(out_dir, "retargeted.blend"), check_existing=False)
+    keep = ("frames", "mapped_channels", "velocity_error_rms", "position_error_rms", "clipping_frames",
+            "keys_kept_frac", "action")
+    return {"llf_on_facecap": {k: onto_facecap.get(k) for k in keep},
+            "facecap_on_fbhead": {k: onto_fbhead.get(k) for k in keep}, "renders": renders}
+
+
 def run(out_dir: str, size: int = 512) -> dict:
     import numpy as np
     import bpy
@@ -257,6 +302,7 @@ def _run(bpy, np, out_dir, size):
         "outputs": {"blend": blend_path, "neutral_png": neutral_png, "frame_png": frame_png},
     }
     report["pose_space_correctives"] = _corrective_demo(bpy, np, out_dir, size)   # loads another file
+    report["retargeting"] = _retarget_demo(bpy, np, out_dir, size)
     report["seconds"] = round(time.perf_counter() - t0, 2)
     with open(os.path.join(out_dir, "report.json"), "w", encoding="utf-8") as fh:
         json.dump(report, fh, indent=2)
@@ -276,8 +322,11 @@ def main(argv) -> int:
           f"from frame {dm['target_frame']} ({dm['sliders_in_target']} sliders)")
     pc = report["pose_space_correctives"]
     print(f"demo: elbow at a held-out bend: LBS error {pc['max_error_rel_lbs']:.4f}, corrected "
-          f"{pc['max_error_rel_corrected']:.4f} of the body size; wrote {args.out}/demo.blend, correctives.blend, "
-          f"report.json and 6 renders")
+          f"{pc['max_error_rel_corrected']:.4f} of the body size")
+    rt = report["retargeting"]
+    print(f"demo: retargeted the Live Link Face take onto facecap ({rt['llf_on_facecap']['frames']} frames) and "
+          f"the Face Cap capture onto FBHead ({rt['facecap_on_fbhead']['frames']} frames); wrote {args.out}/demo.blend, "
+          f"correctives.blend, retargeted.blend, report.json and renders")
     return 0
 
 

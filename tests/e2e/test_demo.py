@@ -28,7 +28,11 @@ def test_demo_writes_blend_renders_and_report(tmp_path):
     pc = report["pose_space_correctives"]
     assert len(pc["examples"]) == 3
     assert pc["max_error_rel_corrected"] < 0.25 * pc["max_error_rel_lbs"]   # the held-out bend is fixed
-    renders = list(dm["renders"].values()) + list(pc["renders"].values())
+    rt = report["retargeting"]
+    assert rt["llf_on_facecap"]["mapped_channels"] == 52 and rt["facecap_on_fbhead"]["mapped_channels"] == 51
+    assert 0 < rt["llf_on_facecap"]["keys_kept_frac"] < 0.5
+    renders = (list(dm["renders"].values()) + list(pc["renders"].values())
+               + [p for paths in rt["renders"].values() for p in paths])
     for png in [report["outputs"][k] for k in ("neutral_png", "frame_png")] + renders:
         with open(png, "rb") as fh:
             assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
