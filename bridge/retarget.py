@@ -145,3 +145,124 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
         report["keys_kept_frac"] = kept / max(total, 1)
     report["action"] = action.name
     return report
+
+
+# ------------------------------------------------------------------ dense performances (mesh sequences)
+LANDMARK_PREFIX = "lm_"
+STABLE_GROUP = "stable"
+
+
+def _group_vertices(obj, name):
+    from .meshes import group_weight_vector
+    w = group_weight_vector(obj, name)
+    return np.flatnonzero(w > 0) if w is not None else np.zeros(0, dtype=int)
+
+
+def landmark_pairs(source, target):
+    """Corresponding vertices from vertex groups named ``lm_<name>`` on both meshes (one vertex each)."""
+    names = sorted(g.name for g in source.vertex_groups if g.name.startswith(LANDMARK_PREFIX)
+                   and g.name in target.vertex_groups)
+    src, dst = [], []
+    for n in names:
+        a, b = _group_vertices(source, n), _group_vertices(target, n)
+        if a.size and b.size:
+            src.append(int(a[0]))
+            dst.append(int(b[0]))
+    return np.array(src, dtype=int), np.array(dst, dtype=int)
+
+
+def mesh_sequence(source, scene, frames) -> np.ndarray:
+    """Evaluated (object-space) positions of ``source`` at each frame, (f, p, 3)."""
+    from .meshes import evaluated_positions
+    current = scene.frame_current
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    out = []
+    try:
+        for f in frames:
+            scene.frame_set(int(f))
+            out.append(evaluated_positions(source, depsgraph).astype(np.float64))
+    finally:
+        scene.frame_set(current)
+    return np.stack(out)
+
+
+def dense_source_positions(source, target_model, target, scene, frames):
+    """The source performance transferred onto the target's vertices: (f, p_t·3) positions and the rows used.
+
+    Same topology: vertex-to-vertex.  Otherwise landmarks (``lm_*`` groups on both meshes, ≥ 4): the source
+    neutral is warped onto the target neutral (similarity + thin-plate), every target vertex takes its
+    closest warped source vertex, and the source's motion is carried over rotated and scaled by the
+    landmarks' similarity.  A ``stable`` vertex group on the source removes head motion per frame
+    (rigid Procrustes onto the neutral).
+    """
+    from ..core.cloning import closest_points, landmark_warp, procrustes
+    from .arrays import read_float
+    from .meshes import vertex_positions
+    seq = mesh_sequence(source, scene, frames)
+    key = source.data.shape_keys
+    # the source's neutral: its reference shape key, or its undeformed vertices
+    rest = (read_float(key.reference_key.data, "co", 3) if key is not None else
+            vertex_positions(source.data)).astype(np.float64)
+    stable = _group_vertices(source, STABLE_GROUP)
+    if stable.size >= 3:
+        for i in range(1, seq.shape[0]):
+            s, R, t = procrustes(seq[i][stable], rest[stable], scaling=False)
+            seq[i] = seq[i] @ R.T + t
+    motion = seq - rest
+    neutral_t = target_model.neutral
+    if seq.shape[1] == neutral_t.shape[0] and not len(landmark_pairs(source, target)[0]):
+        corr, R, scale = np.arange(neutral_t.shape[0]), np.eye(3), 1.0
+    else:
+        src_lm, dst_lm = landmark_pairs(source, target)
+        if src_lm.size < 4:
+            raise ShapeSpaceError(f"different meshes need at least 4 landmark pairs (vertex groups named "
+                                  f"'{LANDMARK_PREFIX}…' on both); found {src_lm.size}", "too_few_landmarks")
+        moved = np.linalg.norm(target_model.deltas, axis=(0, 2)) > 0
+        if not moved[dst_lm].any() and not moved.any():
+            raise ShapeSpaceError("no target shape key moves any vertex", "no_motion")
+        scale, R, _ = procrustes(rest[src_lm], neutral_t[dst_lm])
+        warped = landmark_warp(rest[src_lm], neutral_t[dst_lm], rest)
+        corr, _ = closest_points(neutral_t, warped)
+    carried = scale * motion[:, corr, :] @ R.T
+    return (neutral_t[None] + carried).reshape(len(frames), -1)
+
+
+def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: float = 1e-7,
+                   key_tolerance: float = 0.0, action_name: str = None) -> dict:
+    """Retarget an animated mesh (any deformation) onto ``obj``'s sliders by geometric fitting."""
+    if method not in ("perframe", "spacetime"):
+        raise ShapeSpaceError("a mesh performance needs a geometric method: perframe or spacetime", "method")
+    scene = scene or bpy.context.scene
+    model = shapekeys.read_blendshape_model(obj)
+    frames = np.arange(scene.frame_start, scene.frame_end + 1, dtype=np.float64)
+    if frames.size < 3:
+        raise ShapeSpaceError(f"the scene range has {frames.size} frames; at least 3 are needed", "too_short")
+    S = dense_source_positions(source_obj, model, obj, scene, frames)
+    unit = (model.scale or NORMALISED_DIAGONAL) / NORMALISED_DIAGONAL
+    B = model.delta_matrix / unit
+    b0 = model.neutral.ravel() / unit
+    lo, hi = model.slider_min, model.slider_max
+    if method == "perframe":
+        W = fit_frames(B, b0, S / unit, lo, hi)
+        report = {}
+    else:
+        ideal = fit_frames(B, b0, S / unit, np.full(model.n_targets, -10.0), np.full(model.n_targets, 10.0))
+        sigma = np.maximum(ideal.std(axis=0), 0.05 * (hi - lo))
+        res = spacetime(B, b0, S / unit, sigma, lam, lo=lo, hi=hi, relative=True)
+        W = res.weights
+        report = {"admm_iterations": res.iterations, "status": res.message}
+    fit = (b0 + W @ B.T) * unit
+    report.update({"source": source_obj.name, "method": method, "frames": int(frames.size),
+                   "position_error_rms": float(np.sqrt(np.mean(np.sum((fit - S).reshape(len(frames), -1, 3) ** 2,
+                                                                       axis=2))) / model.scale),
+                   "issues": []})
+    action = actions.key_shape_values(obj, model.names, frames, W, action_name or f"{obj.name}_{source_obj.name}")
+    if key_tolerance > 0:
+        kept = 0
+        for j, name in enumerate(model.names):
+            idx = reduce_keys(frames, W[:, j], key_tolerance)
+            actions.write_curve(obj.data.shape_keys, actions.shape_key_path(name), frames[idx], W[idx, j])
+            kept += idx.size
+        report["keys_kept_frac"] = kept / (frames.size * model.n_targets)
+    report["action"] = action.name
+    return report

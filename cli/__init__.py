@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("--out", help="write the JSON here instead of stdout")
     rt = sub.add_parser("retarget", help="retarget capture files or actions onto a shape-key rig, one action each")
     rt.add_argument("--source", action="append", required=True,
-                    help="Live Link Face CSV or action name (repeat for a batch)")
+                    help="Live Link Face CSV, action name, or an animated mesh object (repeat for a batch)")
     rt.add_argument("--object", help="target mesh (default: the only mesh with shape keys)")
     rt.add_argument("--method", choices=("copy", "perframe", "spacetime"), default="spacetime")
     rt.add_argument("--lam", type=float, default=1e-7,
@@ -93,8 +93,14 @@ def _cmd_retarget(args) -> int:
     for k, src in enumerate(args.source, start=1):
         print(f"shapespace: [{k}/{len(args.source)}] {src} → {obj.name} ({args.method})", file=sys.stderr)
         try:
-            rep = retarget.retarget(obj, src, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
-                                    action_name=f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}")
+            name = f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}"
+            source_obj = bpy.data.objects.get(src)
+            if source_obj is not None and source_obj.type == "MESH":   # a mesh performance
+                rep = retarget.retarget_dense(obj, source_obj, args.method, lam=args.lam,
+                                              key_tolerance=args.key_tolerance, action_name=name)
+            else:
+                rep = retarget.retarget(obj, src, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
+                                        action_name=name)
             rep["ok"] = True
         except ShapeSpaceError as exc:
             print(f"shapespace: error: {src}: {exc}", file=sys.stderr)

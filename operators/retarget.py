@@ -15,6 +15,8 @@ class SHAPESPACE_OT_retarget(bpy.types.Operator):
     filepath: bpy.props.StringProperty(name="CSV File", subtype="FILE_PATH",
                                        description="Live Link Face CSV (leave empty to use an action)")
     action: bpy.props.StringProperty(name="Action", description="Source action animating shape keys")
+    source_object: bpy.props.StringProperty(
+        name="Mesh Performance", description="An animated mesh to fit (same topology, or lm_* landmark groups)")
     method: bpy.props.EnumProperty(
         name="Method",
         items=[("copy", "Copy", "Copy the mapped channels (corresponding parameterisation)"),
@@ -29,16 +31,24 @@ class SHAPESPACE_OT_retarget(bpy.types.Operator):
         return active_rig(cls, context) is not None
 
     def execute(self, context):
-        source = bpy.path.abspath(self.filepath) if self.filepath else self.action
-        if not source:
-            self.report({"ERROR"}, "choose a CSV file or an action")
-            return {"CANCELLED"}
-        rep = attempt(self, retarget.retarget, context.active_object, source, self.method,
-                      key_tolerance=self.key_tolerance)
+        if self.source_object:
+            src = bpy.data.objects.get(self.source_object)
+            if src is None or src.type != "MESH":
+                self.report({"ERROR"}, f"no mesh named {self.source_object!r}")
+                return {"CANCELLED"}
+            rep = attempt(self, retarget.retarget_dense, context.active_object, src, self.method,
+                          key_tolerance=self.key_tolerance)
+        else:
+            source = bpy.path.abspath(self.filepath) if self.filepath else self.action
+            if not source:
+                self.report({"ERROR"}, "choose a CSV file, an action or a mesh performance")
+                return {"CANCELLED"}
+            rep = attempt(self, retarget.retarget, context.active_object, source, self.method,
+                          key_tolerance=self.key_tolerance)
         if rep is FAILED:
             return {"CANCELLED"}
         for msg in rep["issues"]:
             self.report({"WARNING"}, msg)
-        self.report({"INFO"}, f"{rep['action']}: {rep['frames']} frames, {rep['mapped_channels']} channels, "
-                              f"velocity error {rep['velocity_error_rms']:.2g}")
+        self.report({"INFO"}, f"{rep['action']}: {rep['frames']} frames, position error "
+                              f"{rep['position_error_rms']:.2g} of the size")
         return {"FINISHED"}

@@ -99,7 +99,87 @@ def test_retarget_operator_and_its_bad_input(registered):
     bpy.context.view_layer.objects.active = ob
     assert bpy.ops.shapespace.retarget(filepath=CSV, method="copy") == {"FINISHED"}
     assert actions.active_action(ob.data.shape_keys) is not None
-    with pytest.raises(RuntimeError, match="choose a CSV file or an action"):
+    with pytest.raises(RuntimeError, match="choose a CSV file, an action or a mesh performance"):
         bpy.ops.shapespace.retarget()
     with pytest.raises(RuntimeError, match="no CSV file or action named"):
         bpy.ops.shapespace.retarget(action="nothing")
+
+
+def _facecap_scene():
+    import_file(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
+    src = bpy.data.objects["Mesh_2"]
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 40, 90
+    return src, scene
+
+
+def _copy_rig(src, transform=None, reverse=False):
+    """A separate rig with the same shapes (optionally moved/scaled and with vertices in reverse order)."""
+    model = shapekeys.read_blendshape_model(src)
+    order = np.arange(model.n_vertices)[::-1] if reverse else np.arange(model.n_vertices)
+    inv = np.argsort(order)
+    verts = model.neutral[order]
+    faces = [[int(inv[v]) for v in p.vertices] for p in src.data.polygons]
+    T = np.eye(4) if transform is None else transform
+    apply = lambda pts: pts @ T[:3, :3].T + T[:3, 3]  # noqa: E731
+    me = bpy.data.meshes.new("TargetHead")
+    me.from_pydata(apply(verts).tolist(), [], faces)
+    ob = bpy.data.objects.new("TargetHead", me)
+    bpy.context.scene.collection.objects.link(ob)
+    ob.shape_key_add(name="Basis")
+    for k, name in enumerate(model.names):
+        kb = ob.shape_key_add(name=name)
+        kb.data.foreach_set("co", apply(verts + model.deltas[k][order]).astype(np.float32).ravel())
+    return ob, order
+
+
+def test_dense_performance_same_topology_recovers_the_capture():
+    src, scene = _facecap_scene()
+    dst, _ = _copy_rig(src)
+    rep = retarget.retarget_dense(dst, src, "perframe")
+    assert rep["position_error_rms"] < 1e-4
+    curves = actions.shape_key_curves(dst, bpy.data.actions[rep["action"]])
+    truth = actions.sample_shape_keys(src, ["jawOpen"], [60.0])[0, 0]
+    assert abs(actions.sample_curve(curves["jawOpen"], [60.0])[0] - truth) < 0.02
+
+
+def test_dense_performance_through_landmarks_on_a_different_mesh():
+    src, scene = _facecap_scene()
+    T = np.eye(4)
+    c, s_ = np.cos(0.3), np.sin(0.3)
+    T[:3, :3] = 1.5 * np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]])
+    T[:3, 3] = (100.0, -50.0, 20.0)
+    dst, order = _copy_rig(src, T, reverse=True)
+    inv = np.argsort(order)
+    rng = np.random.default_rng(0)
+    for k, v in enumerate(rng.choice(len(order), 12, replace=False)):
+        src.vertex_groups.new(name=f"lm_{k}").add([int(v)], 1.0, "REPLACE")
+        dst.vertex_groups.new(name=f"lm_{k}").add([int(inv[v])], 1.0, "REPLACE")
+    for name in ("jawOpen",):
+        dst.data.shape_keys.key_blocks[name].slider_max = 0.3
+    rep = retarget.retarget_dense(dst, src, "perframe")
+    curves = actions.shape_key_curves(dst, bpy.data.actions[rep["action"]])
+    jaw = actions.sample_curve(curves["jawOpen"], np.arange(40, 91))
+    assert jaw.max() <= 0.3 + 1e-6
+    truth = actions.sample_shape_keys(src, ["mouthSmile_L"], [60.0])[0, 0]
+    assert abs(actions.sample_curve(curves["mouthSmile_L"], [60.0])[0] - truth) < 0.1
+
+
+def test_dense_performance_without_enough_landmarks_is_refused():
+    src, scene = _facecap_scene()
+    dst, order = _copy_rig(src, reverse=True)
+    dst.vertex_groups.new(name="lm_0").add([0], 1.0, "REPLACE")
+    src.vertex_groups.new(name="lm_0").add([int(order[0])], 1.0, "REPLACE")
+    with pytest.raises(Exception, match="at least 4 landmark pairs"):
+        retarget.retarget_dense(dst, src, "spacetime")
+
+
+def test_mesh_performance_through_the_operator(registered):
+    src, scene = _facecap_scene()
+    dst, _ = _copy_rig(src)
+    bpy.context.view_layer.objects.active = dst
+    assert bpy.ops.shapespace.retarget(source_object=src.name, method="perframe", key_tolerance=0.01) == {"FINISHED"}
+    with pytest.raises(RuntimeError, match="no mesh named"):
+        bpy.ops.shapespace.retarget(source_object="nope")
+    with pytest.raises(RuntimeError, match="needs a geometric method"):
+        bpy.ops.shapespace.retarget(source_object=src.name, method="copy")
