@@ -125,8 +125,9 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
             sigma = np.maximum(raw.std(axis=0), 0.05 * (hi - lo))
             res = spacetime(B, b0, S, sigma, lam, lo=lo, hi=hi, relative=True)
             W = res.weights
-            report["admm_iterations"] = res.iterations
+            report["solver_iterations"] = res.iterations
             report["status"] = res.message
+            report["converged"] = res.status == 0
     # errors against the ideal (unlimited) performance, at every vertex, relative to the model size
     pos_err = np.linalg.norm((W - raw) @ model.delta_matrix.T, axis=1)
     vel = np.diff(W - raw, axis=0) @ model.delta_matrix.T
@@ -250,7 +251,7 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
         sigma = np.maximum(ideal.std(axis=0), 0.05 * (hi - lo))
         res = spacetime(B, b0, S / unit, sigma, lam, lo=lo, hi=hi, relative=True)
         W = res.weights
-        report = {"admm_iterations": res.iterations, "status": res.message}
+        report = {"solver_iterations": res.iterations, "status": res.message, "converged": res.status == 0}
     fit = (b0 + W @ B.T) * unit
     report.update({"source": source_obj.name, "method": method, "frames": int(frames.size),
                    "position_error_rms": float(np.sqrt(np.mean(np.sum((fit - S).reshape(len(frames), -1, 3) ** 2,
