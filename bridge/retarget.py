@@ -65,6 +65,7 @@ def channel_mapping(obj, source_names, target_names) -> list:
     key = obj.data.shape_keys
     stored = json.loads(key.get(MAPPING_PROP, "{}")) if key is not None else {}
     auto, _, _ = match_channels(source_names, target_names)
+    claimed = {e.get("target") for name, e in stored.items() if name in source_names}   # overrides win
     out = []
     for i, s in enumerate(source_names):
         if s in stored:
@@ -73,7 +74,7 @@ def channel_mapping(obj, source_names, target_names) -> list:
                 out.append((i, target_names.index(entry["target"]), float(entry.get("gain", 1.0)),
                             float(entry.get("offset", 0.0))))
             continue
-        if s in auto:
+        if s in auto and auto[s] not in claimed:
             out.append((i, target_names.index(auto[s]), 1.0, 0.0))
     if not out:
         raise ShapeSpaceError("the source and the target share no channels (check the names or the mapping)",
@@ -84,6 +85,10 @@ def channel_mapping(obj, source_names, target_names) -> list:
 def set_mapping(obj, source: str, target: str, gain: float = 1.0, offset: float = 0.0) -> None:
     """Store a channel mapping override (kept in the .blend on the shape-key datablock)."""
     key = obj.data.shape_keys
+    if not source:
+        raise ShapeSpaceError("name the source channel", "missing_channel")
+    if key is None or target not in key.key_blocks or target == key.reference_key.name:
+        raise ShapeSpaceError(f"{obj.name!r} has no shape key {target!r} to map to", "missing_key")
     data = json.loads(key.get(MAPPING_PROP, "{}"))
     data[source] = {"target": target, "gain": float(gain), "offset": float(offset)}
     key[MAPPING_PROP] = json.dumps(data, sort_keys=True)
@@ -267,3 +272,20 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
         report["keys_kept_frac"] = kept / (frames.size * model.n_targets)
     report["action"] = action.name
     return report
+
+
+def add_landmark(obj, name: str, vertex: int) -> str:
+    """(Re)define the landmark vertex group ``lm_<name>`` as the single vertex ``vertex``."""
+    group_name = name if name.startswith(LANDMARK_PREFIX) else LANDMARK_PREFIX + name
+    group = obj.vertex_groups.get(group_name) or obj.vertex_groups.new(name=group_name)
+    group.remove(list(range(len(obj.data.vertices))))
+    group.add([int(vertex)], 1.0, "REPLACE")
+    return group.name
+
+
+def selected_vertex(obj):
+    """The single selected vertex of a mesh (object mode data), or None."""
+    sel = np.zeros(len(obj.data.vertices), dtype=bool)
+    obj.data.vertices.foreach_get("select", sel)
+    idx = np.flatnonzero(sel)
+    return int(idx[0]) if idx.size == 1 else None

@@ -3,6 +3,7 @@ import bpy
 
 from .add_combination import SHAPESPACE_OT_add_combination
 from .add_inbetween import SHAPESPACE_OT_add_inbetween
+from .add_landmark import SHAPESPACE_OT_add_landmark
 from .add_pin import SHAPESPACE_OT_add_pin
 from .check_rig import SHAPESPACE_OT_check_rig
 from .clear_pins import SHAPESPACE_OT_clear_pins
@@ -20,6 +21,7 @@ from .psd_remove_example import SHAPESPACE_OT_psd_remove_example
 from .psd_update import SHAPESPACE_OT_psd_update
 from .remove_pin import SHAPESPACE_OT_remove_pin
 from .retarget import SHAPESPACE_OT_retarget
+from .set_mapping import SHAPESPACE_OT_set_mapping
 from .solve_pins import SHAPESPACE_OT_solve_pins
 
 classes = (
@@ -43,6 +45,8 @@ classes = (
     SHAPESPACE_OT_psd_add_target,
     SHAPESPACE_OT_psd_record_targets,
     SHAPESPACE_OT_retarget,
+    SHAPESPACE_OT_set_mapping,
+    SHAPESPACE_OT_add_landmark,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

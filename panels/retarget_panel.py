@@ -20,3 +20,8 @@ class SHAPESPACE_PT_retarget(ShapeSpaceSidebar, bpy.types.Panel):
         layout.label(text="Source: a Live Link Face CSV or an action")
         op = layout.operator("shapespace.retarget", icon="ACTION")
         op.method = "spacetime"
+        row = layout.row(align=True)
+        row.operator("shapespace.set_mapping", icon="LINKED")
+        row.operator("shapespace.add_landmark", icon="PIVOT_CURSOR")
+        landmarks = [g.name for g in context.active_object.vertex_groups if g.name.startswith("lm_")]
+        layout.label(text=f"{len(landmarks)} landmarks", icon="VERTEXSEL")

@@ -183,3 +183,28 @@ def test_mesh_performance_through_the_operator(registered):
         bpy.ops.shapespace.retarget(source_object="nope")
     with pytest.raises(RuntimeError, match="needs a geometric method"):
         bpy.ops.shapespace.retarget(source_object=src.name, method="copy")
+
+
+def test_mapping_override_and_landmark_operators(registered):
+    import_file(BLEND)
+    ob = bpy.data.objects["FBHead"]
+    bpy.context.view_layer.objects.active = ob
+    assert bpy.ops.shapespace.set_mapping(source="JawOpen", target="MouthClose", gain=0.5, offset=0.1) == {"FINISHED"}
+    with pytest.raises(RuntimeError, match="no shape key 'Nope'"):
+        bpy.ops.shapespace.set_mapping(source="JawOpen", target="Nope")
+    rep = retarget.retarget(ob, CSV, "copy")
+    stream = read_live_link_csv(CSV)
+    frames, w = resample(stream.times, stream.weights, bpy.context.scene.render.fps, bpy.context.scene.frame_start)
+    curves = actions.shape_key_curves(ob, bpy.data.actions[rep["action"]])
+    want = np.clip(0.5 * w[:, stream.names.index("JawOpen")] + 0.1, 0, 1)
+    np.testing.assert_allclose(actions.sample_curve(curves["MouthClose"], frames), want, atol=1e-6)
+    # landmarks: by index, and from the selection
+    assert bpy.ops.shapespace.add_landmark(name="chin", vertex=12) == {"FINISHED"}
+    ob.data.vertices.foreach_set("select", np.zeros(len(ob.data.vertices), dtype=bool))
+    ob.data.vertices[40].select = True
+    assert bpy.ops.shapespace.add_landmark(name="lm_nose") == {"FINISHED"}
+    src, dst = retarget.landmark_pairs(ob, ob)
+    assert sorted(src.tolist()) == [12, 40]
+    ob.data.vertices[41].select = True
+    with pytest.raises(RuntimeError, match="select exactly one vertex"):
+        bpy.ops.shapespace.add_landmark(name="x")
