@@ -3,17 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arrays import matrix, read_float, write_float
+from .arrays import matrix, read_float
 
 
 def vertex_positions(mesh) -> np.ndarray:
     """Stored vertex positions of a ``bpy.types.Mesh``, float32 (p, 3)."""
     return read_float(mesh.vertices, "co", 3)
-
-
-def set_vertex_positions(mesh, positions) -> None:
-    write_float(mesh.vertices, "co", positions)
-    mesh.update()
 
 
 def evaluated_positions(obj, depsgraph) -> np.ndarray:

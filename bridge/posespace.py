@@ -13,7 +13,7 @@ from ..core.psd import example_issues, train_psd
 from ..core.result import ShapeSpaceError
 from ..core.skinning import deform
 from . import meshes, shapekeys, skin
-from .arrays import matrix, read_float, write_float
+from .arrays import read_float, write_float
 
 SCULPT_SUFFIX = "_sculpt"
 
@@ -343,9 +343,6 @@ def write_wpsd_preview(obj, disp, names) -> None:
     key.key_blocks[WPSD_KEY].value = 1.0
     shapekeys.write_slider_values(obj, names, np.zeros(len(names)))
 
-
-def world_matrix_of(obj):
-    return matrix(obj.matrix_world)
 
 
 def bake_weights(obj, scene, start: int, end: int) -> int:

@@ -7,7 +7,7 @@ import os
 import bpy
 import numpy as np
 
-from ..core.capture import WeightStream, read_live_link_csv, resample
+from ..core.capture import read_live_link_csv, resample
 from ..core.cloning import copy_weights, fit_frames, reduce_keys, spacetime
 from ..core.direct import NORMALISED_DIAGONAL
 from ..core.names import match_channels

@@ -6,7 +6,7 @@ import numpy as np
 from ..core.result import Issue, ShapeSpaceError
 from ..core.skinning import ArmatureDeform, SkinningRig, SkinWeights
 
-from .arrays import matrix, read_matrices
+from .arrays import read_matrices
 from .meshes import group_weight_vector, vertex_groups, world_matrix
 
 
@@ -116,6 +116,3 @@ def set_pose_basis(arm_obj, rotations=None, locations=None, scales=None) -> None
         bones.foreach_set("scale", np.ascontiguousarray(scales, np.float32).ravel())
     arm_obj.pose.bones[0].id_data.update_tag()
 
-
-def armature_world(arm_obj) -> np.ndarray:
-    return matrix(arm_obj.matrix_world)

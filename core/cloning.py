@@ -221,7 +221,6 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     DtD_SB[-1] = SB[-1] - SB[-2]
     DtD_SB[1:-1] = 2 * SB[1:-1] - SB[:-2] - SB[2:]
     Yf, Yl = first / sig, last / sig
-    inner = F - 2
     ab = _second_difference_banded(F)[:, 1:-1].copy()   # interior rows/cols of DᵀD
     ab[1, :] = 2.0
     ab[0, 0] = 0.0

@@ -374,7 +374,6 @@ def train_driver(poses, values, names, kernel="thin_plate_spline", epsilon=1.0, 
     V = np.asarray(values, dtype=np.float64).reshape(X.shape[0], -1)
     if V.shape[1] != len(names):
         raise ShapeSpaceError(f"values have {V.shape[1]} columns for {len(names)} names", "shape")
-    K = X.shape[0]
     if degree is None:
         degree = 1 if _affine_determined(X) else 0
         if degree == 0 and rbf.KERNELS[kernel][1] >= 1:

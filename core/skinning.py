@@ -191,9 +191,9 @@ def matrix_to_quaternion(r) -> np.ndarray:
     which = np.argmax(cand, axis=-1)
     q = np.empty(r.shape[:-2] + (4,))
     s = np.sqrt(np.maximum(np.take_along_axis(cand, which[..., None], -1)[..., 0], 1e-300)) * 2.0
-    r00, r01, r02 = r[..., 0, 0], r[..., 0, 1], r[..., 0, 2]
-    r10, r11, r12 = r[..., 1, 0], r[..., 1, 1], r[..., 1, 2]
-    r20, r21, r22 = r[..., 2, 0], r[..., 2, 1], r[..., 2, 2]
+    r01, r02 = r[..., 0, 1], r[..., 0, 2]
+    r10, r12 = r[..., 1, 0], r[..., 1, 2]
+    r20, r21 = r[..., 2, 0], r[..., 2, 1]
     opts = [
         np.stack([0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s], -1),
         np.stack([(r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s], -1),

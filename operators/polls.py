@@ -21,6 +21,15 @@ def active_rig(cls, context):
     return ob
 
 
+def pinned_rig(cls, context):
+    """A pinnable rig that already has pins; otherwise say why and return None."""
+    ob = pinnable_rig(cls, context)
+    if ob is not None and not len(ob.shapespace.pins):
+        cls.poll_message_set("Add a pin first")
+        return None
+    return ob
+
+
 def pinnable_rig(cls, context):
     """A rig in a direct-manipulation mode with pins; otherwise say why and return None."""
     ob = active_rig(cls, context)

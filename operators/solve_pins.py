@@ -2,7 +2,7 @@ import bpy
 
 from ..bridge import drag
 from ..core.result import ShapeSpaceError
-from .polls import pinnable_rig
+from .polls import pinned_rig
 
 
 class SHAPESPACE_OT_solve_pins(bpy.types.Operator):
@@ -20,13 +20,7 @@ The scriptable form of a viewport drag"""
 
     @classmethod
     def poll(cls, context):
-        ob = pinnable_rig(cls, context)
-        if ob is None:
-            return False
-        if not len(ob.shapespace.pins):
-            cls.poll_message_set("Add a pin first")
-            return False
-        return True
+        return pinned_rig(cls, context) is not None
 
     def execute(self, context):
         ob = context.active_object
