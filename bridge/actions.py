@@ -135,6 +135,37 @@ def write_curve(id_block, data_path: str, frames, values, index: int = 0,
     return fc
 
 
+def write_bezier_curve(id_block, data_path: str, frames, values, slopes, index: int = 0, group: str = ""):
+    """Replace one curve's keys with smooth Bézier keys: value ``values[i]`` at ``frames[i]`` with
+    aligned handles along ``slopes[i]`` at a third of each neighbouring segment, so Blender evaluates
+    exactly the cubic Hermite of :func:`core.cloning.hermite`."""
+    x = np.asarray(frames, dtype=np.float64).ravel()
+    y = np.asarray(values, dtype=np.float64).ravel()
+    m = np.asarray(slopes, dtype=np.float64).ravel()
+    if not (x.shape == y.shape == m.shape):
+        raise ShapeSpaceError(f"{x.size} frames, {y.size} values and {m.size} slopes", "shape")
+    if not (np.isfinite(x).all() and np.isfinite(y).all() and np.isfinite(m).all()):
+        raise ShapeSpaceError(f"non-finite keys for {data_path}", "non_finite")
+    gaps = np.diff(x)
+    h_left = np.concatenate([gaps[:1], gaps]) / 3.0 if x.size > 1 else np.ones(1)
+    h_right = np.concatenate([gaps, gaps[-1:]]) / 3.0 if x.size > 1 else np.ones(1)
+    fc = ensure_fcurve(id_block, data_path, index, group)
+    fc.keyframe_points.clear()
+    fc.keyframe_points.add(x.size)
+    pts = fc.keyframe_points
+    pts.foreach_set("co", np.column_stack([x, y]).astype(np.float32).ravel())
+    pts.foreach_set("handle_left", np.column_stack([x - h_left, y - m * h_left]).astype(np.float32).ravel())
+    pts.foreach_set("handle_right", np.column_stack([x + h_right, y + m * h_right]).astype(np.float32).ravel())
+    enum = bpy.types.Keyframe.bl_rna.properties
+    aligned = enum["handle_left_type"].enum_items["ALIGNED"].value
+    pts.foreach_set("handle_left_type", np.full(x.size, aligned, dtype=np.int32))
+    pts.foreach_set("handle_right_type", np.full(x.size, aligned, dtype=np.int32))
+    bezier = enum["interpolation"].enum_items["BEZIER"].value
+    pts.foreach_set("interpolation", np.full(x.size, bezier, dtype=np.int32))
+    fc.update()
+    return fc
+
+
 def insert_key(id_block, data_path: str, frame: float, value: float, index: int = 0, group: str = ""):
     """Insert (or replace) one key, keeping the curve's other keys."""
     fc = ensure_fcurve(id_block, data_path, index, group)
@@ -241,3 +272,37 @@ def key_sliders(obj, names, frame: float, only_nonzero: bool = False) -> int:
         insert_key(key, shape_key_path(name), frame, value, group="Shape Keys")
         count += 1
     return count
+
+
+def blender_decimate(id_block, action, curves, error_margin: float) -> None:
+    """Run Blender's own Graph Editor *Decimate (Allowed Change)* on ``curves`` of ``action``.
+
+    The reference ShapeSpace's key reduction is compared with.  ``id_block``
+    must be animated by ``action`` and be (part of) the active object so the
+    Graph Editor lists it; only the keys of ``curves`` are selected.  Works in
+    background sessions: an area of the current window's screen is switched to
+    the Graph Editor for the call and restored afterwards.
+    """
+    wanted = {(fc.data_path, fc.array_index) for fc in curves}
+    for fc in fcurves(action, id_block):
+        on = (fc.data_path, fc.array_index) in wanted
+        fc.select = on
+        fc.hide = False
+        sel = np.full(len(fc.keyframe_points), on, dtype=bool)
+        fc.keyframe_points.foreach_set("select_control_point", sel)
+    window = bpy.context.window or bpy.context.window_manager.windows[0]
+    screen = window.screen
+    area = next((a for a in screen.areas if a.type == "GRAPH_EDITOR"), None) or max(
+        screen.areas, key=lambda a: a.width * a.height)
+    old_type = area.type
+    area.type = "GRAPH_EDITOR"
+    space = area.spaces.active
+    old_only_selected = space.dopesheet.show_only_selected
+    space.dopesheet.show_only_selected = False
+    try:
+        region = next(r for r in area.regions if r.type == "WINDOW")
+        with bpy.context.temp_override(window=window, screen=screen, area=area, region=region):
+            bpy.ops.graph.decimate(mode="ERROR", remove_error_margin=float(error_margin))
+    finally:
+        space.dopesheet.show_only_selected = old_only_selected
+        area.type = old_type

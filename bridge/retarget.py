@@ -8,7 +8,7 @@ import bpy
 import numpy as np
 
 from ..core.capture import read_live_link_csv, resample
-from ..core.cloning import copy_weights, fit_frames, reduce_keys, spacetime
+from ..core.cloning import copy_weights, fit_frames, reduce_keys, reduce_keys_bezier, spacetime
 from ..core.direct import NORMALISED_DIAGONAL
 from ..core.names import match_channels
 from ..core.result import ShapeSpaceError
@@ -95,7 +95,7 @@ def set_mapping(obj, source: str, target: str, gain: float = 1.0, offset: float 
 
 
 def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e-7, key_tolerance: float = 0.0,
-             action_name: str = None) -> dict:
+             action_name: str = None, key_shape: str = "BEZIER") -> dict:
     """Retarget ``source`` onto ``obj``'s sliders and write a new action; returns a report dict."""
     if method not in METHODS:
         raise ShapeSpaceError(f"method must be one of {', '.join(METHODS)}, got {method!r}", "method")
@@ -141,16 +141,32 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
     report["clipping_frames"] = int(np.sum(np.any((raw < lo - 1e-9) | (raw > hi + 1e-9), axis=1)))
     action = actions.key_shape_values(obj, model.names, frames, W,
                                       action_name or f"{obj.name}_{method}")
-    kept = total = 0
     if key_tolerance > 0:
-        for j, name in enumerate(model.names):
-            idx = reduce_keys(frames, W[:, j], key_tolerance)
-            actions.write_curve(obj.data.shape_keys, actions.shape_key_path(name), frames[idx], W[idx, j])
-            kept += idx.size
-            total += frames.size
-        report["keys_kept_frac"] = kept / max(total, 1)
+        report["keys_kept_frac"] = reduce_action_keys(obj, model.names, frames, W, key_tolerance, key_shape)
     report["action"] = action.name
     return report
+
+
+KEY_SHAPES = ("BEZIER", "LINEAR")
+
+
+def reduce_action_keys(obj, names, frames, W, tolerance: float, key_shape: str = "BEZIER") -> float:
+    """Rewrite the dense curves ``W`` (f, n) of ``names`` with the fewest keys within ``tolerance``
+    (smooth Bézier keys, or linear ones); returns the fraction of keys kept."""
+    if key_shape not in KEY_SHAPES:
+        raise ShapeSpaceError(f"key shape must be one of {', '.join(KEY_SHAPES)}, got {key_shape!r}", "key_shape")
+    key = obj.data.shape_keys
+    kept = 0
+    for j, name in enumerate(names):
+        path = actions.shape_key_path(name)
+        if key_shape == "BEZIER":
+            idx, key_values, slopes = reduce_keys_bezier(frames, W[:, j], tolerance)
+            actions.write_bezier_curve(key, path, frames[idx], key_values, slopes)
+        else:
+            idx = reduce_keys(frames, W[:, j], tolerance)
+            actions.write_curve(key, path, frames[idx], W[idx, j])
+        kept += idx.size
+    return kept / max(frames.size * len(names), 1)
 
 
 # ------------------------------------------------------------------ dense performances (mesh sequences)
@@ -234,7 +250,7 @@ def dense_source_positions(source, target_model, target, scene, frames):
 
 
 def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: float = 1e-7,
-                   key_tolerance: float = 0.0, action_name: str = None) -> dict:
+                   key_tolerance: float = 0.0, action_name: str = None, key_shape: str = "BEZIER") -> dict:
     """Retarget an animated mesh (any deformation) onto ``obj``'s sliders by geometric fitting."""
     if method not in ("perframe", "spacetime"):
         raise ShapeSpaceError("a mesh performance needs a geometric method: perframe or spacetime", "method")
@@ -264,12 +280,7 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
                    "issues": []})
     action = actions.key_shape_values(obj, model.names, frames, W, action_name or f"{obj.name}_{source_obj.name}")
     if key_tolerance > 0:
-        kept = 0
-        for j, name in enumerate(model.names):
-            idx = reduce_keys(frames, W[:, j], key_tolerance)
-            actions.write_curve(obj.data.shape_keys, actions.shape_key_path(name), frames[idx], W[idx, j])
-            kept += idx.size
-        report["keys_kept_frac"] = kept / (frames.size * model.n_targets)
+        report["keys_kept_frac"] = reduce_action_keys(obj, model.names, frames, W, key_tolerance, key_shape)
     report["action"] = action.name
     return report
 

@@ -42,6 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="space-time regulariser λ, relative to the data (small: the motion is kept)")
     rt.add_argument("--key-tolerance", type=float, default=0.0,
                     help="reduce keys to this max slider error (0 keeps every frame)")
+    rt.add_argument("--key-shape", choices=("BEZIER", "LINEAR"), default="BEZIER",
+                    help="reduced keys: smooth Bezier (fewest keys) or linear")
     rt.add_argument("--target", help="target .blend to open first (default: the open file)")
     rt.add_argument("--out", help="save the result as this .blend")
     rt.add_argument("--report", help="write a JSON report here")
@@ -97,10 +99,11 @@ def _cmd_retarget(args) -> int:
             source_obj = bpy.data.objects.get(src)
             if source_obj is not None and source_obj.type == "MESH":   # a mesh performance
                 rep = retarget.retarget_dense(obj, source_obj, args.method, lam=args.lam,
-                                              key_tolerance=args.key_tolerance, action_name=name)
+                                              key_tolerance=args.key_tolerance, action_name=name,
+                                              key_shape=args.key_shape)
             else:
                 rep = retarget.retarget(obj, src, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
-                                        action_name=name)
+                                        action_name=name, key_shape=args.key_shape)
             rep["ok"] = True
         except ShapeSpaceError as exc:
             print(f"shapespace: error: {src}: {exc}", file=sys.stderr)

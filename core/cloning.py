@@ -23,12 +23,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import solve_banded
+from scipy.optimize import linprog
 
 from .boxqp import solve_box_qp
 from .result import ShapeSpaceError
 
 __all__ = ["copy_weights", "cloning_matrix", "key_poses", "fit_frames", "spacetime", "SpacetimeResult",
-           "reduce_keys", "procrustes", "landmark_warp", "closest_points"]
+           "reduce_keys", "reduce_keys_bezier", "curve_slopes", "hermite", "procrustes", "landmark_warp", "closest_points"]
 
 
 def copy_weights(source, mapping, n_target, gain=None, offset=None, lo=None, hi=None) -> np.ndarray:
@@ -138,18 +139,9 @@ class SpacetimeResult:
     diagnostics: dict = field(default_factory=dict)
 
 
-def _second_difference_banded(F):
-    """DᵀD for the first-difference operator D ((F−1) × F), in banded form (3, F)."""
-    ab = np.zeros((3, F))
-    ab[0, 1:] = -1.0
-    ab[2, :-1] = -1.0
-    ab[1, :] = 2.0
-    ab[1, 0] = ab[1, -1] = 1.0
-    return ab
-
-
 def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=None, lo=None, hi=None,
-              tol: float = 1e-8, max_iter: int = 100, relative: bool = False) -> SpacetimeResult:
+              tol: float = 1e-8, max_iter: int = 100, relative: bool = False,
+              max_exact_active: int = 1000) -> SpacetimeResult:
     """Space-time expression cloning (thesis ch. 5), optionally with slider bounds.
 
     Minimises ``‖D (W Bᵀ − S)‖² + λ Σ_f Σ_k (w_fk / σ_k)²`` over the interior
@@ -160,19 +152,24 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
 
     Decoupling: with ``W = Y Σ`` and ``Σ Bᵀ B Σ = Q diag(μ) Qᵀ`` the normal
     equations ``DᵀD Y (ΣBᵀBΣ) + λ Y = DᵀD S B Σ`` split into one tridiagonal
-    system ``(μ_j DᵀD + λ I) z_j = r_j`` per mode — O(n·f) after an O(n³)
+    system ``(μ_j DᵀD + λ I) z_j = r_j`` per mode, and because the interior
+    ``DᵀD`` is the Dirichlet second difference, the orthonormal type-I sine
+    basis diagonalises all of them at once — O(n·f) per solve after an O(n³)
     eigendecomposition, no Kronecker system.
 
-    Bounds (lo ≤ w ≤ hi): projected Newton with an ε-active set around the
-    fast solve — on the free entries the Newton system is solved by
-    conjugate gradients preconditioned with the exact inverse of the whole
-    (unbounded) operator, i.e. one decoupled solve per CG step, inexactly
-    (forcing term min(0.1, √residual)) far from the solution; a projected
-    Armijo search keeps the objective decreasing.  Convergence test: the
-    natural residual ``‖y − clip(y − ∇f(y))‖∞ ≤ tol · max(1, ‖rhs‖∞)`` in
-    the whitened variables (zero exactly at the KKT point), or no further
-    decrease at a residual ≤ 1e-6 (rounding).  The weights satisfy the
-    bounds exactly.
+    Bounds (lo ≤ w ≤ hi): projected Newton with an ε-active set (Bertsekas) around
+    the fast solve.  The Newton step on the free entries is exact: with the
+    m active entries held, ``𝓗 d = r + E_A ν``, ``d_A = 0`` gives the m × m
+    capacitance system ``(E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A`` whose entries come in
+    closed form from the two eigenbases (no column of 𝓗⁻¹ is formed, rows are
+    reused while the active set changes), so a step costs two decoupled
+    solves.  Above ``max_exact_active`` active entries the step is instead
+    computed by conjugate gradients preconditioned with the unbounded inverse
+    (forcing term min(0.1, √residual)).  A projected Armijo search keeps the
+    objective decreasing.  Convergence test: the natural residual
+    ``‖y − clip(y − ∇f(y))‖∞ ≤ tol · max(1, ‖rhs‖∞)`` in the whitened
+    variables (zero exactly at the KKT point), or no further decrease at a
+    residual ≤ 1e-6 (rounding).  The weights satisfy the bounds exactly.
 
     Parameters
     ----------
@@ -184,6 +181,9 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     relative : bool
         Read ``lam`` relative to the data: λ · mean eigenvalue of ``ΣBᵀBΣ``
         (unit-free; used by the retarget command).
+    max_exact_active : int
+        Largest active set for which a Newton step uses the exact capacitance
+        solve (cost O(f·m²)); larger ones use preconditioned CG.
     """
     B = np.asarray(B, dtype=np.float64)
     S = np.asarray(frames)                       # not copied: only S·B is needed (memory for long shots)
@@ -221,10 +221,6 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     DtD_SB[-1] = SB[-1] - SB[-2]
     DtD_SB[1:-1] = 2 * SB[1:-1] - SB[:-2] - SB[2:]
     Yf, Yl = first / sig, last / sig
-    ab = _second_difference_banded(F)[:, 1:-1].copy()   # interior rows/cols of DᵀD
-    ab[1, :] = 2.0
-    ab[0, 0] = 0.0
-    ab[2, -1] = 0.0
 
     def base_rhs():
         R = DtD_SB[1:-1].copy()
@@ -233,18 +229,78 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
         R[-1] += (Yl @ M)
         return R
 
-    def solve_modes(extra_diag, extra_rhs, rhs=None):
-        """(DᵀD ⊗ M + (λ + extra) I) y = rhs over the interior, decoupled per mode."""
-        R = base_rhs() if rhs is None else rhs
-        if extra_rhs is not None:
-            R = R + extra_rhs
-        Rq = R @ Q                                                   # (inner, n) modal right-hand sides
-        Z = np.empty_like(Rq)
-        for j in range(n):
-            band = ab * mu[j]
-            band[1] += lam + extra_diag
-            Z[:, j] = solve_banded((1, 1), band, Rq[:, j], check_finite=False)
+    # DᵀD on the interior (end frames fixed) is the Dirichlet second difference tridiag(−1, 2, −1), whose
+    # eigenvectors are the orthonormal type-I sine basis P with eigenvalues ν_i = 2 − 2 cos(πi/(F−1)):
+    # 𝓗 = DᵀD ⊗ M + λI is diagonal in P ⊗ Q with entries ν_i μ_j + λ.  One solve is a tridiagonal LAPACK
+    # solve per mode; a bounded solve on a short shot (many repeated solves) multiplies by the dense P.
+    nu = 2.0 - 2.0 * np.cos(np.pi * np.arange(1, F - 1) / (F - 1))
+    inv_spectrum = 1.0 / (nu[:, None] * mu[None, :] + lam)          # (inner, n)
+    ab = np.zeros((3, F - 2))
+    ab[0, 1:] = ab[2, :-1] = -1.0
+    ab[1] = 2.0
+    sine = None
+    if bounded and F - 2 <= 2048:
+        k = np.arange(1, F - 1)
+        sine = np.sqrt(2.0 / (F - 1)) * np.sin(np.pi * np.outer(k, k) / (F - 1))   # symmetric, orthogonal
+
+    def time_basis(t):
+        """Rows ``t`` of the sine basis P, shape (len(t), inner)."""
+        if sine is not None:
+            return sine[t]
+        return np.sqrt(2.0 / (F - 1)) * np.sin(np.pi * np.outer(t + 1, np.arange(1, F - 1)) / (F - 1))
+
+    def solve_modes(rhs=None):
+        """(DᵀD ⊗ M + λ I) y = rhs over the interior, decoupled per mode (Q in space, P in time)."""
+        Rq = (base_rhs() if rhs is None else rhs) @ Q
+        if sine is not None:
+            Z = sine @ ((sine @ Rq) * inv_spectrum)
+        else:
+            Z = np.empty_like(Rq)
+            for j in range(n):
+                band = ab * mu[j]
+                band[1] += lam
+                Z[:, j] = solve_banded((1, 1), band, Rq[:, j], check_finite=False)
         return Z @ Q.T
+
+    def inverse_entries(rows, cols):
+        """Entries 𝓗⁻¹[rows, cols] among flat interior indices, shape (len(rows), len(cols)), float32.
+
+        𝓗⁻¹[(t,k),(t',k')] = Σ_i P_ti P_t'i U_i[k,k'] with U_i = Q diag(1/(ν_i μ + λ)) Qᵀ (P the sine
+        basis): one GEMM for the U_i of the channels involved, then one product per row channel —
+        O(f·n·c·c' + f·r·m), no column of 𝓗⁻¹ is ever formed.
+        """
+        f32 = np.float32                                     # a preconditioner: single precision suffices
+        Pr = time_basis(rows // n).astype(f32)                                     # (r, inner)
+        Pc_t = np.ascontiguousarray(time_basis(cols // n).T, dtype=f32)           # (inner, m)
+        kr, kc = rows % n, cols % n
+        row_chans, row_k = np.unique(kr, return_inverse=True)
+        col_chans, col_k = np.unique(kc, return_inverse=True)
+        U = ((inv_spectrum[:, None, :] * Q[row_chans][None]).reshape(-1, n).astype(f32)
+             @ Q[col_chans].T.astype(f32))
+        U = U.reshape(F - 2, row_chans.size, col_chans.size)                       # (inner, c, c')
+        out = np.empty((rows.size, cols.size), f32)
+        for c_i in range(row_chans.size):
+            sel = row_k == c_i
+            out[sel] = Pr[sel] @ (Pc_t * U[:, c_i, col_k])
+        return out
+
+    cache = {"idx": np.empty(0, np.int64), "C": np.empty((0, 0), np.float32)}
+
+    def inverse_block(active):
+        """𝓗⁻¹ restricted to the active entries, reusing rows computed for earlier active sets."""
+        old, C_old = cache["idx"], cache["C"]
+        known = np.isin(active, old)
+        pos_old = np.searchsorted(old, active[known])
+        C = np.empty((active.size, active.size), np.float32)
+        kn = np.flatnonzero(known)
+        C[np.ix_(kn, kn)] = C_old[np.ix_(pos_old, pos_old)]
+        new = np.flatnonzero(~known)
+        if new.size:
+            block = inverse_entries(active[new], active)
+            C[new] = block
+            C[:, new] = block.T
+        cache["idx"], cache["C"] = active, C
+        return C
 
     def assemble(Y_inner):
         W = np.empty((F, n))
@@ -254,7 +310,7 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
             np.clip(W, lo, hi, out=W)
         return W
 
-    Y = solve_modes(0.0, None)
+    Y = solve_modes()
     if not bounded:
         return SpacetimeResult(assemble(Y), 0, 0, "ok", {"modes": n})
     ylo = np.broadcast_to(lo / sig, Y.shape)
@@ -280,6 +336,75 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     Y = np.clip(Y, ylo, yhi)
     f = objective(Y)
     solves, status, message = 0, 1, "iteration limit reached"
+
+    def _pcg_free(free, r, nat):
+        """Large active sets: CG on the free entries, preconditioned by the exact unbounded inverse."""
+        nonlocal solves
+        forcing = min(0.1, np.sqrt(nat / scale))
+        r_norm0 = float(np.linalg.norm(r))
+        d = np.zeros_like(r)
+        z = np.where(free, solve_modes(rhs=r), 0.0)
+        solves += 1
+        p_dir, rz = z.copy(), float(np.sum(r * z))
+        for _ in range(200):
+            Ap = np.where(free, hmul(p_dir), 0.0)
+            alpha = rz / float(np.sum(p_dir * Ap))
+            d += alpha * p_dir
+            r = r - alpha * Ap
+            if np.linalg.norm(r) <= forcing * r_norm0:
+                break
+            z = np.where(free, solve_modes(rhs=r), 0.0)
+            solves += 1
+            rz_new = float(np.sum(r * z))
+            p_dir = z + (rz_new / rz) * p_dir
+            rz = rz_new
+        return d
+
+    def _capacitance_step(active, r):
+        """Newton step on the free entries with the active ones held: 𝓗 d = r + E_A ν, d_A = 0, i.e.
+        the m × m capacitance system (E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A, solved by CG with exact products
+        (one decoupled solve each) preconditioned by the inverse of its single-precision entries."""
+        nonlocal solves
+        d = solve_modes(rhs=r)
+        solves += 1
+        if not active.size:
+            return d
+        C = inverse_block(active).astype(np.float64)
+        try:        # numpy's LAPACK: scipy's own BLAS threads would contend with numpy's here
+            C_inv = np.linalg.inv(C)
+        except np.linalg.LinAlgError:
+            C_inv = np.linalg.pinv(C)
+        precondition = C_inv.__matmul__
+
+        def lifted_solve(v):                               # 𝓗⁻¹ E_A v, full (inner, n)
+            nonlocal solves
+            lift = np.zeros(Y.size)
+            lift[active] = v
+            solves += 1
+            return solve_modes(rhs=lift.reshape(Y.shape))
+
+        b = -d.ravel()[active]
+        b_norm = float(np.linalg.norm(b))
+        X = np.zeros_like(d)
+        res = b.copy()
+        z = precondition(res)
+        p_dir, Xp = z, lifted_solve(z)
+        rz = float(res @ z)
+        for _ in range(30):
+            Cp = Xp.ravel()[active]
+            alpha = rz / float(p_dir @ Cp)
+            X += alpha * Xp
+            res -= alpha * Cp
+            if np.linalg.norm(res) <= 1e-10 * b_norm:
+                break
+            z = precondition(res)
+            rz_new = float(res @ z)
+            beta = rz_new / rz
+            p_dir, Xp, rz = z + beta * p_dir, lifted_solve(z) + beta * Xp, rz_new
+        d += X
+        d.ravel()[active] = 0.0
+        return d
+
     for it in range(1, max_iter + 1):
         g = hmul(Y) - R0
         nat = float(np.abs(Y - np.clip(Y - g, ylo, yhi)).max())
@@ -289,25 +414,12 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
         eps = min(1e-3, nat)
         act = ((Y <= ylo + eps) & (g > 0)) | ((Y >= yhi - eps) & (g < 0))
         free = ~act
-        d = np.zeros_like(Y)
         r = np.where(free, -g, 0.0)
-        forcing = min(0.1, np.sqrt(nat / scale))
-        r_norm0 = float(np.linalg.norm(r))
-        z = np.where(free, solve_modes(0.0, None, rhs=r), 0.0)
-        solves += 1
-        p_dir, rz = z.copy(), float(np.sum(r * z))
-        for _ in range(200):
-            Ap = np.where(free, hmul(p_dir), 0.0)
-            alpha = rz / float(np.sum(p_dir * Ap))
-            d += alpha * p_dir
-            r -= alpha * Ap
-            if np.linalg.norm(r) <= forcing * r_norm0:
-                break
-            z = np.where(free, solve_modes(0.0, None, rhs=r), 0.0)
-            solves += 1
-            rz_new = float(np.sum(r * z))
-            p_dir = z + (rz_new / rz) * p_dir
-            rz = rz_new
+        active = np.flatnonzero(act)
+        if active.size <= max_exact_active:
+            d = _capacitance_step(active, r)
+        else:
+            d = _pcg_free(free, r, nat)
         d = np.where(act, -g / (4.0 * float(mu.max()) + lam), d)
         step = 1.0
         while True:
@@ -366,6 +478,164 @@ def reduce_keys(times, values, tol: float):
     while keep[-1] != 0:
         keep.append(prev[keep[-1]])
     return np.array(keep[::-1])
+
+
+def curve_slopes(times, values) -> np.ndarray:
+    """Slope of the dense curve at every sample: the derivative of the parabola through each sample
+    and its two neighbours (one-sided at the ends), shape (f,)."""
+    t = np.asarray(times, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    if t.size < 2:
+        return np.zeros(t.size)
+    m = np.empty(t.size)
+    h0, h1 = t[1:-1] - t[:-2], t[2:] - t[1:-1]
+    d0, d1 = (v[1:-1] - v[:-2]) / h0, (v[2:] - v[1:-1]) / h1
+    m[1:-1] = (h1 * d0 + h0 * d1) / (h0 + h1)
+    m[0] = (v[1] - v[0]) / (t[1] - t[0])
+    m[-1] = (v[-1] - v[-2]) / (t[-1] - t[-2])
+    return m
+
+
+def hermite(times, values, slopes, t) -> np.ndarray:
+    """Piecewise cubic Hermite through keys ``(times, values)`` with ``slopes`` at ``t`` — exactly what
+    Blender evaluates for Bézier keys whose handles sit at 1/3 of each segment along the slope."""
+    kt, kv, km = (np.asarray(a, dtype=np.float64) for a in (times, values, slopes))
+    t = np.asarray(t, dtype=np.float64)
+    seg = np.clip(np.searchsorted(kt, t, side="right") - 1, 0, max(kt.size - 2, 0))
+    if kt.size == 1:
+        return np.full(t.shape, kv[0])
+    h = kt[seg + 1] - kt[seg]
+    s = (t - kt[seg]) / h
+    h00, h10 = (1 + 2 * s) * (1 - s) ** 2, s * (1 - s) ** 2
+    h01, h11 = s * s * (3 - 2 * s), s * s * (s - 1)
+    return h00 * kv[seg] + h10 * h * km[seg] + h01 * kv[seg + 1] + h11 * h * km[seg + 1]
+
+
+def _segment_basis(t0, t1, ts):
+    """Hermite basis on [t0, t1] at ``ts``: columns multiply (v0, m0, v1, m1), shape (len(ts), 4)."""
+    h = t1 - t0
+    s = (ts - t0) / h
+    return np.column_stack([(1 + 2 * s) * (1 - s) ** 2, h * s * (1 - s) ** 2, s * s * (3 - 2 * s), h * s * s * (s - 1)])
+
+
+def _fit_two_keys(A, y):
+    """Least-squares values and slopes of two keys, with the max error ``‖A x − y‖∞`` they leave."""
+    x = np.linalg.lstsq(A, y, rcond=None)[0]
+    return x, float(np.abs(A @ x - y).max())
+
+
+def _minimax_two_keys(A, y):
+    """Values and slopes minimising the max error exactly (a small linear program, HiGHS)."""
+    k = A.shape[1]
+    ones = np.ones((y.size, 1))
+    res = linprog(np.r_[np.zeros(k), 1.0], A_ub=np.block([[A, -ones], [-A, -ones]]), b_ub=np.r_[y, -y],
+                  bounds=[(None, None)] * k + [(0, None)], method="highs")
+    return (res.x[:k], float(res.x[k])) if res.status == 0 else (None, np.inf)
+
+
+def reduce_keys_bezier(times, values, tol: float, max_span: int = 128, refine: bool = True):
+    """Fewest smooth Bézier keys (aligned handles) whose curve stays within ``tol`` (3.5.5).
+
+    Two stages.  (1) Exact dynamic programming over subsets of the samples
+    when each kept sample keeps its value and the dense curve's slope there
+    (:func:`curve_slopes`): every segment is then a cubic Hermite fixed by its
+    ends, segments are independent, and the fewest keys is a shortest path
+    over the valid segments (searched up to ``max_span`` samples long).
+    (2) ``refine``: sweep the keys and drop each one whose two neighbours can
+    absorb it — their values and slopes refitted (least squares, else the
+    minimax linear program) so that the max error over the samples they
+    govern stays within ``tol`` — until no key can go.  Stage 2 is what curve
+    fitters like Blender's Decimate do; starting it from the optimal
+    interpolating solution gives fewer keys at the same max error.
+
+    Returns
+    -------
+    indices : ndarray of int (k,)
+        Samples carrying a key (both ends always).
+    key_values : ndarray (k,)
+        Key values (stage 2 may move them off the samples by at most ``tol``-ish).
+    slopes : ndarray (k,)
+        Key slopes (value units per time unit); the handles lie along them at
+        a third of each neighbouring segment (see :func:`hermite`).
+    """
+    t = np.asarray(times, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    n = t.size
+    if n != v.size or n < 1:
+        raise ShapeSpaceError("times and values must be non-empty and of equal length", "shape")
+    if tol < 0:
+        raise ShapeSpaceError(f"tol must be non-negative, got {tol}", "range")
+    if n > 1 and np.any(np.diff(t) <= 0):
+        raise ShapeSpaceError("times must increase strictly", "order")
+    m = curve_slopes(t, v)
+    if n <= 2:
+        return np.arange(n), v.copy(), m
+    best = np.full(n, np.iinfo(np.int64).max)
+    prev = np.full(n, -1)
+    best[0] = 1
+    offs = np.arange(1, max_span + 1)
+    for i in range(n - 1):
+        if best[i] == np.iinfo(np.int64).max:
+            continue
+        js = i + offs[offs < n - i]                                  # candidate ends (L,)
+        h = t[js] - t[i]
+        ks = np.arange(i + 1, js[-1])                                # interior samples of the longest
+        if ks.size:
+            s = (t[ks][None, :] - t[i]) / h[:, None]                 # (L, K)
+            inside = s < 1.0 - 1e-12
+            h00, h10 = (1 + 2 * s) * (1 - s) ** 2, s * (1 - s) ** 2
+            h01, h11 = s * s * (3 - 2 * s), s * s * (s - 1)
+            curve = (h00 * v[i] + h10 * (h * m[i])[:, None] + h01 * v[js][:, None]
+                     + h11 * (h * m[js])[:, None])
+            err = np.where(inside, np.abs(curve - v[ks][None, :]), 0.0).max(axis=1)
+        else:
+            err = np.zeros(js.size)
+        ok = js[(err <= tol) & (best[i] + 1 < best[js])]
+        best[ok] = best[i] + 1
+        prev[ok] = i
+    keep = [n - 1]
+    while keep[-1] != 0:
+        keep.append(prev[keep[-1]])
+    idx = keep[::-1]
+    kv, km = list(v[idx]), list(m[idx])
+    if refine:
+        _absorb_keys(t, v, idx, kv, km, tol)
+    return np.array(idx), np.array(kv), np.array(km)
+
+
+def _absorb_keys(t, v, idx, kv, km, tol, max_sweeps: int = 4):
+    """Stage 2 of :func:`reduce_keys_bezier`, in place on the key lists."""
+    for _ in range(max_sweeps):
+        changed, p = False, 1
+        while p < len(idx) - 1:
+            a, b = max(p - 2, 0), min(p + 2, len(idx) - 1)
+            segs = ([(a, p - 1)] if a < p - 1 else []) + [(p - 1, p + 1)] + ([(p + 1, b)] if b > p + 1 else [])
+            blocks, rhs = [], []
+            for i0, i1 in segs:
+                smp = np.arange(idx[i0], idx[i1] + 1)
+                basis = _segment_basis(t[idx[i0]], t[idx[i1]], t[smp])
+                A = np.zeros((smp.size, 4))
+                y = v[smp].copy()
+                for half, ki in ((0, i0), (1, i1)):
+                    cols = basis[:, 2 * half:2 * half + 2]
+                    if ki in (p - 1, p + 1):
+                        A[:, (0 if ki == p - 1 else 2):(2 if ki == p - 1 else 4)] += cols
+                    else:
+                        y -= cols @ np.array([kv[ki], km[ki]])
+                blocks.append(A)
+                rhs.append(y)
+            A, y = np.vstack(blocks), np.concatenate(rhs)
+            x, err = _fit_two_keys(A, y)
+            if err > tol:
+                x, err = _minimax_two_keys(A, y)
+            if err <= tol * (1 - 1e-6):
+                kv[p - 1], km[p - 1], kv[p + 1], km[p + 1] = x
+                del idx[p], kv[p], km[p]
+                changed = True
+            else:
+                p += 1
+        if not changed:
+            return
 
 
 def procrustes(source, target, scaling: bool = True):

@@ -25,6 +25,11 @@ class SHAPESPACE_OT_retarget(bpy.types.Operator):
         default="spacetime")
     key_tolerance: bpy.props.FloatProperty(name="Key Tolerance", default=0.0, min=0.0, max=0.1,
                                            description="Keep the fewest keys within this slider error (0: all)")
+    key_shape: bpy.props.EnumProperty(
+        name="Key Shape",
+        items=[("BEZIER", "Smooth", "Bézier keys with aligned handles along the curve's slope (fewest keys)"),
+               ("LINEAR", "Linear", "Linear keys (a subset of the frames, straight segments)")],
+        default="BEZIER")
 
     @classmethod
     def poll(cls, context):
@@ -37,14 +42,14 @@ class SHAPESPACE_OT_retarget(bpy.types.Operator):
                 self.report({"ERROR"}, f"no mesh named {self.source_object!r}")
                 return {"CANCELLED"}
             rep = attempt(self, retarget.retarget_dense, context.active_object, src, self.method,
-                          key_tolerance=self.key_tolerance)
+                          key_tolerance=self.key_tolerance, key_shape=self.key_shape)
         else:
             source = bpy.path.abspath(self.filepath) if self.filepath else self.action
             if not source:
                 self.report({"ERROR"}, "choose a CSV file, an action or a mesh performance")
                 return {"CANCELLED"}
             rep = attempt(self, retarget.retarget, context.active_object, source, self.method,
-                          key_tolerance=self.key_tolerance)
+                          key_tolerance=self.key_tolerance, key_shape=self.key_shape)
         if rep is FAILED:
             return {"CANCELLED"}
         for msg in rep["issues"]:

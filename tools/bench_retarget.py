@@ -94,12 +94,10 @@ def quality():
     for name in ("jawOpen", "mouthSmile_L", "mouthSmile_R", "eyeBlink_L", "eyeBlink_R", "browInnerUp"):
         key.key_blocks[name].slider_max = 0.4
     for method in ("perframe", "spacetime"):
-        rep = retarget.retarget(ob, capture, method, key_tolerance=0.01 if method == "spacetime" else 0.0)
+        rep = retarget.retarget(ob, capture, method)
         out[f"velocity_err_{method}_facecap_reduced"] = rep["velocity_error_rms"]
         out[f"position_err_{method}_facecap_reduced"] = rep["position_error_rms"]
         out["clipping_frames_facecap_reduced"] = rep["clipping_frames"]
-        if method == "spacetime":
-            out["keys_kept_frac_ours"] = rep["keys_kept_frac"]
     assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
     ob = bpy.data.objects["FBHead"]
     csv = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
@@ -110,9 +108,74 @@ def quality():
     return out
 
 
+def _max_errors(curves_by_name, names, frames, dense):
+    """Max |curve − dense| per channel, evaluated by Blender (``FCurve.evaluate``)."""
+    return np.array([max(abs(curves_by_name[nm].evaluate(float(f)) - dense[i, j]) for i, f in enumerate(frames))
+                     for j, nm in enumerate(names)])
+
+
+def key_reduction(quick):
+    """Keys kept at max error ≤ 0.01: our DP on the dense space-time curves vs Blender's Decimate
+    (Graph Editor, 'Allowed Change'), each curve's Decimate margin bisected to the largest one whose
+    real max error (Blender's own evaluation) stays ≤ 0.01 — the most generous setting for Decimate."""
+    import bpy
+    from shapespace.bridge import actions, assets, retarget
+    tol = 0.01
+    assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
+    ob = bpy.data.objects["Mesh_2"]
+    key = ob.data.shape_keys
+    capture = actions.active_action(key)
+    key.animation_data.action = None
+    for name in ("jawOpen", "mouthSmile_L", "mouthSmile_R", "eyeBlink_L", "eyeBlink_R", "browInnerUp"):
+        key.key_blocks[name].slider_max = 0.4
+    rep = retarget.retarget(ob, capture, "spacetime", action_name="dense")
+    dense_action = bpy.data.actions[rep["action"]]
+    curves = actions.shape_key_curves(ob, dense_action)
+    names = sorted(n for n, fc in curves.items() if np.ptp(actions.read_curve(fc)[1]) > 0)
+    frames = actions.read_curve(curves[names[0]])[0]
+    if quick:
+        names = names[::3]
+    dense = np.column_stack([actions.read_curve(curves[n])[1] for n in names])
+    out = {}
+    for shape in ("BEZIER", "LINEAR"):                 # ours: exact DP, smooth Bézier or linear keys
+        ours = dense_action.copy()
+        actions.assign_action(key, ours)
+        frac = retarget.reduce_action_keys(ob, names, frames, dense, tol, shape)
+        err = float(_max_errors(actions.shape_key_curves(ob, ours), names, frames, dense).max())
+        suffix = "" if shape == "BEZIER" else "_linear"
+        out[f"keys_kept_frac_ours{suffix}"], out[f"keys_max_err_ours{suffix}"] = frac, err
+    dec_keys, dec_err, dec_keys_at_tol = 0, 0.0, 0
+    for j, nm in enumerate(names):
+        lo_m, hi_m, best = 0.0, 0.5, None
+        for _ in range(8 if quick else 14):
+            mid = 0.5 * (lo_m + hi_m) if best is not None or lo_m > 0 else tol
+            trial = dense_action.copy()
+            actions.assign_action(key, trial)
+            fc = actions.shape_key_curves(ob, trial)[nm]
+            actions.blender_decimate(key, trial, [fc], mid)
+            err = float(_max_errors({nm: fc}, [nm], frames, dense[:, [j]]).max())
+            n_keys = len(fc.keyframe_points)
+            bpy.data.actions.remove(trial)
+            if mid == tol and best is None:
+                dec_keys_at_tol += n_keys      # Decimate run with margin = tolerance, as an artist would
+            if err <= tol:
+                best = (n_keys, err) if best is None or n_keys < best[0] else best
+                lo_m = mid
+            else:
+                hi_m = mid
+        best = best or (frames.size, 0.0)
+        dec_keys += best[0]
+        dec_err = max(dec_err, best[1])
+    total = frames.size * len(names)
+    return {**out, "keys_kept_frac_decimate": dec_keys / total, "keys_max_err_decimate": dec_err,
+            "keys_kept_frac_decimate_margin_eq_tol": dec_keys_at_tol / total,
+            "keys_reduction_curves": len(names), "keys_reduction_tol": tol}
+
+
 def run(quick=False) -> dict:
     import package
     package.load()
     metrics = speed(quick)
     metrics.update(quality())
+    metrics.update(key_reduction(quick))
     return metrics

@@ -208,3 +208,66 @@ def test_mapping_override_and_landmark_operators(registered):
     ob.data.vertices[41].select = True
     with pytest.raises(RuntimeError, match="select exactly one vertex"):
         bpy.ops.shapespace.add_landmark(name="x")
+
+
+def _blender_max_error(fc, frames, dense):
+    return max(abs(fc.evaluate(float(f)) - d) for f, d in zip(frames, dense))
+
+
+def test_key_reduction_beats_blender_decimate_at_equal_error():
+    """Retargeted curves (LLF capture → FBHead, space-time): our smooth keys vs the Graph Editor's
+    Decimate (Allowed Change), both judged by Blender's own F-Curve evaluation at every frame."""
+    import_file(BLEND)
+    ob = bpy.data.objects["FBHead"]
+    key = ob.data.shape_keys
+    tol = 0.01
+    rep = retarget.retarget(ob, CSV, "spacetime", action_name="dense")
+    dense_action = bpy.data.actions[rep["action"]]
+    curves = actions.shape_key_curves(ob, dense_action)
+    names = [n for n in ("JawOpen", "EyeBlinkLeft", "MouthSmileLeft", "BrowInnerUp", "MouthFunnel")]
+    frames = actions.read_curve(curves[names[0]])[0]
+    dense = np.column_stack([actions.read_curve(curves[n])[1] for n in names])
+    ours = dense_action.copy()
+    actions.assign_action(key, ours)
+    retarget.reduce_action_keys(ob, names, frames, dense, tol, "BEZIER")
+    ours_curves = actions.shape_key_curves(ob, ours)
+    ours_keys = sum(len(ours_curves[n].keyframe_points) for n in names)
+    for j, n in enumerate(names):
+        assert _blender_max_error(ours_curves[n], frames, dense[:, j]) <= tol + 1e-6
+    # Decimate, its margin bisected per curve to the largest that keeps Blender's max error ≤ tol
+    decimate_keys = 0
+    for j, n in enumerate(names):
+        lo_m, hi_m, best = 0.0, 4 * tol, frames.size
+        for _ in range(10):
+            mid = 0.5 * (lo_m + hi_m)
+            trial = dense_action.copy()
+            actions.assign_action(key, trial)
+            fc = actions.shape_key_curves(ob, trial)[n]
+            actions.blender_decimate(key, trial, [fc], mid)
+            assert len(fc.keyframe_points) < frames.size          # Decimate really ran
+            if _blender_max_error(fc, frames, dense[:, j]) <= tol:
+                best, lo_m = min(best, len(fc.keyframe_points)), mid
+            else:
+                hi_m = mid
+            bpy.data.actions.remove(trial)
+        decimate_keys += best
+    assert ours_keys < decimate_keys
+    assert ours_keys < 0.2 * frames.size * len(names)                # ≥ 80 % fewer keys than the dense curves
+
+
+def test_bezier_keys_evaluate_as_the_core_hermite():
+    from shapespace.core.cloning import hermite, reduce_keys_bezier
+    import_file(BLEND)
+    ob = bpy.data.objects["FBHead"]
+    key = ob.data.shape_keys
+    actions.new_action(key, "smooth")
+    t = np.arange(20.0, 161.0)
+    v = 0.5 + 0.4 * np.sin(t / 9.0) * np.cos(t / 23.0)
+    idx, kv, km = reduce_keys_bezier(t, v, 0.005)
+    fc = actions.write_bezier_curve(key, actions.shape_key_path("JawOpen"), t[idx], kv, km)
+    x = np.linspace(20.0, 160.0, 561)
+    got = np.array([fc.evaluate(float(f)) for f in x])
+    np.testing.assert_allclose(got, hermite(t[idx], kv, km, x), rtol=0, atol=2e-6)
+    assert {k.handle_left_type for k in fc.keyframe_points} == {"ALIGNED"}
+    with pytest.raises(Exception, match="non-finite"):
+        actions.write_bezier_curve(key, actions.shape_key_path("JawOpen"), t[idx], kv, km * np.nan)
