@@ -236,12 +236,13 @@ def dense_source_positions(source, target_model, target, scene, frames):
         corr, R, scale = np.arange(neutral_t.shape[0]), np.eye(3), 1.0
     else:
         src_lm, dst_lm = landmark_pairs(source, target)
-        if src_lm.size < 4:
-            raise ShapeSpaceError(f"different meshes need at least 4 landmark pairs (vertex groups named "
+        if src_lm.size < 3:
+            raise ShapeSpaceError(f"different meshes need at least 3 landmark pairs (vertex groups named "
                                   f"'{LANDMARK_PREFIX}…' on both); found {src_lm.size}", "too_few_landmarks")
-        moved = np.linalg.norm(target_model.deltas, axis=(0, 2)) > 0
-        if not moved[dst_lm].any() and not moved.any():
-            raise ShapeSpaceError("no target shape key moves any vertex", "no_motion")
+        moved = np.linalg.norm(target_model.deltas, axis=2).max(axis=0) > 1e-6 * (target_model.scale or 1.0)
+        if not moved[dst_lm].any():
+            raise ShapeSpaceError(f"all {dst_lm.size} landmarks lie on target vertices no shape key moves: place "
+                                  "some on the moving face (mouth corners, lids, chin)", "static_landmarks")
         scale, R, _ = procrustes(rest[src_lm], neutral_t[dst_lm])
         warped = landmark_warp(rest[src_lm], neutral_t[dst_lm], rest)
         corr, _ = closest_points(neutral_t, warped)
@@ -264,19 +265,20 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
     B = model.delta_matrix / unit
     b0 = model.neutral.ravel() / unit
     lo, hi = model.slider_min, model.slider_max
+    ideal = fit_frames(B, b0, S / unit, np.full(model.n_targets, -10.0), np.full(model.n_targets, 10.0))
+    report = {"clipping_frames": int(np.sum(np.any((ideal < lo - 1e-6) | (ideal > hi + 1e-6), axis=1)))}
     if method == "perframe":
         W = fit_frames(B, b0, S / unit, lo, hi)
-        report = {}
     else:
-        ideal = fit_frames(B, b0, S / unit, np.full(model.n_targets, -10.0), np.full(model.n_targets, 10.0))
         sigma = np.maximum(ideal.std(axis=0), 0.05 * (hi - lo))
         res = spacetime(B, b0, S / unit, sigma, lam, lo=lo, hi=hi, relative=True)
         W = res.weights
-        report = {"solver_iterations": res.iterations, "status": res.message, "converged": res.status == 0}
-    fit = (b0 + W @ B.T) * unit
+        report.update({"solver_iterations": res.iterations, "status": res.message, "converged": res.status == 0})
+    residual = ((b0 + W @ B.T) * unit - S).reshape(len(frames), -1, 3)         # fit − source, per vertex
+    vel = np.diff(residual, axis=0)
     report.update({"source": source_obj.name, "method": method, "frames": int(frames.size),
-                   "position_error_rms": float(np.sqrt(np.mean(np.sum((fit - S).reshape(len(frames), -1, 3) ** 2,
-                                                                       axis=2))) / model.scale),
+                   "position_error_rms": float(np.sqrt(np.mean(np.sum(residual ** 2, axis=(1, 2)))) / model.scale),
+                   "velocity_error_rms": float(np.sqrt(np.mean(np.sum(vel ** 2, axis=(1, 2)))) / model.scale),
                    "issues": []})
     action = actions.key_shape_values(obj, model.names, frames, W, action_name or f"{obj.name}_{source_obj.name}")
     if key_tolerance > 0:
@@ -292,6 +294,32 @@ def add_landmark(obj, name: str, vertex: int) -> str:
     group.remove(list(range(len(obj.data.vertices))))
     group.add([int(vertex)], 1.0, "REPLACE")
     return group.name
+
+
+def landmarks_from_shapes(source, target) -> list:
+    """Create landmark pairs from the shapes both meshes share (by mapped name): each pair's vertices are
+    the ones that shape moves most on each mesh (chin for jawOpen, lids for eyeBlink, …).  Existing
+    ``lm_auto_*`` groups are replaced; hand-placed landmarks are kept.  Returns the group names."""
+    from ..core.cloning import peak_landmarks
+    for ob in (source, target):
+        if ob.type != "MESH" or ob.data.shape_keys is None or len(ob.data.shape_keys.key_blocks) < 2:
+            raise ShapeSpaceError(f"{ob.name!r} has no shape keys to find landmarks from", "no_shape_keys")
+    model_s = shapekeys.read_blendshape_model(source)
+    model_t = shapekeys.read_blendshape_model(target)
+    mapping = channel_mapping(target, model_s.names, model_t.names)
+    src, dst, used = peak_landmarks(model_s.deltas, model_t.deltas, [(i, j) for i, j, _, _ in mapping])
+    if src.size < 3:
+        raise ShapeSpaceError(f"only {src.size} shared shapes have a clear peak vertex; place landmarks by hand",
+                              "too_few_landmarks")
+    for ob in (source, target):
+        for group in [g for g in ob.vertex_groups if g.name.startswith(LANDMARK_PREFIX + "auto_")]:
+            ob.vertex_groups.remove(group)
+    names = []
+    for a, b, (_, j) in zip(src, dst, used):
+        name = "auto_" + model_t.names[j]
+        add_landmark(source, name, int(a))
+        names.append(add_landmark(target, name, int(b)))
+    return names
 
 
 def selected_vertex(obj):

@@ -22,14 +22,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import solve_banded
+from scipy.linalg import solve_banded, solveh_banded
 from scipy.optimize import linprog
 
 from .boxqp import solve_box_qp
 from .result import ShapeSpaceError
 
 __all__ = ["copy_weights", "cloning_matrix", "key_poses", "fit_frames", "spacetime", "SpacetimeResult",
-           "reduce_keys", "reduce_keys_bezier", "curve_slopes", "hermite", "procrustes", "landmark_warp", "closest_points"]
+           "reduce_keys", "reduce_keys_bezier", "curve_slopes", "hermite", "procrustes", "landmark_warp", "landmark_layout",
+           "peak_landmarks", "closest_points"]
 
 
 def copy_weights(source, mapping, n_target, gain=None, offset=None, lo=None, hi=None) -> np.ndarray:
@@ -139,6 +140,10 @@ class SpacetimeResult:
     diagnostics: dict = field(default_factory=dict)
 
 
+#: Largest banded-Cholesky Newton step (≈ flops, f·n·(2n)²) before bounded space-time falls back to CG.
+BANDED_FLOP_LIMIT = 4e9
+
+
 def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=None, lo=None, hi=None,
               tol: float = 1e-8, max_iter: int = 100, relative: bool = False,
               max_exact_active: int = 1000) -> SpacetimeResult:
@@ -157,16 +162,19 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     basis diagonalises all of them at once — O(n·f) per solve after an O(n³)
     eigendecomposition, no Kronecker system.
 
-    Bounds (lo ≤ w ≤ hi): projected Newton with an ε-active set (Bertsekas) around
-    the fast solve.  The Newton step on the free entries is exact: with the
-    m active entries held, ``𝓗 d = r + E_A ν``, ``d_A = 0`` gives the m × m
-    capacitance system ``(E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A`` whose entries come in
-    closed form from the two eigenbases (no column of 𝓗⁻¹ is formed, rows are
-    reused while the active set changes), so a step costs two decoupled
-    solves.  Above ``max_exact_active`` active entries the step is instead
-    computed by conjugate gradients preconditioned with the unbounded inverse
-    (forcing term min(0.1, √residual)).  A projected Armijo search keeps the
-    objective decreasing.  Convergence test: the natural residual
+    Bounds (lo ≤ w ≤ hi), around the fast solve: a primal–dual active-set
+    iteration (Hintermüller–Ito–Kunisch) fixes the entries at or beyond a
+    bound, solves exactly for the rest and updates the set from the
+    multipliers' signs until it repeats, which is the exact KKT point; on
+    cycling a projected Newton method with an ε-active set and a projected
+    Armijo search (monotone) takes over.  Each reduced Newton system
+    ``𝓗_FF d_F = r_F`` is solved exactly by the cheapest route: few active
+    entries m — the m × m capacitance system ``(E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A``
+    (entries in closed form from the two eigenbases, CG with exact products
+    preconditioned by its single-precision inverse); many — a banded Cholesky
+    of 𝓗 with the active rows replaced by the identity (bandwidth 2n − 1
+    frame-major, O(f n³)); beyond ``BANDED_FLOP_LIMIT`` — CG preconditioned
+    by the unbounded inverse.  Convergence test: the natural residual
     ``‖y − clip(y − ∇f(y))‖∞ ≤ tol · max(1, ‖rhs‖∞)`` in the whitened
     variables (zero exactly at the KKT point), or no further decrease at a
     residual ≤ 1e-6 (rounding).  The weights satisfy the bounds exactly.
@@ -337,6 +345,44 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     f = objective(Y)
     solves, status, message = 0, 1, "iteration limit reached"
 
+    band = {}
+
+    def _full_band():
+        """𝓗 in LAPACK upper band storage (frame-major: (t, k) → t·n + k), bandwidth u = 2n − 1."""
+        if "ab" not in band:
+            u = 2 * n - 1
+            ab = np.zeros((u + 1, Y.size))
+            j = np.arange(Y.size)
+            tj, kj = np.divmod(j, n)
+            for o in range(u + 1):
+                i = j[o:] - o
+                ti, ki = np.divmod(i, n)
+                same = ti == tj[o:]
+                vals = np.where(same, 2.0 * M[ki, kj[o:]] + lam * (o == 0),
+                                np.where(tj[o:] == ti + 1, -M[ki, kj[o:]], 0.0))
+                ab[u - o, o:] = vals
+            band["ab"] = ab
+        return band["ab"]
+
+    def _banded_step(free, r):
+        """Large active sets: the Newton system on the free entries, 𝓗_FF d_F = r_F, by a banded Cholesky.
+        Frame-major, 𝓗 = DᵀD ⊗ M + λI couples an entry only to entries ≤ 2n − 1 places away; the active
+        entries' rows and columns are replaced by the identity (d_A = 0), which keeps the band: O(f n³)."""
+        nonlocal solves
+        ab = _full_band().copy()
+        u = ab.shape[0] - 1
+        keep = free.ravel()
+        ab *= keep                                               # active columns
+        for o in range(1, u + 1):                                # active rows i = j − o
+            ab[u - o, o:] *= keep[:-o]
+        ab[u, ~keep] = 1.0
+        solves += 1
+        try:
+            d = solveh_banded(ab, np.where(keep, r.ravel(), 0.0), lower=False, check_finite=False)
+        except np.linalg.LinAlgError:
+            return _pcg_free(free, np.where(free, r, 0.0), scale)
+        return d.reshape(Y.shape)
+
     def _pcg_free(free, r, nat):
         """Large active sets: CG on the free entries, preconditioned by the exact unbounded inverse."""
         nonlocal solves
@@ -405,6 +451,41 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
         d.ravel()[active] = 0.0
         return d
 
+    def reduced_step(act, r):
+        """Exact Newton step on the free entries (𝓗_FF d_F = r_F, d_A = 0), by the cheapest route."""
+        active = np.flatnonzero(act)
+        if active.size <= max_exact_active:
+            return _capacitance_step(active, r)
+        if Y.size * (2 * n) ** 2 <= BANDED_FLOP_LIMIT and Y.size * 2 * n <= BANDED_FLOP_LIMIT / 100:
+            return _banded_step(~act, r)
+        return _pcg_free(~act, np.where(act, 0.0, r), 0.0)
+
+    # Primal–dual active set (Hintermüller–Ito–Kunisch): fix the entries whose bound is active or
+    # violated, solve exactly for the rest, and repeat with the multipliers' signs until the active
+    # set repeats — then the KKT conditions hold exactly.  Usually a handful of reduced solves; on
+    # cycling or no progress the globalised projected Newton loop below takes over.
+    upper, lower = Y >= yhi, Y <= ylo
+    seen = set()
+    it = 0
+    for it in range(1, max_iter + 1):
+        Yn = np.where(upper, yhi, np.where(lower, ylo, Y))
+        act = upper | lower
+        Yn = Yn + reduced_step(act, R0 - hmul(Yn))
+        mult = R0 - hmul(Yn)                                     # −∇f: > 0 pushes up, < 0 pushes down
+        new_upper = np.where(act, upper & (mult > 0), Yn > yhi)
+        new_lower = np.where(act, lower & (mult < 0), Yn < ylo)
+        Y = Yn
+        if np.array_equal(new_upper, upper) and np.array_equal(new_lower, lower):
+            break
+        key = hash(np.packbits(new_upper).tobytes() + np.packbits(new_lower).tobytes())
+        if key in seen:
+            break                                                # cycling: globalise below
+        seen.add(key)
+        upper, lower = new_upper, new_lower
+    pdas_iterations = it
+    Y = np.clip(Y, ylo, yhi)
+    f = objective(Y)
+
     for it in range(1, max_iter + 1):
         g = hmul(Y) - R0
         nat = float(np.abs(Y - np.clip(Y - g, ylo, yhi)).max())
@@ -415,11 +496,7 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
         act = ((Y <= ylo + eps) & (g > 0)) | ((Y >= yhi - eps) & (g < 0))
         free = ~act
         r = np.where(free, -g, 0.0)
-        active = np.flatnonzero(act)
-        if active.size <= max_exact_active:
-            d = _capacitance_step(active, r)
-        else:
-            d = _pcg_free(free, r, nat)
+        d = reduced_step(act, r)
         d = np.where(act, -g / (4.0 * float(mu.max()) + lam), d)
         step = 1.0
         while True:
@@ -432,7 +509,9 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
             status, message = (0, "converged (rounding limit)") if nat <= 1e-6 * scale else (1, "stalled")
             break
         Y, f = Yt, ft
-    return SpacetimeResult(assemble(Y), it, status, message, {"natural_residual": nat, "solves": solves})
+    return SpacetimeResult(assemble(Y), pdas_iterations + it - 1, status, message,
+                           {"natural_residual": nat, "solves": solves, "active_set_iterations": pdas_iterations,
+                            "newton_iterations": it - 1})
 
 
 def reduce_keys(times, values, tol: float):
@@ -658,18 +737,82 @@ def procrustes(source, target, scaling: bool = True):
     return s, R, my - s * R @ mx
 
 
+def landmark_layout(landmarks, rel_tol: float = 1e-3) -> str:
+    """``"collinear"``, ``"coplanar"`` or ``"spatial"``: the spread of landmark points (m, 3), judged by
+    the singular values of the centred points relative to the largest."""
+    X = np.asarray(landmarks, dtype=np.float64)
+    sv = np.linalg.svd(X - X.mean(axis=0), compute_uv=False)
+    if sv.size < 2 or sv[1] <= rel_tol * sv[0]:
+        return "collinear"
+    if sv.size < 3 or sv[2] <= rel_tol * sv[0]:
+        return "coplanar"
+    return "spatial"
+
+
 def landmark_warp(source_landmarks, target_landmarks, points):
-    """Warp ``points`` (p, 3) so the source landmarks land on the target ones (thin-plate RBF + affine)."""
+    """Warp ``points`` (p, 3) so the source landmarks land on the target ones (3.5.4).
+
+    A similarity (Procrustes) aligns the landmark sets, then a thin-plate RBF
+    carries the residual so every landmark lands exactly.  Needs at least 3
+    landmark pairs, not collinear on either mesh; with coplanar landmarks
+    (all on the face's front, or only 3) the residual warp uses the 3-D
+    biharmonic kernel ``r`` with a constant, which they determine, instead of
+    thin plates with an affine part, which they do not.
+    """
     from .rbf import fit_rbf
     src = np.asarray(source_landmarks, dtype=np.float64)
     dst = np.asarray(target_landmarks, dtype=np.float64)
-    if src.shape != dst.shape or src.shape[0] < 4:
-        raise ShapeSpaceError("a landmark warp needs at least 4 landmark pairs of equal count", "too_few")
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
+        raise ShapeSpaceError(f"source_landmarks and target_landmarks must both have shape (m, 3), got "
+                              f"{src.shape} and {dst.shape}", "shape")
+    if src.shape[0] < 3:
+        raise ShapeSpaceError(f"a landmark warp needs at least 3 landmark pairs, got {src.shape[0]}", "too_few")
+    layouts = (landmark_layout(src), landmark_layout(dst))
+    if "collinear" in layouts:
+        raise ShapeSpaceError("the landmarks lie on a line: add landmarks off that line (e.g. eye corners and "
+                              "the chin, not only the mouth)", "collinear")
     s, R, t = procrustes(src, dst)
     aligned = s * src @ R.T + t
-    warp = fit_rbf(aligned, dst - aligned, "thin_plate_spline", 1.0, 1)
+    if layouts == ("spatial", "spatial") and src.shape[0] >= 5:
+        warp = fit_rbf(aligned, dst - aligned, "thin_plate_spline", 1.0, 1)
+    else:   # the 3-D biharmonic kernel r only needs a constant, which any ≥ 1 landmarks determine
+        warp = fit_rbf(aligned, dst - aligned, "linear", 1.0, 0)
     moved = s * np.asarray(points, dtype=np.float64) @ R.T + t
     return moved + warp(moved)
+
+
+def peak_landmarks(source_deltas, target_deltas, pairs, rel_tol: float = 0.05):
+    """Landmark pairs from matching shapes: for each mapped pair (i, j) the vertex that shape i moves most
+    on the source and shape j on the target (e.g. jawOpen → chin, eyeBlink → lid, mouthSmile → corner).
+
+    Parameters
+    ----------
+    source_deltas : ndarray (n_s, p_s, 3)
+    target_deltas : ndarray (n_t, p_t, 3)
+    pairs : sequence of (source index, target index)
+    rel_tol : float
+        Shapes whose peak displacement is below ``rel_tol`` × the rig's largest are skipped (empty or
+        faint shapes have no meaningful peak).
+
+    Returns
+    -------
+    src, dst : ndarray of int (m,)
+        Vertex indices, one pair per usable shape pair, each source and target vertex used once.
+    used : list of (source index, target index)
+        The shape pairs the landmarks come from.
+    """
+    ds = np.linalg.norm(np.asarray(source_deltas, dtype=np.float64), axis=2)     # (n_s, p_s)
+    dt = np.linalg.norm(np.asarray(target_deltas, dtype=np.float64), axis=2)
+    src, dst, used = [], [], []
+    top_s, top_t = ds.max(initial=0.0), dt.max(initial=0.0)
+    for i, j in pairs:
+        a, b = int(np.argmax(ds[i])), int(np.argmax(dt[j]))
+        if ds[i, a] < rel_tol * top_s or dt[j, b] < rel_tol * top_t or a in src or b in dst:
+            continue
+        src.append(a)
+        dst.append(b)
+        used.append((i, j))
+    return np.array(src, dtype=int), np.array(dst, dtype=int), used
 
 
 def closest_points(points, surface_points):

@@ -9,6 +9,7 @@ from .check_rig import SHAPESPACE_OT_check_rig
 from .clear_pins import SHAPESPACE_OT_clear_pins
 from .drag_pins import SHAPESPACE_OT_drag_pins
 from .key_sliders import SHAPESPACE_OT_key_sliders
+from .landmarks_from_shapes import SHAPESPACE_OT_landmarks_from_shapes
 from .psd_add_example import SHAPESPACE_OT_psd_add_example
 from .psd_add_target import SHAPESPACE_OT_psd_add_target
 from .psd_apply_example import SHAPESPACE_OT_psd_apply_example
@@ -47,6 +48,7 @@ classes = (
     SHAPESPACE_OT_retarget,
     SHAPESPACE_OT_set_mapping,
     SHAPESPACE_OT_add_landmark,
+    SHAPESPACE_OT_landmarks_from_shapes,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

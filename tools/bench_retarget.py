@@ -11,6 +11,7 @@ import numpy as np
 import env
 
 ASSETS = os.path.join(env.ROOT, "assets")
+SHARED = os.path.join(os.path.dirname(env.ROOT), "shared", "data")
 
 
 def _problem(F, n, m3, seed=0, dtype=np.float64):
@@ -172,10 +173,59 @@ def key_reduction(quick):
             "keys_reduction_curves": len(names), "keys_reduction_tol": tol}
 
 
+def landmark_cases():
+    """The facecap capture as a mesh performance onto other topologies through landmarks placed from the
+    shapes the rigs share (peak vertices), then rigid + thin-plate warp and closest points: FBHead
+    (1.5k vertices) and ICT FaceKit (27k).  Also times the bounded vs unbounded space-time solve on the
+    real FBHead problem (slider ranges [0, 1], dense noisy correspondence)."""
+    import bpy
+    from shapespace.bridge import assets, retarget
+    from shapespace.core import cloning
+    out = {}
+    assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
+    assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"), replace=False)
+    assets.load(os.path.join(SHARED, "ict_facekit", "ict_facekit_expressions.glb"), replace=False)
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, 268
+    src = bpy.data.objects["Mesh_2"]
+    timed = {}
+    original = cloning.spacetime
+
+    def timing_spacetime(*args, **kwargs):       # the retarget's own solve, timed with and without bounds
+        t = time.perf_counter()
+        res = original(*args, **kwargs)
+        timed["bounded"] = time.perf_counter() - t
+        free = {k: v for k, v in kwargs.items() if k not in ("lo", "hi")}
+        t = time.perf_counter()
+        original(*args, **free)
+        timed["unbounded"] = time.perf_counter() - t
+        timed["iterations"] = res.iterations
+        return res
+
+    for case, target in (("facecap_fbhead_landmarks", "FBHead"), ("facecap_ict_landmarks", "ICTFace")):
+        ob = bpy.data.objects[target]
+        out[f"landmarks_{case}"] = len(retarget.landmarks_from_shapes(src, ob))
+        for method in ("perframe", "spacetime"):
+            retarget.spacetime = timing_spacetime if case == "facecap_fbhead_landmarks" else original
+            try:
+                rep = retarget.retarget_dense(ob, src, method)
+            finally:
+                retarget.spacetime = original
+            out[f"velocity_err_{method}_{case}"] = rep["velocity_error_rms"]
+            out[f"position_err_{method}_{case}"] = rep["position_error_rms"]
+            out[f"clipping_frames_{case}"] = rep["clipping_frames"]
+    out["bounded_s_real_fbhead"] = timed["bounded"]
+    out["unbounded_s_real_fbhead"] = timed["unbounded"]
+    out["bounded_over_unbounded_real_fbhead"] = timed["bounded"] / timed["unbounded"]
+    out["bounded_iterations_real_fbhead"] = timed["iterations"]
+    return out
+
+
 def run(quick=False) -> dict:
     import package
     package.load()
     metrics = speed(quick)
     metrics.update(quality())
+    metrics.update(landmark_cases())
     metrics.update(key_reduction(quick))
     return metrics

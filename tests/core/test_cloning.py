@@ -23,7 +23,8 @@ from scipy.optimize import lsq_linear
 from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
-from core.cloning import (closest_points, cloning_matrix, copy_weights, fit_frames, key_poses, landmark_warp,
+from core.cloning import (closest_points, cloning_matrix, copy_weights, fit_frames, key_poses, landmark_layout,
+                          landmark_warp, peak_landmarks,
                           curve_slopes, hermite, procrustes, reduce_keys, reduce_keys_bezier, spacetime)
 from core.result import ShapeSpaceError
 
@@ -481,11 +482,15 @@ def test_spacetime_bounded_within_bounds_and_matches_osqp():
     assert np.any(free.weights < lo - 1e-3) or np.any(free.weights > hi + 1e-3)
 
 
-@pytest.mark.parametrize("max_exact_active", [1000, 0])
-def test_spacetime_bounded_both_newton_steps_match_quadprog(max_exact_active):
-    # A mid-size problem (F=60, n=5) where many entries clip: the exact capacitance step (default)
-    # and the preconditioned-CG step (forced with max_exact_active=0) both reach quadprog's exact
-    # active-set optimum of the explicit Kronecker QP.
+@pytest.mark.parametrize("route", ["capacitance", "banded", "cg"])
+def test_spacetime_bounded_every_newton_step_matches_quadprog(route, monkeypatch):
+    # A mid-size problem (F=60, n=5) where many entries clip: the three ways of computing the reduced
+    # Newton step — capacitance (small active sets), banded Cholesky (large ones), preconditioned CG
+    # (huge problems) — each reach quadprog's exact active-set optimum of the explicit Kronecker QP.
+    import core.cloning as cloning
+    max_exact_active = 1000 if route == "capacitance" else 0
+    if route == "cg":
+        monkeypatch.setattr(cloning, "BANDED_FLOP_LIMIT", 0.0)
     rng, B, neutral, frames, sigma, _ = st_problem(7, 60, 5, 15, noise=0.05, amp=2.5)
     lam, n, F = 1e-3, 5, 60
     lo, hi = np.full(n, -0.2), np.full(n, 0.6)
@@ -745,12 +750,44 @@ def test_landmark_warp_affine_reproduced_everywhere():
     np.testing.assert_allclose(landmark_warp(src, src @ A.T + b, pts), pts @ A.T + b, rtol=0, atol=1e-8)
 
 
-@pytest.mark.parametrize("m", [2, 3])
+@pytest.mark.parametrize("m", [1, 2])
 def test_landmark_warp_too_few(m):
     rng = np.random.default_rng(53)
     with pytest.raises(ShapeSpaceError) as exc:
         landmark_warp(rng.standard_normal((m, 3)), rng.standard_normal((m, 3)), np.zeros((1, 3)))
     assert exc.value.code == "too_few"
+
+
+def test_landmark_warp_collinear_is_refused():
+    t = np.linspace(0.0, 1.0, 6)[:, None]
+    line = np.hstack([t, 2 * t, -t])
+    rng = np.random.default_rng(55)
+    with pytest.raises(ShapeSpaceError) as exc:
+        landmark_warp(line, rng.standard_normal((6, 3)), np.zeros((1, 3)))
+    assert exc.value.code == "collinear"
+
+
+@pytest.mark.parametrize("m", [3, 7])
+def test_landmark_warp_coplanar_and_three_landmarks_land_exactly(m):
+    rng = np.random.default_rng(56)
+    src = np.column_stack([rng.standard_normal((m, 2)), np.zeros(m)])       # all in the plane z = 0
+    dst = src @ Rotation.from_rotvec([0.2, -0.1, 0.4]).as_matrix().T * 1.3 + 0.05 * rng.standard_normal((m, 3))
+    assert landmark_layout(src) == "coplanar"
+    np.testing.assert_allclose(landmark_warp(src, dst, src), dst, rtol=0, atol=1e-9)
+
+
+def test_peak_landmarks_pick_each_shapes_most_moved_vertex():
+    rng = np.random.default_rng(57)
+    ds = rng.normal(size=(4, 30, 3)) * 0.01
+    dt = rng.normal(size=(5, 40, 3)) * 0.01
+    for i, (a, b) in enumerate([(3, 7), (11, 20), (25, 39)]):
+        ds[i, a] = [1.0, 0, 0]
+        dt[i + 1, b] = [0, 2.0, 0]
+    ds[3] = 0.0                                                            # an empty source shape
+    src, dst, used = peak_landmarks(ds, dt, [(0, 1), (1, 2), (2, 3), (3, 4)])
+    np.testing.assert_array_equal(src, [3, 11, 25])
+    np.testing.assert_array_equal(dst, [7, 20, 39])
+    assert used == [(0, 1), (1, 2), (2, 3)]
 
 
 def test_landmark_warp_count_mismatch():
