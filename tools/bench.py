@@ -3,7 +3,8 @@
     python tools/bench.py SUITE --json FILE [--quick]
 
 Suites: ``dm`` (direct manipulation, issue #3), ``psd`` (pose-space correctives,
-issue #4; also writes a PNG plot next to the JSON), ``retarget`` (expression cloning, issue #5).  Every goal metric named in
+issue #4), ``retarget`` (expression cloning, issue #5); psd and retarget also write a PNG plot next
+to the JSON.  Every goal metric named in
 the issue is computed in ``--quick`` mode too, with fewer repetitions.
 Reference solvers are measured in the same run, on the same machine.
 Creates ``.venv/bpy50`` on first use (Blender is needed to read the real rigs).
@@ -34,7 +35,7 @@ def main(argv) -> int:
         metrics = bench_dm.run(quick=args.quick)
     elif args.suite == "retarget":
         import bench_retarget
-        metrics = bench_retarget.run(quick=args.quick)
+        metrics = bench_retarget.run(quick=args.quick, plot_path=os.path.splitext(args.json)[0] + ".png")
     else:
         import bench_psd
         metrics = bench_psd.run(quick=args.quick, plot_path=os.path.splitext(args.json)[0] + ".png")
