@@ -217,7 +217,7 @@ def dense_source_positions(source, target_model, target, scene, frames):
     landmarks' similarity.  A ``stable`` vertex group on the source removes head motion per frame
     (rigid Procrustes onto the neutral).
     """
-    from ..core.cloning import closest_points, landmark_warp, procrustes
+    from ..core.cloning import check_landmarks, closest_points, landmark_warp, procrustes
     from .arrays import read_float
     from .meshes import vertex_positions
     seq = mesh_sequence(source, scene, frames)
@@ -243,6 +243,7 @@ def dense_source_positions(source, target_model, target, scene, frames):
         if not moved[dst_lm].any():
             raise ShapeSpaceError(f"all {dst_lm.size} landmarks lie on target vertices no shape key moves: place "
                                   "some on the moving face (mouth corners, lids, chin)", "static_landmarks")
+        check_landmarks(rest[src_lm], neutral_t[dst_lm])
         scale, R, _ = procrustes(rest[src_lm], neutral_t[dst_lm])
         warped = landmark_warp(rest[src_lm], neutral_t[dst_lm], rest)
         corr, _ = closest_points(neutral_t, warped)

@@ -29,7 +29,7 @@ from .boxqp import solve_box_qp
 from .result import ShapeSpaceError
 
 __all__ = ["copy_weights", "cloning_matrix", "key_poses", "fit_frames", "spacetime", "SpacetimeResult",
-           "reduce_keys", "reduce_keys_bezier", "curve_slopes", "hermite", "procrustes", "landmark_warp", "landmark_layout",
+           "reduce_keys", "reduce_keys_bezier", "curve_slopes", "hermite", "procrustes", "landmark_warp", "landmark_layout", "check_landmarks",
            "peak_landmarks", "closest_points"]
 
 
@@ -749,17 +749,10 @@ def landmark_layout(landmarks, rel_tol: float = 1e-3) -> str:
     return "spatial"
 
 
-def landmark_warp(source_landmarks, target_landmarks, points):
-    """Warp ``points`` (p, 3) so the source landmarks land on the target ones (3.5.4).
+def check_landmarks(source_landmarks, target_landmarks):
+    """Validate landmark pairs: equal (m, 3) shapes, m ≥ 3, not collinear on either side.
 
-    A similarity (Procrustes) aligns the landmark sets, then a thin-plate RBF
-    carries the residual so every landmark lands exactly.  Needs at least 3
-    landmark pairs, not collinear on either mesh; with coplanar landmarks
-    (all on the face's front, or only 3) the residual warp uses the 3-D
-    biharmonic kernel ``r`` with a constant, which they determine, instead of
-    thin plates with an affine part, which they do not.
-    """
-    from .rbf import fit_rbf
+    Returns the two arrays (float64) and their layouts (:func:`landmark_layout`)."""
     src = np.asarray(source_landmarks, dtype=np.float64)
     dst = np.asarray(target_landmarks, dtype=np.float64)
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
@@ -771,6 +764,21 @@ def landmark_warp(source_landmarks, target_landmarks, points):
     if "collinear" in layouts:
         raise ShapeSpaceError("the landmarks lie on a line: add landmarks off that line (e.g. eye corners and "
                               "the chin, not only the mouth)", "collinear")
+    return src, dst, layouts
+
+
+def landmark_warp(source_landmarks, target_landmarks, points):
+    """Warp ``points`` (p, 3) so the source landmarks land on the target ones (3.5.4).
+
+    A similarity (Procrustes) aligns the landmark sets, then a thin-plate RBF
+    carries the residual so every landmark lands exactly.  Needs at least 3
+    landmark pairs, not collinear on either mesh; with coplanar landmarks
+    (all on the face's front, or only 3) the residual warp uses the 3-D
+    biharmonic kernel ``r`` with a constant, which they determine, instead of
+    thin plates with an affine part, which they do not.
+    """
+    from .rbf import fit_rbf
+    src, dst, layouts = check_landmarks(source_landmarks, target_landmarks)
     s, R, t = procrustes(src, dst)
     aligned = s * src @ R.T + t
     if layouts == ("spatial", "spatial") and src.shape[0] >= 5:

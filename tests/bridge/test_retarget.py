@@ -170,7 +170,7 @@ def test_dense_performance_without_enough_landmarks_is_refused():
     dst, order = _copy_rig(src, reverse=True)
     dst.vertex_groups.new(name="lm_0").add([0], 1.0, "REPLACE")
     src.vertex_groups.new(name="lm_0").add([int(order[0])], 1.0, "REPLACE")
-    with pytest.raises(Exception, match="at least 4 landmark pairs"):
+    with pytest.raises(Exception, match="at least 3 landmark pairs"):
         retarget.retarget_dense(dst, src, "spacetime")
 
 
@@ -271,3 +271,120 @@ def test_bezier_keys_evaluate_as_the_core_hermite():
     assert {k.handle_left_type for k in fc.keyframe_points} == {"ALIGNED"}
     with pytest.raises(Exception, match="non-finite"):
         actions.write_bezier_curve(key, actions.shape_key_path("JawOpen"), t[idx], kv, km * np.nan)
+
+
+def _unchanged(ob):
+    """Everything a failed retarget must leave alone: actions, the target's animation, its groups."""
+    key = ob.data.shape_keys
+    return (sorted(a.name for a in bpy.data.actions), actions.active_action(key),
+            sorted(g.name for g in ob.vertex_groups))
+
+
+@pytest.mark.parametrize("case", ["collinear", "static"])
+def test_bad_landmarks_are_refused_and_change_nothing(case):
+    src, scene = _facecap_scene()
+    dst, order = _copy_rig(src, reverse=True)
+    inv = np.argsort(order)
+    model = shapekeys.read_blendshape_model(dst)
+    moved = np.linalg.norm(model.deltas, axis=2).max(axis=0) > 1e-6 * model.scale
+    if case == "collinear":     # landmarks along one straight edge chain: pick vertices on a line
+        base = model.neutral
+        p0, p1 = base[np.argmin(base[:, 0])], base[np.argmax(base[:, 0])]
+        along = np.linalg.norm(np.cross(base - p0, p1 - p0), axis=1) / np.linalg.norm(p1 - p0)
+        picks = np.argsort(along)[:5]
+        chosen = [int(v) for v in picks]
+        # make them exactly collinear on both meshes by moving those target vertices onto the line
+        for v in chosen:
+            t = np.dot(base[v] - p0, p1 - p0) / np.dot(p1 - p0, p1 - p0)
+            dst.data.vertices[v].co = p0 + t * (p1 - p0)
+            dst.data.shape_keys.reference_key.data[v].co = p0 + t * (p1 - p0)
+            src.data.shape_keys.reference_key.data[int(order[v])].co = p0 + t * (p1 - p0)
+        message = "the landmarks lie on a line"
+    else:
+        chosen = [int(v) for v in np.flatnonzero(~moved)[:6]]
+        message = "landmarks lie on target vertices no shape key moves"
+    for k, v in enumerate(chosen):
+        dst.vertex_groups.new(name=f"lm_{k}").add([v], 1.0, "REPLACE")
+        src.vertex_groups.new(name=f"lm_{k}").add([int(order[v])], 1.0, "REPLACE")
+    before = _unchanged(dst)
+    with pytest.raises(Exception, match=message):
+        retarget.retarget_dense(dst, src, "spacetime")
+    assert _unchanged(dst) == before
+
+
+def test_landmarks_from_shapes_operator_retargets_across_topologies(registered):
+    """facecap's capture (a mesh performance) onto FBHead: landmarks placed from the shapes both share."""
+    import_file(BLEND)
+    fb = bpy.data.objects["FBHead"]
+    from shapespace.bridge import assets
+    assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"), replace=False)
+    src = bpy.data.objects["Mesh_2"]
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 60, 110
+    bpy.context.view_layer.objects.active = fb
+    assert bpy.ops.shapespace.landmarks_from_shapes(source_object=src.name) == {"FINISHED"}
+    pairs = retarget.landmark_pairs(src, fb)
+    assert pairs[0].size >= 20
+    # each pair sits where both rigs' jawOpen moves most
+    fb_model, src_model = shapekeys.read_blendshape_model(fb), shapekeys.read_blendshape_model(src)
+    jaw_fb = np.argmax(np.linalg.norm(fb_model.deltas[fb_model.index("JawOpen")], axis=1))
+    jaw_src = np.argmax(np.linalg.norm(src_model.deltas[src_model.index("jawOpen")], axis=1))
+    assert retarget._group_vertices(fb, "lm_auto_JawOpen")[0] == jaw_fb
+    assert retarget._group_vertices(src, "lm_auto_JawOpen")[0] == jaw_src
+    rep = retarget.retarget_dense(fb, src, "spacetime")
+    assert rep["converged"]
+    # the retargeted jaw follows the capture's jaw (same ARKit semantics on both rigs)
+    curves = actions.shape_key_curves(fb, bpy.data.actions[rep["action"]])
+    frames = np.arange(60.0, 111.0)
+    got = actions.sample_curve(curves["JawOpen"], frames)
+    want = actions.sample_shape_keys(src, ["jawOpen"], frames)[:, 0]
+    assert np.corrcoef(got, want)[0, 1] > 0.9
+    with pytest.raises(RuntimeError, match="choose another mesh"):
+        bpy.ops.shapespace.landmarks_from_shapes(source_object=fb.name)
+
+
+def test_point_cache_performance_through_mesh_cache_modifier(tmp_path):
+    """A dense performance read through Blender's Mesh Cache modifier (PC2) is retargeted like any
+    animated mesh: the cached facecap frames onto a facecap copy recover the capture's sliders."""
+    from shapespace.core.pointcache import write_pc2
+    src, scene = _facecap_scene()
+    model = shapekeys.read_blendshape_model(src)
+    frames = np.arange(scene.frame_start, scene.frame_end + 1, dtype=np.float64)
+    W = actions.sample_shape_keys(src, model.names, frames)
+    positions = model.evaluate(W)                                     # (f, p, 3), Blender-exact (tested)
+    path = str(tmp_path / "performance.pc2")
+    write_pc2(path, positions, start_frame=float(frames[0]), sample_rate=1.0)
+    me = bpy.data.meshes.new("Cached")
+    me.from_pydata(model.neutral.tolist(), [], [list(p.vertices) for p in src.data.polygons])
+    cached = bpy.data.objects.new("Cached", me)
+    scene.collection.objects.link(cached)
+    mod = cached.modifiers.new("Cache", "MESH_CACHE")
+    mod.cache_format, mod.filepath, mod.time_mode, mod.play_mode = "PC2", path, "FRAME", "SCENE"
+    mod.frame_start = float(frames[0])
+    dst, _ = _copy_rig(src)
+    rep = retarget.retarget_dense(dst, cached, "perframe")
+    assert rep["position_error_rms"] < 1e-4
+    curves = actions.shape_key_curves(dst, bpy.data.actions[rep["action"]])
+    got = np.column_stack([actions.sample_curve(curves[n], frames) for n in ("jawOpen", "eyeBlink_L")])
+    want = W[:, [model.index("jawOpen"), model.index("eyeBlink_L")]]
+    np.testing.assert_allclose(got, np.clip(want, 0, 1), atol=0.02)
+
+
+@pytest.mark.parametrize("fps, fps_base", [(24, 1.0), (30, 1.0), (30000, 1001.0)])
+def test_csv_resampled_into_any_scene_rate_keeps_time(fps, fps_base):
+    """60 fps Live Link Face timecode into a scene at another rate: the same moment has the same value."""
+    import_file(BLEND)
+    ob = bpy.data.objects["FBHead"]
+    scene = bpy.context.scene
+    scene.render.fps, scene.render.fps_base = fps, fps_base
+    rep = retarget.retarget(ob, CSV, "copy")
+    stream = read_live_link_csv(CSV)
+    jaw = stream.names.index("JawOpen")
+    rate = fps / fps_base
+    seconds = np.linspace(0.5, stream.times[-1] - 0.5, 17)
+    got = actions.sample_curve(actions.shape_key_curves(ob, bpy.data.actions[rep["action"]])["JawOpen"],
+                               scene.frame_start + seconds * rate)
+    want = np.clip(np.interp(seconds, stream.times, stream.weights[:, jaw]), 0, 1)
+    # the scene samples at its own frames, so between them the key curve is linear in the resampled
+    # values: allow the 60→scene resampling error of a smooth channel
+    np.testing.assert_allclose(got, want, atol=0.03)
