@@ -105,8 +105,32 @@ class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
     revision: bpy.props.IntProperty(options={"HIDDEN"}, description="Bumped when examples change")
 
 
+class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
+    """Retarget settings of a target rig (what the Retarget panel edits)."""
+
+    source_kind: bpy.props.EnumProperty(
+        name="Source", items=[("CSV", "Capture File", "A Live Link Face CSV recording"),
+                              ("ACTION", "Action", "An action animating shape keys (any naming convention)"),
+                              ("MESH", "Mesh Performance", "An animated mesh: shape keys, Mesh Cache, any modifier")],
+        default="CSV")
+    csv_path: bpy.props.StringProperty(name="CSV File", subtype="FILE_PATH")
+    action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action)
+    source_object: bpy.props.PointerProperty(name="Mesh", type=bpy.types.Object)
+    method: bpy.props.EnumProperty(
+        name="Method",
+        items=[("copy", "Copy", "Copy the mapped channels (corresponding parameterisation)"),
+               ("perframe", "Per Frame", "Fit the sliders to the source motion frame by frame"),
+               ("spacetime", "Space-Time", "Match the motion's velocities (keeps its shape at slider limits)")],
+        default="spacetime")
+    key_tolerance: bpy.props.FloatProperty(name="Key Tolerance", default=0.01, min=0.0, max=0.1,
+                                           description="Keep the fewest keys within this slider error (0: all)")
+    key_shape: bpy.props.EnumProperty(
+        name="Key Shape", items=[("BEZIER", "Smooth", "Bézier keys with aligned handles (fewest keys)"),
+                                 ("LINEAR", "Linear", "Linear keys")], default="BEZIER")
+
+
 classes = (SHAPESPACE_PG_pin, SHAPESPACE_PG_settings, SHAPESPACE_PG_reader, SHAPESPACE_PG_target,
-           SHAPESPACE_PG_example, SHAPESPACE_PG_psd)
+           SHAPESPACE_PG_example, SHAPESPACE_PG_psd, SHAPESPACE_PG_retarget)
 
 
 def register():
@@ -114,9 +138,11 @@ def register():
         bpy.utils.register_class(cls)
     bpy.types.Object.shapespace = bpy.props.PointerProperty(type=SHAPESPACE_PG_settings)
     bpy.types.Object.shapespace_psd = bpy.props.PointerProperty(type=SHAPESPACE_PG_psd)
+    bpy.types.Object.shapespace_retarget = bpy.props.PointerProperty(type=SHAPESPACE_PG_retarget)
 
 
 def unregister():
+    del bpy.types.Object.shapespace_retarget
     del bpy.types.Object.shapespace_psd
     del bpy.types.Object.shapespace
     for cls in reversed(classes):

@@ -62,8 +62,7 @@ def _all_fcurves(action):
 
 def channel_mapping(obj, source_names, target_names) -> list:
     """``[(source index, target index, gain, offset)]``: stored overrides first, then name matching."""
-    key = obj.data.shape_keys
-    stored = json.loads(key.get(MAPPING_PROP, "{}")) if key is not None else {}
+    stored = stored_mapping(obj)
     auto, _, _ = match_channels(source_names, target_names)
     claimed = {e.get("target") for name, e in stored.items() if name in source_names}   # overrides win
     out = []
@@ -80,6 +79,21 @@ def channel_mapping(obj, source_names, target_names) -> list:
         raise ShapeSpaceError("the source and the target share no channels (check the names or the mapping)",
                               "no_mapping")
     return out
+
+
+def stored_mapping(obj) -> dict:
+    """The channel-mapping overrides stored on ``obj``'s shape keys: ``{source: {target, gain, offset}}``."""
+    key = obj.data.shape_keys
+    return json.loads(key.get(MAPPING_PROP, "{}")) if key is not None else {}
+
+
+def remove_mapping(obj, source: str) -> None:
+    """Drop the override of ``source`` (name matching applies again)."""
+    data = stored_mapping(obj)
+    if source not in data:
+        raise ShapeSpaceError(f"{obj.name!r} has no mapping override for {source!r}", "missing_channel")
+    del data[source]
+    obj.data.shape_keys[MAPPING_PROP] = json.dumps(data, sort_keys=True)
 
 
 def set_mapping(obj, source: str, target: str, gain: float = 1.0, offset: float = 0.0) -> None:

@@ -20,6 +20,7 @@ from .psd_move_example import SHAPESPACE_OT_psd_move_example
 from .psd_record_targets import SHAPESPACE_OT_psd_record_targets
 from .psd_remove_example import SHAPESPACE_OT_psd_remove_example
 from .psd_update import SHAPESPACE_OT_psd_update
+from .remove_mapping import SHAPESPACE_OT_remove_mapping
 from .remove_pin import SHAPESPACE_OT_remove_pin
 from .retarget import SHAPESPACE_OT_retarget
 from .set_mapping import SHAPESPACE_OT_set_mapping
@@ -47,6 +48,7 @@ classes = (
     SHAPESPACE_OT_psd_record_targets,
     SHAPESPACE_OT_retarget,
     SHAPESPACE_OT_set_mapping,
+    SHAPESPACE_OT_remove_mapping,
     SHAPESPACE_OT_add_landmark,
     SHAPESPACE_OT_landmarks_from_shapes,
 )

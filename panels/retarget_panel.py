@@ -1,10 +1,11 @@
 import bpy
 
+from ..bridge import retarget
 from .base import ShapeSpaceSidebar
 
 
 class SHAPESPACE_PT_retarget(ShapeSpaceSidebar, bpy.types.Panel):
-    """Retarget captures and actions onto this rig"""
+    """Retarget captures, actions and mesh performances onto this rig"""
 
     bl_label = "Retarget"
     bl_idname = "SHAPESPACE_PT_retarget"
@@ -17,11 +18,37 @@ class SHAPESPACE_PT_retarget(ShapeSpaceSidebar, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        layout.label(text="Source: a Live Link Face CSV or an action")
+        ob = context.active_object
+        st = ob.shapespace_retarget
+        layout.prop(st, "source_kind", text="")
+        source = {"CSV": "csv_path", "ACTION": "action", "MESH": "source_object"}[st.source_kind]
+        layout.prop(st, source, text="")
+        col = layout.column(align=True)
+        col.prop(st, "method", text="Method")
+        col.prop(st, "key_tolerance")
+        if st.key_tolerance > 0:
+            col.prop(st, "key_shape", text="Keys")
         op = layout.operator("shapespace.retarget", icon="ACTION")
-        op.method = "spacetime"
-        row = layout.row(align=True)
-        row.operator("shapespace.set_mapping", icon="LINKED")
+        op.method, op.key_tolerance, op.key_shape = st.method, st.key_tolerance, st.key_shape
+        op.filepath = bpy.path.abspath(st.csv_path) if st.source_kind == "CSV" else ""
+        op.action = st.action.name if st.source_kind == "ACTION" and st.action else ""
+        op.source_object = st.source_object.name if st.source_kind == "MESH" and st.source_object else ""
+
+        box = layout.box()
+        box.label(text="Channel Mapping (overrides; the rest by name)")
+        for src, entry in sorted(retarget.stored_mapping(ob).items()):
+            row = box.row(align=True)
+            row.label(text=f"{src} → {entry.get('target')}  ×{entry.get('gain', 1.0):g} "
+                           f"{entry.get('offset', 0.0):+g}")
+            row.operator("shapespace.remove_mapping", text="", icon="X").source = src
+        box.operator("shapespace.set_mapping", icon="LINKED")
+
+        box = layout.box()
+        landmarks = [g.name for g in ob.vertex_groups if g.name.startswith(retarget.LANDMARK_PREFIX)]
+        box.label(text=f"Landmarks: {len(landmarks)} (for meshes of another topology)", icon="VERTEXSEL")
+        row = box.row(align=True)
         row.operator("shapespace.add_landmark", icon="PIVOT_CURSOR")
-        landmarks = [g.name for g in context.active_object.vertex_groups if g.name.startswith("lm_")]
-        layout.label(text=f"{len(landmarks)} landmarks", icon="VERTEXSEL")
+        sub = row.row(align=True)
+        sub.enabled = st.source_kind == "MESH" and st.source_object is not None
+        op = sub.operator("shapespace.landmarks_from_shapes", icon="SHAPEKEY_DATA")
+        op.source_object = st.source_object.name if st.source_object else ""
