@@ -129,8 +129,29 @@ class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
                                  ("LINEAR", "Linear", "Linear keys")], default="BEZIER")
 
 
+class SHAPESPACE_PG_flagged_frame(bpy.types.PropertyGroup):
+    """A frame the face prior finds implausible."""
+
+    frame: bpy.props.IntProperty(name="Frame")
+    reason: bpy.props.StringProperty(name="Reason")
+
+
+class SHAPESPACE_PG_face(bpy.types.PropertyGroup):
+    """Face-space tool state of a rig (what the Face Space panel shows)."""
+
+    implausible: bpy.props.CollectionProperty(type=SHAPESPACE_PG_flagged_frame)
+    active_implausible: bpy.props.IntProperty(name="Active Frame")
+    confidence: bpy.props.FloatProperty(name="Pose-Space Variance", default=-1.0,
+                                        description="Last computed GP variance at the pose (−1: not computed)")
+    gap_path: bpy.props.StringProperty(name="Curve", description='Data path, e.g. key_blocks["jawOpen"].value')
+    gap_index: bpy.props.IntProperty(name="Index", min=0)
+    gap_start: bpy.props.IntProperty(name="From", default=1)
+    gap_end: bpy.props.IntProperty(name="To", default=10)
+
+
 classes = (SHAPESPACE_PG_pin, SHAPESPACE_PG_settings, SHAPESPACE_PG_reader, SHAPESPACE_PG_target,
-           SHAPESPACE_PG_example, SHAPESPACE_PG_psd, SHAPESPACE_PG_retarget)
+           SHAPESPACE_PG_example, SHAPESPACE_PG_psd, SHAPESPACE_PG_retarget,
+           SHAPESPACE_PG_flagged_frame, SHAPESPACE_PG_face)
 
 
 def register():
@@ -139,9 +160,11 @@ def register():
     bpy.types.Object.shapespace = bpy.props.PointerProperty(type=SHAPESPACE_PG_settings)
     bpy.types.Object.shapespace_psd = bpy.props.PointerProperty(type=SHAPESPACE_PG_psd)
     bpy.types.Object.shapespace_retarget = bpy.props.PointerProperty(type=SHAPESPACE_PG_retarget)
+    bpy.types.Object.shapespace_face = bpy.props.PointerProperty(type=SHAPESPACE_PG_face)
 
 
 def unregister():
+    del bpy.types.Object.shapespace_face
     del bpy.types.Object.shapespace_retarget
     del bpy.types.Object.shapespace_psd
     del bpy.types.Object.shapespace

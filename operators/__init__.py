@@ -8,6 +8,15 @@ from .add_pin import SHAPESPACE_OT_add_pin
 from .check_rig import SHAPESPACE_OT_check_rig
 from .clear_pins import SHAPESPACE_OT_clear_pins
 from .drag_pins import SHAPESPACE_OT_drag_pins
+from .analyse_rig import SHAPESPACE_OT_analyse_rig
+from .compression_report import SHAPESPACE_OT_compression_report
+from .convert_rig import SHAPESPACE_OT_convert_rig
+from .fill_between import SHAPESPACE_OT_fill_between
+from .find_implausible_frames import SHAPESPACE_OT_find_implausible_frames
+from .go_to_frame import SHAPESPACE_OT_go_to_frame
+from .inpaint_gap import SHAPESPACE_OT_inpaint_gap
+from .learn_face_prior import SHAPESPACE_OT_learn_face_prior
+from .psd_confidence import SHAPESPACE_OT_psd_confidence
 from .key_sliders import SHAPESPACE_OT_key_sliders
 from .landmarks_from_shapes import SHAPESPACE_OT_landmarks_from_shapes
 from .psd_add_example import SHAPESPACE_OT_psd_add_example
@@ -51,6 +60,15 @@ classes = (
     SHAPESPACE_OT_remove_mapping,
     SHAPESPACE_OT_add_landmark,
     SHAPESPACE_OT_landmarks_from_shapes,
+    SHAPESPACE_OT_analyse_rig,
+    SHAPESPACE_OT_compression_report,
+    SHAPESPACE_OT_convert_rig,
+    SHAPESPACE_OT_fill_between,
+    SHAPESPACE_OT_find_implausible_frames,
+    SHAPESPACE_OT_go_to_frame,
+    SHAPESPACE_OT_inpaint_gap,
+    SHAPESPACE_OT_learn_face_prior,
+    SHAPESPACE_OT_psd_confidence,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

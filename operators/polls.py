@@ -77,3 +77,29 @@ def psd_mesh(cls, context, need_example: bool = False):
             cls.poll_message_set("Add an example first")
             return None
     return ob
+
+
+def prior_rig(cls, context):
+    """The active rig when it has a learnt face prior; otherwise say why and return None."""
+    ob = active_rig(cls, context)
+    if ob is None:
+        return None
+    if "shapespace_face_prior" not in ob.data.shape_keys:
+        cls.poll_message_set("Learn a face prior from an animation first")
+        return None
+    return ob
+
+
+def animated_object(cls, context):
+    """The active object when it (or its shape keys) has an action; otherwise say why and return None."""
+    ob = context.active_object
+    if ob is None:
+        cls.poll_message_set("Select an animated object")
+        return None
+    key = ob.data.shape_keys if ob.type == "MESH" else None
+    for owner in (key, ob):
+        ad = getattr(owner, "animation_data", None) if owner is not None else None
+        if ad is not None and ad.action is not None:
+            return ob
+    cls.poll_message_set("The object has no animation")
+    return None

@@ -62,3 +62,8 @@ class SHAPESPACE_PT_correctives(ShapeSpaceSidebar, bpy.types.Panel):
         row.operator("shapespace.psd_update", icon="FILE_REFRESH")
         row.operator("shapespace.psd_bake", icon="REC")
         row.operator("shapespace.psd_bake_cache", icon="FILE_CACHE")
+        row = layout.row(align=True)
+        row.operator("shapespace.psd_confidence", icon="INFO")
+        face = context.active_object.shapespace_face
+        if face.confidence >= 0:
+            row.label(text=f"variance {face.confidence:.3f}")

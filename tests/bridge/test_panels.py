@@ -58,13 +58,18 @@ class Layout:
         self.log.append(("operator", idname))
         return _OperatorProps(idname)
 
+    def template_icon(self, icon_value=0, scale=1.0):
+        assert icon_value > 0, "template_icon needs a real icon id"
+        self.log.append(("icon", icon_value))
+
     def template_list(self, list_type, list_id, data, prop, active_data, active_prop, **kwargs):
         assert hasattr(bpy.types, list_type), f"no UIList {list_type}"
         assert prop in data.bl_rna.properties and active_prop in active_data.bl_rna.properties
         self.log.append(("list", prop))
 
 
-PANELS = ("SHAPESPACE_PT_rig", "SHAPESPACE_PT_direct", "SHAPESPACE_PT_correctives", "SHAPESPACE_PT_retarget")
+PANELS = ("SHAPESPACE_PT_rig", "SHAPESPACE_PT_direct", "SHAPESPACE_PT_correctives", "SHAPESPACE_PT_retarget",
+          "SHAPESPACE_PT_face_space")
 
 
 def _draw_all(context):
@@ -94,6 +99,8 @@ def test_panels_on_a_face_rig(registered):
     log = _draw_all(bpy.context)["SHAPESPACE_PT_retarget"]
     assert any(kind == "label" and text.startswith("JawOpen → MouthClose") for kind, text in log)
     assert bpy.ops.shapespace.remove_mapping(source="JawOpen") == {"FINISHED"}
+    # face space: before and after analysis, prior and flagged frames
+    assert "SHAPESPACE_PT_face_space" in _draw_all(bpy.context)
     with pytest.raises(RuntimeError, match="no mapping override for 'JawOpen'"):
         bpy.ops.shapespace.remove_mapping(source="JawOpen")
 

@@ -1,0 +1,93 @@
+import bpy
+
+from ..bridge import facespace
+from .base import ShapeSpaceSidebar
+
+
+class SHAPESPACE_UL_flagged_frames(bpy.types.UIList):
+    """Frames the face prior finds implausible"""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index):
+        row = layout.row(align=True)
+        row.operator("shapespace.go_to_frame", text=str(item.frame), emboss=False).frame = item.frame
+        row.label(text=item.reason.replace("_", " "), icon="ERROR")
+
+
+class SHAPESPACE_PT_face_space(ShapeSpaceSidebar, bpy.types.Panel):
+    """Representations, diagnostics, the face prior and curve repair"""
+
+    bl_label = "Face Space"
+    bl_idname = "SHAPESPACE_PT_face_space"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def poll(cls, context):
+        ob = context.active_object
+        return ob is not None and ob.type == "MESH" and ob.data.shape_keys is not None
+
+    def draw(self, context):
+        layout = self.layout
+        ob = context.active_object
+        face = ob.shapespace_face
+
+        box = layout.box()
+        box.label(text="Representation", icon="SHAPEKEY_DATA")
+        row = box.row(align=True)
+        for form, label in (("WHOLE_FACE", "Whole-Face"), ("DELTA", "Delta"), ("PCA", "PCA")):
+            row.operator("shapespace.convert_rig", text=label).form = form
+        analysis = facespace.stored(ob, facespace.ANALYSIS_PROP)
+        row = box.row(align=True)
+        row.operator("shapespace.compression_report", icon="FILE_ARCHIVE")
+        comp = analysis.get("compression")
+        if comp and comp.get("components") is not None:
+            box.label(text=f"{comp['components']} of {comp['targets']} components ({comp['ratio']:.2f}:1) "
+                           f"at {comp['tol']:.3g}")
+
+        box = layout.box()
+        box.label(text="Diagnostics", icon="VIEWZOOM")
+        box.operator("shapespace.analyse_rig", icon="IMAGE_DATA")
+        coh = analysis.get("coherence")
+        if coh:
+            img = bpy.data.images.get(coh["image"])
+            if img is not None:
+                box.template_icon(icon_value=img.preview_ensure().icon_id, scale=8.0)
+            box.label(text=f"mutual coherence {coh['mutual_coherence']:.3f}")
+            for name in coh["empty_targets"]:
+                box.label(text=f"{name}: empty", icon="ERROR")
+            for a, b, c in coh["similar_pairs"][:6]:
+                box.label(text=f"{a} ≈ {b} ({c:.2f})", icon="ERROR")
+            if coh.get("sparsity"):
+                bs, pc = coh["sparsity"]["blendshape"], coh["sparsity"]["pca"]
+                box.label(text=f"idle samples: blendshape {bs['curve_small_fraction']:.2f}, "
+                               f"PCA {pc['curve_small_fraction']:.2f}")
+
+        box = layout.box()
+        box.label(text="Face Prior", icon="FORCE_HARMONIC")
+        box.operator("shapespace.learn_face_prior", icon="LIGHT")
+        if facespace.PRIOR_PROP in ob.data.shape_keys:
+            try:
+                m = facespace.meter(ob)
+                col = box.column(align=True)
+                col.label(text=f"face norm {m['norm']:.2f} (typical ≈ {m['shell_radius']:.2f})")
+                col.label(text=f"percentile {100 * m['percentile']:.1f} % — {m['status'].replace('_', ' ')}",
+                          icon="CHECKMARK" if m["status"] == "typical" else "ERROR")
+            except Exception as exc:  # noqa: BLE001 — a stale prior must not break the sidebar
+                box.label(text=str(exc), icon="ERROR")
+            box.operator("shapespace.find_implausible_frames", icon="ZOOM_ALL")
+            if len(face.implausible):
+                box.template_list("SHAPESPACE_UL_flagged_frames", "", face, "implausible", face,
+                                  "active_implausible", rows=3)
+            row = box.row(align=True)
+            row.operator("shapespace.fill_between", text="Shell In-Betweens").mode = "SHELL"
+            row.operator("shapespace.fill_between", text="Linear").mode = "LINEAR"
+
+        box = layout.box()
+        box.label(text="Inpaint a Gap", icon="MOD_SMOOTH")
+        box.prop(face, "gap_path", text="")
+        row = box.row(align=True)
+        row.prop(face, "gap_index")
+        row.prop(face, "gap_start")
+        row.prop(face, "gap_end")
+        op = box.operator("shapespace.inpaint_gap", icon="BRUSH_DATA")
+        op.data_path, op.index = face.gap_path, face.gap_index
+        op.frame_start, op.frame_end = face.gap_start, face.gap_end
