@@ -179,10 +179,22 @@ def _corrective_demo(bpy, np, out_dir, size):
     posespace.preview(ob)
     fixed_png = _render(bpy, os.path.join(out_dir, "elbow_corrected.png"))
     bpy.ops.wm.save_as_mainfile(filepath=os.path.join(out_dir, "correctives.blend"), check_existing=False)
+    # pose-space confidence: the uncertainty heat map at a bend no example covers
+    from shapespace.bridge import facespace
+    _bend(bpy, np, arm, 0.4)
+    confidence = facespace.confidence(ob, heat_map=True)
+    scene = bpy.context.scene
+    scene.display.shading.color_type = "VERTEX"
+    heat_png = _render(bpy, os.path.join(out_dir, "elbow_confidence.png"))
+    scene.display.shading.color_type = "SINGLE"
+    _bend(bpy, np, arm, held_out)
+    confidence_held_out = facespace.confidence(ob)["variance"]
     return {"examples": names, "held_out_bend_rad": held_out,
+            "confidence_variance_far_bend": confidence["variance"], "confidence_variance_held_out":
+            confidence_held_out,
             "max_error_rel_lbs": float(np.abs(lbs - want).max() / size_m),
             "max_error_rel_corrected": float(np.abs(fixed - want).max() / size_m),
-            "renders": {"lbs": lbs_png, "corrected": fixed_png}}
+            "renders": {"lbs": lbs_png, "corrected": fixed_png, "confidence": heat_png}}
 
 
 def _retarget_demo(bpy, np, out_dir, size):
@@ -228,6 +240,67 @@ def _retarget_demo(bpy, np, out_dir, size):
             "keys_kept_frac", "action")
     return {"llf_on_facecap": {k: onto_facecap.get(k) for k in keep},
             "facecap_on_fbhead": {k: onto_fbhead.get(k) for k in keep}, "renders": renders}
+
+
+def _grid(paths, out_path, columns):
+    """Tile equally sized PNGs into one picture (row-major)."""
+    from matplotlib import image
+    import numpy as np
+    tiles = [image.imread(p)[..., :3] for p in paths]
+    rows = [np.concatenate(tiles[i:i + columns], axis=1) for i in range(0, len(tiles), columns)]
+    image.imsave(out_path, np.concatenate(rows, axis=0))
+    return out_path
+
+
+def _facespace_demo(bpy, np, out_dir, size):
+    """Face Cap rig: coherence image, compression, the face prior, and an in-between of two captured
+    expressions — linear (drifts to the average face) vs shell (keeps the expression's strength)."""
+    from shapespace.bridge import actions, assets, facespace, shapekeys
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assets.load(FACECAP, replace=False)
+    head = bpy.data.objects[HEAD]
+    key = head.data.shape_keys
+    capture = actions.active_action(key)
+    model = shapekeys.read_blendshape_model(head)
+    analysis = facespace.analyse(head, capture, os.path.join(out_dir, "coherence.png"))
+    compression = facespace.compression(head, capture, 1e-3 * model.scale)
+    prior = facespace.learn_prior(head, capture)
+    flagged = facespace.implausible_frames(head, capture, 0.01)
+    g, names = facespace.prior(head)
+    frames = np.arange(2, 268)
+    W = actions.sample_shape_keys(head, names, frames, capture)
+    norms = g.face_norm(W)
+    # two strong, different expressions: the most extreme frame and the farthest-apart one of similar norm
+    a = int(np.argmax(norms))
+    similar = np.flatnonzero(np.abs(norms - norms[a]) < 0.25 * norms[a])
+    b = int(similar[np.argmax(np.linalg.norm(g.whiten(W[similar]) - g.whiten(W[a]), axis=1))])
+    visible = [ob for ob in bpy.data.objects if ob.type == "MESH" and ob.name != "Icosphere"]
+    _setup_render(bpy, np, visible, size // 2)
+    scene = bpy.context.scene
+    paths, mid_norms = [], {}
+    for mode in ("LINEAR", "SHELL"):
+        act = bpy.data.actions.new(f"inbetween_{mode.lower()}")
+        actions.assign_action(key, act)
+        for j, name in enumerate(names):
+            actions.write_curve(key, actions.shape_key_path(name), [1.0, 21.0], W[[a, b], j])
+        facespace.fill_between(head, 1, 21, mode)
+        scene.frame_set(11)
+        mid_norms[mode] = float(g.face_norm(actions.sample_shape_keys(head, names, [11.0], act))[0])
+        if mode == "LINEAR":
+            scene.frame_set(1)
+            paths.append(_render(bpy, os.path.join(out_dir, "inbetween_start.png")))
+            scene.frame_set(11)
+        paths.append(_render(bpy, os.path.join(out_dir, f"inbetween_{mode.lower()}.png")))
+    scene.frame_set(21)
+    paths.append(_render(bpy, os.path.join(out_dir, "inbetween_end.png")))
+    grid = _grid(paths, os.path.join(out_dir, "inbetween_linear_vs_shell.png"), 4)
+    return {"mutual_coherence": analysis["mutual_coherence"], "empty_targets": analysis["empty_targets"],
+            "similar_pairs": analysis["similar_pairs"], "sparsity": analysis.get("sparsity_message"),
+            "compression": compression, "prior": prior, "implausible_frames": len(flagged),
+            "inbetween": {"frames": [int(frames[a]), int(frames[b])], "endpoint_norms":
+                          [float(norms[a]), float(norms[b])], "mid_norm_linear": mid_norms["LINEAR"],
+                          "mid_norm_shell": mid_norms["SHELL"], "shell_radius": g.shell_radius},
+            "renders": {"coherence": analysis["png"], "inbetween": grid}}
 
 
 def run(out_dir: str, size: int = 512) -> dict:
@@ -303,6 +376,7 @@ def _run(bpy, np, out_dir, size):
     }
     report["pose_space_correctives"] = _corrective_demo(bpy, np, out_dir, size)   # loads another file
     report["retargeting"] = _retarget_demo(bpy, np, out_dir, size)
+    report["face_space"] = _facespace_demo(bpy, np, out_dir, size)
     report["seconds"] = round(time.perf_counter() - t0, 2)
     with open(os.path.join(out_dir, "report.json"), "w", encoding="utf-8") as fh:
         json.dump(report, fh, indent=2)
@@ -327,6 +401,11 @@ def main(argv) -> int:
     print(f"demo: retargeted the Live Link Face take onto facecap ({rt['llf_on_facecap']['frames']} frames) and "
           f"the Face Cap capture onto FBHead ({rt['facecap_on_fbhead']['frames']} frames); wrote {args.out}/demo.blend, "
           f"correctives.blend, retargeted.blend, report.json and renders")
+    fsd = report["face_space"]
+    print(f"demo: face space — {fsd['compression']['components']} of {fsd['compression']['targets']} PCA components "
+          f"keep the capture within 1e-3 of the head; in-between norm linear {fsd['inbetween']['mid_norm_linear']:.2f} "
+          f"vs shell {fsd['inbetween']['mid_norm_shell']:.2f} (ends {fsd['inbetween']['endpoint_norms'][0]:.2f}, "
+          f"{fsd['inbetween']['endpoint_norms'][1]:.2f})")
     return 0
 
 

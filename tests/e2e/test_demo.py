@@ -31,8 +31,14 @@ def test_demo_writes_blend_renders_and_report(tmp_path):
     rt = report["retargeting"]
     assert rt["llf_on_facecap"]["mapped_channels"] == 52 and rt["facecap_on_fbhead"]["mapped_channels"] == 51
     assert 0 < rt["llf_on_facecap"]["keys_kept_frac"] < 0.5
+    assert pc["confidence_variance_held_out"] < pc["confidence_variance_far_bend"]  # examples cover 2.1 rad
+    fsd = report["face_space"]
+    assert fsd["empty_targets"] == ["tongueOut"] and 1 < fsd["compression"]["components"] < 52
+    ib = fsd["inbetween"]
+    assert ib["mid_norm_shell"] > ib["mid_norm_linear"]          # linear drifts toward the average face
+    assert abs(ib["mid_norm_shell"] - sum(ib["endpoint_norms"]) / 2) < 1e-3 * ib["mid_norm_shell"]
     renders = (list(dm["renders"].values()) + list(pc["renders"].values())
-               + [p for paths in rt["renders"].values() for p in paths])
+               + [p for paths in rt["renders"].values() for p in paths] + list(fsd["renders"].values()))
     for png in [report["outputs"][k] for k in ("neutral_png", "frame_png")] + renders:
         with open(png, "rb") as fh:
             assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
