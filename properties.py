@@ -105,6 +105,14 @@ class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
     revision: bpy.props.IntProperty(options={"HIDDEN"}, description="Bumped when examples change")
 
 
+RETARGET_METHODS = [
+    ("copy", "Copy", "Copy the mapped channels (corresponding parameterisation)"),
+    ("perframe", "Per Frame", "Fit the sliders to the source motion frame by frame"),
+    ("spacetime", "Space-Time", "Match the motion's velocities (keeps its shape at slider limits)")]
+KEY_SHAPES = [("BEZIER", "Smooth", "Bézier keys with aligned handles along the curve's slope (fewest keys)"),
+              ("LINEAR", "Linear", "Linear keys (a subset of the frames, straight segments)")]
+
+
 class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
     """Retarget settings of a target rig (what the Retarget panel edits)."""
 
@@ -116,17 +124,10 @@ class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
     csv_path: bpy.props.StringProperty(name="CSV File", subtype="FILE_PATH")
     action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action)
     source_object: bpy.props.PointerProperty(name="Mesh", type=bpy.types.Object)
-    method: bpy.props.EnumProperty(
-        name="Method",
-        items=[("copy", "Copy", "Copy the mapped channels (corresponding parameterisation)"),
-               ("perframe", "Per Frame", "Fit the sliders to the source motion frame by frame"),
-               ("spacetime", "Space-Time", "Match the motion's velocities (keeps its shape at slider limits)")],
-        default="spacetime")
+    method: bpy.props.EnumProperty(name="Method", items=RETARGET_METHODS, default="spacetime")
     key_tolerance: bpy.props.FloatProperty(name="Key Tolerance", default=0.01, min=0.0, max=0.1,
                                            description="Keep the fewest keys within this slider error (0: all)")
-    key_shape: bpy.props.EnumProperty(
-        name="Key Shape", items=[("BEZIER", "Smooth", "Bézier keys with aligned handles (fewest keys)"),
-                                 ("LINEAR", "Linear", "Linear keys")], default="BEZIER")
+    key_shape: bpy.props.EnumProperty(name="Key Shape", items=KEY_SHAPES, default="BEZIER")
 
 
 class SHAPESPACE_PG_flagged_frame(bpy.types.PropertyGroup):

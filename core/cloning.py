@@ -514,6 +514,17 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
                             "newton_iterations": it - 1})
 
 
+def _check_curve(times, values, tol):
+    """Validated (times, values) as float64 (f,) and a non-negative tolerance."""
+    t = np.asarray(times, dtype=np.float64).ravel()
+    v = np.asarray(values, dtype=np.float64).ravel()
+    if t.size != v.size or t.size < 1:
+        raise ShapeSpaceError("times and values must be non-empty and of equal length", "shape")
+    if tol < 0:
+        raise ShapeSpaceError(f"tol must be non-negative, got {tol}", "range")
+    return t, v
+
+
 def reduce_keys(times, values, tol: float):
     """Fewest keys (a subset of the samples) whose linear interpolation stays within ``tol`` (3.5.5).
 
@@ -527,13 +538,8 @@ def reduce_keys(times, values, tol: float):
     ndarray of int
         Indices of the kept samples.
     """
-    t = np.asarray(times, dtype=np.float64)
-    v = np.asarray(values, dtype=np.float64)
+    t, v = _check_curve(times, values, tol)
     n = t.size
-    if n != v.size or n < 1:
-        raise ShapeSpaceError("times and values must be non-empty and of equal length", "shape")
-    if tol < 0:
-        raise ShapeSpaceError(f"tol must be non-negative, got {tol}", "range")
     if n <= 2:
         return np.arange(n)
     best = np.full(n, np.iinfo(np.int64).max)
@@ -637,13 +643,8 @@ def reduce_keys_bezier(times, values, tol: float, max_span: int = 128, refine: b
         Key slopes (value units per time unit); the handles lie along them at
         a third of each neighbouring segment (see :func:`hermite`).
     """
-    t = np.asarray(times, dtype=np.float64)
-    v = np.asarray(values, dtype=np.float64)
+    t, v = _check_curve(times, values, tol)
     n = t.size
-    if n != v.size or n < 1:
-        raise ShapeSpaceError("times and values must be non-empty and of equal length", "shape")
-    if tol < 0:
-        raise ShapeSpaceError(f"tol must be non-negative, got {tol}", "range")
     if n > 1 and np.any(np.diff(t) <= 0):
         raise ShapeSpaceError("times must increase strictly", "order")
     m = curve_slopes(t, v)

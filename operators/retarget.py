@@ -1,12 +1,14 @@
 import bpy
 
 from ..bridge import retarget
+from ..properties import KEY_SHAPES, RETARGET_METHODS
 from .polls import active_rig
 from .reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_retarget(bpy.types.Operator):
-    """Retarget a Live Link Face CSV or an action onto the active mesh's shape keys, into a new action"""
+    """Retarget a Live Link Face CSV, an action or a mesh performance onto the active mesh's shape keys, into a new
+action"""
 
     bl_idname = "shapespace.retarget"
     bl_label = "Retarget"
@@ -17,19 +19,10 @@ class SHAPESPACE_OT_retarget(bpy.types.Operator):
     action: bpy.props.StringProperty(name="Action", description="Source action animating shape keys")
     source_object: bpy.props.StringProperty(
         name="Mesh Performance", description="An animated mesh to fit (same topology, or lm_* landmark groups)")
-    method: bpy.props.EnumProperty(
-        name="Method",
-        items=[("copy", "Copy", "Copy the mapped channels (corresponding parameterisation)"),
-               ("perframe", "Per Frame", "Fit the sliders to the source motion frame by frame"),
-               ("spacetime", "Space-Time", "Match the motion's velocities (keeps its shape at slider limits)")],
-        default="spacetime")
+    method: bpy.props.EnumProperty(name="Method", items=RETARGET_METHODS, default="spacetime")
     key_tolerance: bpy.props.FloatProperty(name="Key Tolerance", default=0.0, min=0.0, max=0.1,
                                            description="Keep the fewest keys within this slider error (0: all)")
-    key_shape: bpy.props.EnumProperty(
-        name="Key Shape",
-        items=[("BEZIER", "Smooth", "Bézier keys with aligned handles along the curve's slope (fewest keys)"),
-               ("LINEAR", "Linear", "Linear keys (a subset of the frames, straight segments)")],
-        default="BEZIER")
+    key_shape: bpy.props.EnumProperty(name="Key Shape", items=KEY_SHAPES, default="BEZIER")
 
     @classmethod
     def poll(cls, context):

@@ -1,6 +1,6 @@
 import bpy
 
-from .base import ShapeSpaceSidebar
+from .base import ShapeSpaceSidebar, shape_key_mesh
 
 
 class SHAPESPACE_UL_pins(bpy.types.UIList):
@@ -20,8 +20,7 @@ class SHAPESPACE_PT_direct(ShapeSpaceSidebar, bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        ob = context.active_object
-        return ob is not None and ob.type == "MESH" and ob.data.shape_keys is not None
+        return shape_key_mesh(context)
 
     def draw(self, context):
         layout = self.layout

@@ -1,7 +1,7 @@
 import bpy
 
 from ..bridge import facespace
-from .base import ShapeSpaceSidebar
+from .base import ShapeSpaceSidebar, shape_key_mesh
 
 
 class SHAPESPACE_UL_flagged_frames(bpy.types.UIList):
@@ -22,8 +22,7 @@ class SHAPESPACE_PT_face_space(ShapeSpaceSidebar, bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        ob = context.active_object
-        return ob is not None and ob.type == "MESH" and ob.data.shape_keys is not None
+        return shape_key_mesh(context)
 
     def draw(self, context):
         layout = self.layout

@@ -1,7 +1,7 @@
 import bpy
 
 from ..bridge import retarget
-from .base import ShapeSpaceSidebar
+from .base import ShapeSpaceSidebar, shape_key_mesh
 
 
 class SHAPESPACE_PT_retarget(ShapeSpaceSidebar, bpy.types.Panel):
@@ -13,8 +13,7 @@ class SHAPESPACE_PT_retarget(ShapeSpaceSidebar, bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        ob = context.active_object
-        return ob is not None and ob.type == "MESH" and ob.data.shape_keys is not None
+        return shape_key_mesh(context)
 
     def draw(self, context):
         layout = self.layout

@@ -105,11 +105,10 @@ def _plot_channel(curves, path):
     plt.close(fig)
 
 
-def quality(plot_path=None):
-    """Real captures: facecap's capture onto facecap with reduced slider ranges; LLF onto FBHead."""
+def _facecap_reduced():
+    """The Face Cap head with six sliders limited to 0.4 (the target cannot follow), its capture detached."""
     import bpy
-    from shapespace.bridge import actions, assets, retarget
-    out = {}
+    from shapespace.bridge import actions, assets
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
     ob = bpy.data.objects["Mesh_2"]
     key = ob.data.shape_keys
@@ -117,6 +116,15 @@ def quality(plot_path=None):
     key.animation_data.action = None
     for name in ("jawOpen", "mouthSmile_L", "mouthSmile_R", "eyeBlink_L", "eyeBlink_R", "browInnerUp"):
         key.key_blocks[name].slider_max = 0.4
+    return ob, key, capture
+
+
+def quality(plot_path=None):
+    """Real captures: facecap's capture onto facecap with reduced slider ranges; LLF onto FBHead."""
+    import bpy
+    from shapespace.bridge import actions, assets, retarget
+    out = {}
+    ob, key, capture = _facecap_reduced()
     curves = {}
     for method in ("copy", "perframe", "spacetime"):
         rep = retarget.retarget(ob, capture, method)
@@ -153,13 +161,7 @@ def key_reduction(quick):
     import bpy
     from shapespace.bridge import actions, assets, retarget
     tol = 0.01
-    assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
-    ob = bpy.data.objects["Mesh_2"]
-    key = ob.data.shape_keys
-    capture = actions.active_action(key)
-    key.animation_data.action = None
-    for name in ("jawOpen", "mouthSmile_L", "mouthSmile_R", "eyeBlink_L", "eyeBlink_R", "browInnerUp"):
-        key.key_blocks[name].slider_max = 0.4
+    ob, key, capture = _facecap_reduced()
     rep = retarget.retarget(ob, capture, "spacetime", action_name="dense")
     dense_action = bpy.data.actions[rep["action"]]
     curves = actions.shape_key_curves(ob, dense_action)
