@@ -8,13 +8,15 @@ import bpy
 import numpy as np
 
 from ..core.capture import read_live_link_csv, resample
-from ..core.cloning import copy_weights, fit_frames, reduce_keys, reduce_keys_bezier, spacetime
+from ..core.cloning import (cloning_matrix, copy_weights, fit_frames, key_poses, reduce_keys, reduce_keys_bezier,
+                             spacetime)
 from ..core.direct import NORMALISED_DIAGONAL
 from ..core.names import match_channels
 from ..core.result import ShapeSpaceError
 from . import actions, shapekeys
 
-METHODS = ("copy", "perframe", "spacetime")
+METHODS = ("copy", "learned", "perframe", "spacetime")
+KEY_POSE_MARKER = "key pose"
 MAPPING_PROP = "shapespace_mapping"
 
 
@@ -81,6 +83,51 @@ def channel_mapping(obj, source_names, target_names) -> list:
     return out
 
 
+def suggest_key_poses(source, scene, count: int = None) -> np.ndarray:
+    """Scene frames of the source performance worth posing the target at (Chuang–Bregler: the largest
+    and smallest projection on each leading principal component), enough to learn a cloning matrix
+    (at least one per moving source channel).  Marks them on the timeline as ``key pose`` markers."""
+    names, frames, src, _ = read_source(source, scene)
+    moving = np.ptp(src, axis=0) > 1e-6
+    need = int(count or moving.sum() + 2)
+    X = src[:, moving]
+    picks = list(dict.fromkeys(key_poses(X, components=min(int(np.ceil(need / 2)), int(moving.sum())))))
+    # extremes repeat across components: top up with the frames farthest from every pose chosen so far
+    dist = np.min(np.linalg.norm(X[:, None, :] - X[picks][None], axis=2), axis=1)
+    while len(picks) < min(need, len(frames)):
+        k = int(np.argmax(dist))
+        picks.append(k)
+        dist = np.minimum(dist, np.linalg.norm(X - X[k], axis=1))
+    chosen = np.unique(frames[picks]).astype(int)
+    for m in [m for m in scene.timeline_markers if m.name == KEY_POSE_MARKER]:
+        scene.timeline_markers.remove(m)
+    for f in chosen:
+        scene.timeline_markers.new(KEY_POSE_MARKER, frame=int(f))
+    return chosen
+
+
+def _learned_weights(obj, model, frames, src, key_pose_action, report) -> np.ndarray:
+    """Linear expression cloning (3.5.3): fit ``W_t ≈ W_s E`` to the artist's key poses — the target's
+    shape-key values keyed in ``key_pose_action`` — against the source at the same frames, then map
+    every frame.  Needs at least as many key poses as moving source channels."""
+    if key_pose_action is None:
+        raise ShapeSpaceError("the learned method needs the target posed at key frames: key the target's "
+                              "shape keys at the suggested key poses in an action and choose it", "no_key_poses")
+    action = (bpy.data.actions.get(key_pose_action) if isinstance(key_pose_action, str) else key_pose_action)
+    curves = actions.shape_key_curves(obj, action) if action is not None else {}
+    if not curves:
+        raise ShapeSpaceError(f"key-pose action {key_pose_action!r} keys none of {obj.name!r}'s shape keys",
+                              "no_key_poses")
+    keyed = np.unique(np.concatenate([actions.read_curve(fc)[0] for fc in curves.values()]))
+    keyed = keyed[(keyed >= frames[0]) & (keyed <= frames[-1])]
+    moving = np.ptp(src, axis=0) > 1e-6
+    Ws = np.column_stack([np.interp(keyed, frames, src[:, i]) for i in np.flatnonzero(moving)])
+    Wt = actions.sample_shape_keys(obj, model.names, keyed, action)
+    E = cloning_matrix(Ws, Wt)
+    report.update({"key_poses": int(keyed.size), "learned_fit_rms": float(np.sqrt(np.mean((Ws @ E - Wt) ** 2)))})
+    return src[:, moving] @ E
+
+
 def stored_mapping(obj) -> dict:
     """The channel-mapping overrides stored on ``obj``'s shape keys: ``{source: {target, gain, offset}}``."""
     key = obj.data.shape_keys
@@ -109,7 +156,7 @@ def set_mapping(obj, source: str, target: str, gain: float = 1.0, offset: float 
 
 
 def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e-7, key_tolerance: float = 0.0,
-             action_name: str = None, key_shape: str = "BEZIER") -> dict:
+             action_name: str = None, key_shape: str = "BEZIER", key_pose_action=None) -> dict:
     """Retarget ``source`` onto ``obj``'s sliders and write a new action; returns a report dict."""
     if method not in METHODS:
         raise ShapeSpaceError(f"method must be one of {', '.join(METHODS)}, got {method!r}", "method")
@@ -119,17 +166,22 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
         raise ShapeSpaceError("the target has in-between or combination shapes: retarget onto its primary "
                               "sliders is not supported yet", "nonlinear")
     names, frames, src, issues = read_source(source, scene)
-    mapping = channel_mapping(obj, names, model.names)
-    gain = np.ones(model.n_targets)
-    offset = np.zeros(model.n_targets)
-    for _, j, g, o in mapping:
-        gain[j], offset[j] = g, o
-    pairs = [(i, j) for i, j, _, _ in mapping]
-    raw = copy_weights(src, pairs, model.n_targets, gain, offset)                 # unbounded ideal
     lo, hi = model.slider_min, model.slider_max
     report = {"source": str(source), "method": method, "frames": int(frames.size),
-              "mapped_channels": len(pairs), "issues": [i.message for i in issues]}
-    if method == "copy":
+              "issues": [i.message for i in issues]}
+    if method == "learned":     # the artist's key poses define the map: no channel names needed
+        raw = _learned_weights(obj, model, frames, src, key_pose_action, report)  # unbounded ideal
+        report["mapped_channels"] = int(np.sum(np.ptp(src, axis=0) > 1e-6))
+    else:
+        mapping = channel_mapping(obj, names, model.names)
+        gain = np.ones(model.n_targets)
+        offset = np.zeros(model.n_targets)
+        for _, j, g, o in mapping:
+            gain[j], offset[j] = g, o
+        pairs = [(i, j) for i, j, _, _ in mapping]
+        raw = copy_weights(src, pairs, model.n_targets, gain, offset)             # unbounded ideal
+        report["mapped_channels"] = len(pairs)
+    if method in ("copy", "learned"):
         W = np.clip(raw, lo, hi)
     else:
         # the source performance as geometry on the target: the copied weights without limits, in

@@ -37,7 +37,8 @@ def build_parser() -> argparse.ArgumentParser:
     rt.add_argument("--source", action="append", required=True,
                     help="Live Link Face CSV, action name, or an animated mesh object (repeat for a batch)")
     rt.add_argument("--object", help="target mesh (default: the only mesh with shape keys)")
-    rt.add_argument("--method", choices=("copy", "perframe", "spacetime"), default="spacetime")
+    rt.add_argument("--method", choices=("copy", "learned", "perframe", "spacetime"), default="spacetime")
+    rt.add_argument("--key-poses", help="learned method: the action keying the target at its key poses")
     rt.add_argument("--lam", type=float, default=1e-7,
                     help="space-time regulariser λ, relative to the data (small: the motion is kept)")
     rt.add_argument("--key-tolerance", type=float, default=0.0,
@@ -103,7 +104,7 @@ def _cmd_retarget(args) -> int:
                                               key_shape=args.key_shape)
             else:
                 rep = retarget.retarget(obj, src, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
-                                        action_name=name, key_shape=args.key_shape)
+                                        action_name=name, key_shape=args.key_shape, key_pose_action=args.key_poses)
             rep["ok"] = True
         except ShapeSpaceError as exc:
             print(f"shapespace: error: {src}: {exc}", file=sys.stderr)

@@ -34,6 +34,7 @@ from .remove_pin import SHAPESPACE_OT_remove_pin
 from .retarget import SHAPESPACE_OT_retarget
 from .set_mapping import SHAPESPACE_OT_set_mapping
 from .solve_pins import SHAPESPACE_OT_solve_pins
+from .suggest_key_poses import SHAPESPACE_OT_suggest_key_poses
 
 classes = (
     SHAPESPACE_OT_check_rig,
@@ -60,6 +61,7 @@ classes = (
     SHAPESPACE_OT_remove_mapping,
     SHAPESPACE_OT_add_landmark,
     SHAPESPACE_OT_landmarks_from_shapes,
+    SHAPESPACE_OT_suggest_key_poses,
     SHAPESPACE_OT_analyse_rig,
     SHAPESPACE_OT_compression_report,
     SHAPESPACE_OT_convert_rig,

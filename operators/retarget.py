@@ -23,6 +23,8 @@ action"""
     key_tolerance: bpy.props.FloatProperty(name="Key Tolerance", default=0.0, min=0.0, max=0.1,
                                            description="Keep the fewest keys within this slider error (0: all)")
     key_shape: bpy.props.EnumProperty(name="Key Shape", items=KEY_SHAPES, default="BEZIER")
+    key_pose_action: bpy.props.StringProperty(
+        name="Key Poses", description="Learned method: the action keying this rig at the key-pose frames")
 
     @classmethod
     def poll(cls, context):
@@ -34,6 +36,9 @@ action"""
             if src is None or src.type != "MESH":
                 self.report({"ERROR"}, f"no mesh named {self.source_object!r}")
                 return {"CANCELLED"}
+            if self.method in ("copy", "learned"):
+                self.report({"ERROR"}, "a mesh performance needs a geometric method: perframe or spacetime")
+                return {"CANCELLED"}
             rep = attempt(self, retarget.retarget_dense, context.active_object, src, self.method,
                           key_tolerance=self.key_tolerance, key_shape=self.key_shape)
         else:
@@ -42,7 +47,8 @@ action"""
                 self.report({"ERROR"}, "choose a CSV file, an action or a mesh performance")
                 return {"CANCELLED"}
             rep = attempt(self, retarget.retarget, context.active_object, source, self.method,
-                          key_tolerance=self.key_tolerance, key_shape=self.key_shape)
+                          key_tolerance=self.key_tolerance, key_shape=self.key_shape,
+                          key_pose_action=self.key_pose_action or None)
         if rep is FAILED:
             return {"CANCELLED"}
         for msg in rep["issues"]:

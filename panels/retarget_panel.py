@@ -24,6 +24,12 @@ class SHAPESPACE_PT_retarget(ShapeSpaceSidebar, bpy.types.Panel):
         layout.prop(st, source, text="")
         col = layout.column(align=True)
         col.prop(st, "method", text="Method")
+        if st.method == "learned":
+            row = col.row(align=True)
+            row.prop(st, "key_pose_action", text="")
+            sug = row.operator("shapespace.suggest_key_poses", text="", icon="MARKER_HLT")
+            sug.filepath = bpy.path.abspath(st.csv_path) if st.source_kind == "CSV" else ""
+            sug.action = st.action.name if st.source_kind == "ACTION" and st.action else ""
         col.prop(st, "key_tolerance")
         if st.key_tolerance > 0:
             col.prop(st, "key_shape", text="Keys")
@@ -32,6 +38,7 @@ class SHAPESPACE_PT_retarget(ShapeSpaceSidebar, bpy.types.Panel):
         op.filepath = bpy.path.abspath(st.csv_path) if st.source_kind == "CSV" else ""
         op.action = st.action.name if st.source_kind == "ACTION" and st.action else ""
         op.source_object = st.source_object.name if st.source_kind == "MESH" and st.source_object else ""
+        op.key_pose_action = st.key_pose_action.name if st.key_pose_action else ""
 
         box = layout.box()
         box.label(text="Channel Mapping (overrides; the rest by name)")

@@ -242,13 +242,23 @@ def _retarget_demo(bpy, np, out_dir, size):
             "facecap_on_fbhead": {k: onto_fbhead.get(k) for k in keep}, "renders": renders}
 
 
-def _grid(paths, out_path, columns):
-    """Tile equally sized PNGs into one picture (row-major)."""
-    from matplotlib import image
-    import numpy as np
-    tiles = [image.imread(p)[..., :3] for p in paths]
+def _grid(bpy, np, paths, out_path, columns):
+    """Tile equally sized PNGs into one picture (row-major), through Blender's own image I/O."""
+    tiles = []
+    for p in paths:
+        img = bpy.data.images.load(p)
+        w, h = img.size
+        px = np.empty(w * h * 4, np.float32)
+        img.pixels.foreach_get(px)
+        tiles.append(px.reshape(h, w, 4))
+        bpy.data.images.remove(img)
     rows = [np.concatenate(tiles[i:i + columns], axis=1) for i in range(0, len(tiles), columns)]
-    image.imsave(out_path, np.concatenate(rows, axis=0))
+    grid = np.concatenate(rows[::-1], axis=0)             # Blender's pixel rows go bottom-up
+    out = bpy.data.images.new("grid", grid.shape[1], grid.shape[0], alpha=True)
+    out.pixels.foreach_set(grid.ravel())
+    out.filepath_raw, out.file_format = out_path, "PNG"
+    out.save()
+    bpy.data.images.remove(out)
     return out_path
 
 
@@ -293,7 +303,7 @@ def _facespace_demo(bpy, np, out_dir, size):
         paths.append(_render(bpy, os.path.join(out_dir, f"inbetween_{mode.lower()}.png")))
     scene.frame_set(21)
     paths.append(_render(bpy, os.path.join(out_dir, "inbetween_end.png")))
-    grid = _grid(paths, os.path.join(out_dir, "inbetween_linear_vs_shell.png"), 4)
+    grid = _grid(bpy, np, paths, os.path.join(out_dir, "inbetween_linear_vs_shell.png"), 4)
     return {"mutual_coherence": analysis["mutual_coherence"], "empty_targets": analysis["empty_targets"],
             "similar_pairs": analysis["similar_pairs"], "sparsity": analysis.get("sparsity_message"),
             "compression": compression, "prior": prior, "implausible_frames": len(flagged),

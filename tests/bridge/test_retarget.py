@@ -388,3 +388,61 @@ def test_csv_resampled_into_any_scene_rate_keeps_time(fps, fps_base):
     # the scene samples at its own frames, so between them the key curve is linear in the resampled
     # values: allow the 60→scene resampling error of a smooth channel
     np.testing.assert_allclose(got, want, atol=0.03)
+
+
+def test_learned_cloning_from_key_poses(registered, tmp_path):
+    """Linear expression cloning (3.5.3): the artist poses the target at the suggested key poses (here a
+    known linear map of the capture: every channel at 0.7 of the source plus a cross-talk term), and the
+    learned map reproduces that map on every frame of the performance."""
+    import_file(BLEND)
+    ob = bpy.data.objects["FBHead"]
+    bpy.context.view_layer.objects.active = ob
+    scene = bpy.context.scene
+    assert bpy.ops.shapespace.suggest_key_poses(filepath=CSV) == {"FINISHED"}
+    marks = sorted(m.frame for m in scene.timeline_markers if m.name == retarget.KEY_POSE_MARKER)
+    stream = read_live_link_csv(CSV)
+    frames, w = resample(stream.times, stream.weights, scene.render.fps, scene.frame_start, scene.render.fps_base)
+    moving = np.ptp(w, axis=0) > 1e-6
+    assert len(marks) >= moving.sum()
+    model = shapekeys.read_blendshape_model(ob)
+    src_index = {n: stream.names.index(n) for n in model.names if n in stream.names}
+
+    def truth(ws):                       # the "artist's" map, unknown to the solver
+        out = np.zeros((ws.shape[0], model.n_targets))
+        for j, n in enumerate(model.names):
+            if n in src_index:
+                out[:, j] = 0.7 * ws[:, src_index[n]]
+        out[:, model.index("JawOpen")] += 0.2 * ws[:, src_index["MouthClose"]]
+        return out
+    at = np.array([[np.interp(f, frames, w[:, i]) for i in range(w.shape[1])] for f in marks])
+    poses = bpy.data.actions.new("key poses")
+    key = ob.data.shape_keys
+    actions.assign_action(key, poses)
+    T = truth(at)
+    for j, n in enumerate(model.names):
+        actions.write_curve(key, actions.shape_key_path(n), np.array(marks, float), T[:, j])
+    key.animation_data.action = None
+    assert bpy.ops.shapespace.retarget(filepath=CSV, method="learned", key_pose_action=poses.name) == {"FINISHED"}
+    result = actions.active_action(key)
+    got = actions.sample_shape_keys(ob, model.names, frames, result)
+    np.testing.assert_allclose(got, np.clip(truth(w), 0, 1), atol=1e-3)
+    with pytest.raises(RuntimeError, match="needs the target posed at key frames"):
+        bpy.ops.shapespace.retarget(filepath=CSV, method="learned")
+    # the same from the batch command, on the saved file
+    poses.use_fake_user = True
+    saved = tmp_path / "posed.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(saved), copy=True)
+    code, _, err = _cli(str(saved), "--", "retarget", "--source", CSV, "--method", "learned", "--key-poses",
+                        poses.name, "--report", str(tmp_path / "rep.json"))
+    assert code == 0, err
+    rep = json.loads((tmp_path / "rep.json").read_text())["results"][0]
+    assert rep["ok"] and rep["key_poses"] == len(marks) and rep["learned_fit_rms"] < 1e-5   # poses keyed in float32
+    # too few key poses for the moving channels: a clear refusal, nothing written
+    few = bpy.data.actions.new("few")
+    actions.assign_action(key, few)
+    actions.write_curve(key, actions.shape_key_path("JawOpen"), np.array(marks[:5], float), np.zeros(5))
+    key.animation_data.action = None
+    n_actions = len(bpy.data.actions)
+    with pytest.raises(RuntimeError, match="pose pairs cannot determine a map"):
+        bpy.ops.shapespace.retarget(filepath=CSV, method="learned", key_pose_action=few.name)
+    assert len(bpy.data.actions) == n_actions
