@@ -358,8 +358,9 @@ def inpaint_gap(obj, data_path: str, index: int, start: int, end: int, use_other
     """Fill frames ``start … end`` of one F-Curve from the covariance of the rest of the animation
     (9.3), keying every frame of the gap; the known samples outside stay exactly as they were.
 
-    With ``use_other_channels`` every other curve of the action that is known in the gap conditions
-    the fill too (superresolution: a knee from the hips)."""
+    With ``use_other_channels`` the other curves of the action whose motion correlates with the target's
+    condition the fill too (superresolution: a knee from the hips), as many as the animation's length
+    can support (:func:`core.facestats.context_channels`)."""
     owner, action = _curve_owner(obj)
     curves = actions.fcurves(action, owner)
     target = next((fc for fc in curves if fc.data_path == data_path and fc.array_index == index), None)
@@ -370,17 +371,18 @@ def inpaint_gap(obj, data_path: str, index: int, start: int, end: int, use_other
     if not (frames[0] <= start <= end <= frames[-1]):
         raise ShapeSpaceError(f"the gap {start}–{end} is outside the animation's frames "
                               f"{frames[0]:g}–{frames[-1]:g}", "range")
-    others = [fc for fc in curves if fc is not target and use_other_channels]
+    others = [fc for fc in curves if use_other_channels
+              and (fc.data_path, fc.array_index) != (target.data_path, target.array_index)]
     chans = [target] + others
     X = np.column_stack([actions.sample_curve(fc, frames) for fc in chans])
-    keep = np.ptp(X, axis=0) > 0
-    keep[0] = True
-    X, chans = X[:, keep], [c for c, k in zip(chans, keep) if k]
+    gap_frames = (frames >= start) & (frames <= end)
+    chosen = facestats.context_channels(X, 0, ~gap_frames, int(gap_frames.sum()))   # what the data supports
+    X, chans = X[:, chosen], [chans[i] for i in chosen]
     known = np.ones(X.shape, bool)
-    known[(frames >= start) & (frames <= end), 0] = False
+    known[gap_frames, 0] = False
     res = facestats.inpaint_curve(X, known)
     filled = np.asarray(res.value)[:, 0]
-    gap = (frames >= start) & (frames <= end)
+    gap = gap_frames
     kx, ky, _ = actions.read_curve(target)
     outside = (kx < start) | (kx > end)
     new_x = np.concatenate([kx[outside], frames[gap]])

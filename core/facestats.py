@@ -27,7 +27,7 @@ from . import rbf
 from .result import Issue, Result, ShapeSpaceError
 
 __all__ = [
-    "FaceGaussian", "fit_face_gaussian", "shell_interpolate", "linear_interpolate", "inpaint_curve",
+    "FaceGaussian", "fit_face_gaussian", "shell_interpolate", "linear_interpolate", "inpaint_curve", "context_channels",
     "linear_fill", "cubic_fill", "GPConfidence", "gp_variance", "vertex_uncertainty",
 ]
 
@@ -442,6 +442,56 @@ def inpaint_curve(values, known, window: int = None, ridge: float = 1e-6, autoco
     issues.sort(key=lambda i: i.severity != "warning")
     status = 1 if any(i.severity == "warning" for i in issues) else 0
     return Result(out[:, 0] if one_d else out, status, message, diag, issues)
+
+
+def context_channels(values, target: int, known, gap_length: int, window: int = None) -> np.ndarray:
+    """Which other channels should inform the fill of ``target``'s gap (superresolution, 9.3).
+
+    The window covariance of :func:`inpaint_curve` needs at least 2 L c fully-known windows of length
+    L = gap + 2 × context to be estimated empirically; with all channels of a rig or a skeleton it
+    never has them and falls back to an autocovariance that adds little.  So the channels are ranked
+    by how strongly their frame-to-frame changes correlate with the target's on frames where the target
+    is known, and only as many are kept as the data can support.
+
+    Parameters
+    ----------
+    values : array_like, shape (T, c)
+    target : int
+        Column of the channel with the gap.
+    known : array_like of bool, shape (T,)
+        Frames where the target is known.
+    gap_length : int
+    window : int, optional
+        Context frames per side (default as :func:`inpaint_curve`: max(gap, 8)).
+
+    Returns
+    -------
+    ndarray of int
+        Column indices, ``target`` first, then the chosen channels by decreasing correlation.
+    """
+    X = np.asarray(values, dtype=np.float64)
+    if X.ndim != 2 or not 0 <= int(target) < X.shape[1]:
+        raise ShapeSpaceError(f"values must have shape (T, c) and target a column of it, got {X.shape}, {target}",
+                              "shape")
+    M = np.asarray(known, dtype=bool)
+    if M.shape != (X.shape[0],):
+        raise ShapeSpaceError(f"known must have shape ({X.shape[0]},), got {M.shape}", "shape")
+    ctx = int(window) if window is not None else max(int(gap_length), 8)
+    L = int(gap_length) + 2 * ctx
+    budget = int((X.shape[0] - L + 1) // (2 * L)) - 1          # channels the windows can support
+    if budget < 1 or X.shape[1] < 2:
+        return np.array([target])
+    both = M[1:] & M[:-1]
+    D = np.diff(X, axis=0)[both]
+    D = D - D.mean(axis=0)
+    norms = np.linalg.norm(D, axis=0)
+    score = np.zeros(X.shape[1])
+    ok = norms > 1e-12 * max(float(norms.max(initial=0.0)), 1e-300)
+    if ok[target]:
+        score[ok] = np.abs(D[:, ok].T @ D[:, target]) / (norms[ok] * norms[target])
+    score[target] = -1.0
+    order = [int(j) for j in np.argsort(-score) if score[j] > 0.2][:budget]
+    return np.array([int(target)] + order)
 
 
 # ------------------------------------------------------------------ pose-space confidence (9.1–9.2)

@@ -420,3 +420,29 @@ def test_vertex_uncertainty_scales_with_the_correctives_and_vanishes_for_unmoved
     np.testing.assert_allclose(vertex_uncertainty(conf, x, 2 * D), 2 * sd, rtol=1e-12)
     with pytest.raises(ShapeSpaceError, match=r"correctives must have shape \(6, p, 3\)"):
         vertex_uncertainty(conf, x, D[:, :, :2])
+
+
+# --------------------------------------------------------------------------- context channel choice
+def test_context_channels_picks_the_correlated_channel_and_respects_the_budget():
+    from core.facestats import context_channels
+    rng = np.random.default_rng(11)
+    T = 600
+    t = np.arange(T)
+    driver = np.sin(t / 13.0) + 0.3 * np.sin(t / 5.0)
+    X = np.column_stack([driver, rng.normal(size=T), 0.8 * driver + 0.01 * rng.normal(size=T),
+                         np.full(T, 2.0), rng.normal(size=T)])
+    known = np.ones(T, bool)
+    known[300:310] = False
+    chosen = context_channels(X, 0, known, 10)
+    assert chosen[0] == 0 and chosen[1] == 2                 # the correlated one first
+    assert 3 not in chosen                                    # a constant channel carries nothing
+    # the windows of a short curve cannot support any extra channel (L = 30, 2 L (k + 1) > T − L + 1)
+    assert list(context_channels(X[:100], 0, known[:100], 10)) == [0]
+
+
+def test_context_channels_bad_input():
+    from core.facestats import context_channels
+    with pytest.raises(ShapeSpaceError):
+        context_channels(np.zeros((50, 3)), 5, np.ones(50, bool), 5)
+    with pytest.raises(ShapeSpaceError):
+        context_channels(np.zeros((50, 3)), 0, np.ones(49, bool), 5)
