@@ -17,6 +17,8 @@ from . import actions, shapekeys
 
 METHODS = ("copy", "learned", "perframe", "spacetime")
 KEY_POSE_MARKER = "key pose"
+NONLINEAR_MESSAGE = ("the target has in-between or combination shapes, so its face is not linear in the sliders: "
+                     "fit methods cannot use it; retarget with copy or learned (the driven shapes follow)")
 MAPPING_PROP = "shapespace_mapping"
 
 
@@ -162,9 +164,8 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
         raise ShapeSpaceError(f"method must be one of {', '.join(METHODS)}, got {method!r}", "method")
     scene = scene or bpy.context.scene
     model = shapekeys.read_blendshape_model(obj)
-    if not model.is_linear:
-        raise ShapeSpaceError("the target has in-between or combination shapes: retarget onto its primary "
-                              "sliders is not supported yet", "nonlinear")
+    if not model.is_linear and method in ("perframe", "spacetime"):
+        raise ShapeSpaceError(NONLINEAR_MESSAGE, "nonlinear")
     names, frames, src, issues = read_source(source, scene)
     lo, hi = model.slider_min, model.slider_max
     report = {"source": str(source), "method": method, "frames": int(frames.size),
@@ -324,6 +325,8 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
         raise ShapeSpaceError("a mesh performance needs a geometric method: perframe or spacetime", "method")
     scene = scene or bpy.context.scene
     model = shapekeys.read_blendshape_model(obj)
+    if not model.is_linear:
+        raise ShapeSpaceError(NONLINEAR_MESSAGE, "nonlinear")
     frames = np.arange(scene.frame_start, scene.frame_end + 1, dtype=np.float64)
     if frames.size < 3:
         raise ShapeSpaceError(f"the scene range has {frames.size} frames; at least 3 are needed", "too_short")

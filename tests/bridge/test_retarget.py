@@ -446,3 +446,26 @@ def test_learned_cloning_from_key_poses(registered, tmp_path):
     with pytest.raises(RuntimeError, match="pose pairs cannot determine a map"):
         bpy.ops.shapespace.retarget(filepath=CSV, method="learned", key_pose_action=few.name)
     assert len(bpy.data.actions) == n_actions
+
+
+def test_target_with_driven_shapes(registered):
+    """A target with an in-between: the fit methods refuse with a clear message and change nothing; copy
+    writes the primary sliders and Blender's drivers play the in-between."""
+    from blender_support import blend_fingerprint
+    from shapespace.bridge import driven
+    import_file(BLEND)
+    ob = bpy.data.objects["FBHead"]
+    bpy.context.view_layer.objects.active = ob
+    model = shapekeys.read_blendshape_model(ob)
+    jaw = model.index("JawOpen")
+    shapekeys.add_shape_key(ob, "JawHalf", model.neutral + 0.6 * model.deltas[jaw])
+    driven.add_inbetween(ob, "JawOpen", "JawHalf", 0.5)
+    bpy.context.view_layer.update()                                   # let the new driver evaluate once
+    before = blend_fingerprint()
+    for method in ("perframe", "spacetime"):
+        with pytest.raises(RuntimeError, match="in-between or combination shapes"):
+            bpy.ops.shapespace.retarget(filepath=CSV, method=method)
+    assert blend_fingerprint() == before
+    assert bpy.ops.shapespace.retarget(filepath=CSV, method="copy") == {"FINISHED"}
+    curves = actions.shape_key_curves(ob, actions.active_action(ob.data.shape_keys))
+    assert "JawOpen" in curves and "JawHalf" not in curves          # the driven key is not keyed
