@@ -11,3 +11,13 @@ def shape_key_mesh(context):
     """True when the active object is a mesh with shape keys (the face panels' poll)."""
     ob = context.active_object
     return ob is not None and ob.type == "MESH" and ob.data.shape_keys is not None
+
+
+class ShapeKeyPanel(ShapeSpaceSidebar):
+    """A closed-by-default sidebar panel for meshes with shape keys."""
+
+    bl_options = {"DEFAULT_CLOSED"}
+
+    @classmethod
+    def poll(cls, context):
+        return shape_key_mesh(context)

@@ -1,7 +1,7 @@
 import bpy
 
 from ..bridge import facespace
-from .base import ShapeSpaceSidebar, shape_key_mesh
+from .base import ShapeKeyPanel
 
 
 class SHAPESPACE_UL_flagged_frames(bpy.types.UIList):
@@ -13,16 +13,11 @@ class SHAPESPACE_UL_flagged_frames(bpy.types.UIList):
         row.label(text=item.reason.replace("_", " "), icon="ERROR")
 
 
-class SHAPESPACE_PT_face_space(ShapeSpaceSidebar, bpy.types.Panel):
+class SHAPESPACE_PT_face_space(ShapeKeyPanel, bpy.types.Panel):
     """Representations, diagnostics, the face prior and curve repair"""
 
     bl_label = "Face Space"
     bl_idname = "SHAPESPACE_PT_face_space"
-    bl_options = {"DEFAULT_CLOSED"}
-
-    @classmethod
-    def poll(cls, context):
-        return shape_key_mesh(context)
 
     def draw(self, context):
         layout = self.layout

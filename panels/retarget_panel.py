@@ -1,19 +1,14 @@
 import bpy
 
 from ..bridge import retarget
-from .base import ShapeSpaceSidebar, shape_key_mesh
+from .base import ShapeKeyPanel
 
 
-class SHAPESPACE_PT_retarget(ShapeSpaceSidebar, bpy.types.Panel):
+class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
     """Retarget captures, actions and mesh performances onto this rig"""
 
     bl_label = "Retarget"
     bl_idname = "SHAPESPACE_PT_retarget"
-    bl_options = {"DEFAULT_CLOSED"}
-
-    @classmethod
-    def poll(cls, context):
-        return shape_key_mesh(context)
 
     def draw(self, context):
         layout = self.layout
