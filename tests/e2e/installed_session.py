@@ -33,10 +33,17 @@ seen["check_rig"] = sorted(bpy.ops.shapespace.check_rig())
 bpy.context.scene.frame_set(10)
 seen["key_sliders"] = sorted(bpy.ops.shapespace.key_sliders())
 
+capture = head.data.shape_keys.animation_data.action
 head.data.shape_keys.animation_data.action = None
 seen["add_pin"] = sorted(bpy.ops.shapespace.add_pin(vertices=(100, 0, 0)))
 target = tuple(head.shapespace.pins[0].target)
 seen["solve_pins"] = sorted(bpy.ops.shapespace.solve_pins(pin=0, target=(target[0], target[1] - 800.0, target[2])))
+
+# retargeting, smooth key reduction and the face-space tools run on the installed scipy wheel
+seen["retarget"] = sorted(bpy.ops.shapespace.retarget(action=capture.name, method="spacetime", key_tolerance=0.01))
+seen["analyse_rig"] = sorted(bpy.ops.shapespace.analyse_rig())
+seen["learn_face_prior"] = sorted(bpy.ops.shapespace.learn_face_prior())
+seen["prior_stored"] = "shapespace_face_prior" in head.data.shape_keys
 
 buf = io.StringIO()
 with contextlib.redirect_stdout(buf):

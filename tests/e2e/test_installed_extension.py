@@ -57,6 +57,8 @@ def test_install_enable_run_operator_and_cli(built_zips, tmp_path):
     assert "scipy" in seen["wheel_dirs"] and seen["site_on_path"]
     assert seen["check_rig"] == ["FINISHED"] and seen["key_sliders"] == ["FINISHED"]
     assert seen["add_pin"] == ["FINISHED"] and seen["solve_pins"] == ["FINISHED"]
+    assert seen["retarget"] == ["FINISHED"] and seen["analyse_rig"] == ["FINISHED"]
+    assert seen["learn_face_prior"] == ["FINISHED"] and seen["prior_stored"]
     assert seen["cli_exit"] == 0
     head = {m["object"]: m for m in seen["cli_json"]["shape_key_meshes"]}["Mesh_2"]
     assert head["shape_keys"] == 52
