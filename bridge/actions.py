@@ -166,6 +166,22 @@ def write_bezier_curve(id_block, data_path: str, frames, values, slopes, index: 
     return fc
 
 
+def replace_keys_between(fc, start: float, end: float, frames, values) -> None:
+    """Replace the keys of ``fc`` on ``start … end`` by ``(frames, values)``; every key outside is left
+    exactly as it was (value, handles, interpolation).  New keys take the interpolation of the key
+    before the range (of the first key when there is none)."""
+    pts = fc.keyframe_points
+    kx = read_curve(fc)[0]
+    before = np.flatnonzero(kx < start)
+    interp = pts[int(before[-1])].interpolation if before.size else (pts[0].interpolation if len(pts) else "BEZIER")
+    for i in np.flatnonzero((kx >= start) & (kx <= end))[::-1]:
+        pts.remove(pts[int(i)], fast=True)
+    for f, v in zip(np.asarray(frames, dtype=np.float64), np.asarray(values, dtype=np.float64)):
+        kp = pts.insert(float(f), float(v), options={"FAST"})
+        kp.interpolation = interp
+    fc.update()
+
+
 def insert_key(id_block, data_path: str, frame: float, value: float, index: int = 0, group: str = ""):
     """Insert (or replace) one key, keeping the curve's other keys."""
     fc = ensure_fcurve(id_block, data_path, index, group)

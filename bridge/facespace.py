@@ -382,16 +382,8 @@ def inpaint_gap(obj, data_path: str, index: int, start: int, end: int, use_other
     known[gap_frames, 0] = False
     res = facestats.inpaint_curve(X, known)
     filled = np.asarray(res.value)[:, 0]
-    gap = gap_frames
-    kx, ky, _ = actions.read_curve(target)
-    outside = (kx < start) | (kx > end)
-    new_x = np.concatenate([kx[outside], frames[gap]])
-    new_y = np.concatenate([ky[outside], filled[gap]])
-    order = np.argsort(new_x)
-    interp = "LINEAR" if all(k.interpolation == "LINEAR" for k in target.keyframe_points) else "BEZIER"
-    actions.write_curve(owner, data_path, new_x[order], new_y[order], index=index, interpolation=interp,
-                        group=target.group.name if target.group else "")
-    return {"frames": int(gap.sum()), "channels": len(chans), "method": res.diagnostics.get("method", ""),
+    actions.replace_keys_between(target, start, end, frames[gap_frames], filled[gap_frames])
+    return {"frames": int(gap_frames.sum()), "channels": len(chans), "method": res.diagnostics.get("method", ""),
             "message": res.message}
 
 

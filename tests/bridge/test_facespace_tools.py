@@ -303,3 +303,33 @@ def test_pose_space_confidence_is_zero_at_examples_and_grows_between(registered)
     assert at_example < 1e-6 < between < 1.0
     attr = ob.data.color_attributes[facespace.CONFIDENCE_ATTRIBUTE]
     assert len(attr.data) == len(ob.data.vertices)
+
+
+def test_inpaint_leaves_every_key_outside_the_gap_as_it_was(registered):
+    ob = _facecap()
+    key = ob.data.shape_keys
+    act = bpy.data.actions.new("handles")
+    actions.assign_action(key, act)
+    frames = np.arange(1.0, 121.0)
+    fc = actions.write_curve(key, actions.shape_key_path("jawOpen"), frames, 0.5 + 0.4 * np.sin(frames / 7.0),
+                             interpolation="BEZIER")
+    actions.write_curve(key, actions.shape_key_path("eyeBlink_L"), frames, 0.5 + 0.4 * np.sin(frames / 7.0 + 0.3))
+    for kp in list(fc.keyframe_points)[::9]:                     # hand-edited handles on some keys
+        kp.handle_left_type = kp.handle_right_type = "FREE"
+        kp.handle_right = (kp.co[0] + 0.4, kp.co[1] + 0.05)
+    fc.update()
+
+    def snapshot():
+        return {round(kp.co[0]): (tuple(kp.co), tuple(kp.handle_left), tuple(kp.handle_right), kp.interpolation,
+                                  kp.handle_left_type) for kp in fc.keyframe_points}
+    before = snapshot()
+    assert bpy.ops.shapespace.inpaint_gap(data_path=actions.shape_key_path("jawOpen"), index=0,
+                                          frame_start=50, frame_end=60) == {"FINISHED"}
+    after = snapshot()
+    outside = [f for f in before if f < 49 or f > 61]          # neighbours' auto handles may follow the fill
+    for f in outside:
+        co, hl, hr, interp, htype = before[f]
+        assert after[f][0] == co and after[f][3:] == (interp, htype)
+        # Blender recalculates automatic handles on update: float32 rounding, not a change
+        np.testing.assert_allclose(after[f][1] + after[f][2], hl + hr, rtol=0, atol=1e-6)
+    assert sorted(after) == sorted(before)
