@@ -157,7 +157,7 @@ def to_pca_object(obj, action=None, tol: float = None):
         report = fs.compression_report(model, W, tol)
         if report.value is None:
             raise ShapeSpaceError(report.message, "tolerance_not_met")
-        full = fs.fit_pca(model.evaluate(W).reshape(len(frames), -1))
+        full = fs.animation_pca(model, W)                      # never forms the frames × 3p matrix
         m = max(int(report.value), 1)
         basis = fs.PCABasis(full.mean, full.components[:, :m], full.variances[:m])
     unit = np.sqrt(np.maximum(basis.variances, 1e-300))

@@ -19,7 +19,7 @@ from .result import Issue, Result, ShapeSpaceError
 
 __all__ = [
     "PCABasis", "to_whole_face", "from_whole_face", "whole_face_weights", "delta_weights",
-    "project_convex", "fit_pca", "pca_from_model", "blendshape_to_pca_maps", "pca_to_blendshape_maps",
+    "project_convex", "fit_pca", "pca_from_model", "animation_pca", "blendshape_to_pca_maps", "pca_to_blendshape_maps",
     "compression_report", "coherence_matrix", "mutual_coherence", "similar_pairs", "empty_targets",
     "coherence_image", "sparsity_comparison",
 ]
@@ -322,6 +322,15 @@ def _animation_pca(W, B, neutral):
     comps, scores = _fix_signs(Q @ vt[:r].T, Uy[:, :r] * s[:r])
     basis = PCABasis(neutral.ravel() + B @ mu, comps, s[:r] ** 2 / (W.shape[0] - 1))
     return basis, scores, np.linalg.svd(R, compute_uv=False)
+
+
+def animation_pca(model, weights):
+    """PCA of an animation's frames ``b0 + B w_t`` (f frames), without forming the f × 3p frame matrix.
+
+    Returns a :class:`PCABasis` whose components are ordered by decreasing variance (all nonzero ones).
+    """
+    _, W, B = _animation(model, weights)
+    return _animation_pca(W, B, model.neutral)[0]
 
 
 def _block_max(S, Uv, frames, verts):

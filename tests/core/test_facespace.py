@@ -348,3 +348,18 @@ def test_sparsity_with_given_basis_and_dense_weights():
     assert res.value["pca"]["n_coefficients"] == 5
     with pytest.raises(ShapeSpaceError, match="weights must have shape"):
         fs.sparsity_comparison(model, np.zeros(5))
+
+
+def test_animation_pca_matches_pca_of_the_formed_frames():
+    from core.facespace import animation_pca
+    rng = np.random.default_rng(21)
+    p, n, f = 40, 6, 30
+    model = BlendshapeModel(rng.normal(size=(p, 3)), rng.normal(size=(n, p, 3)), [f"t{i}" for i in range(n)])
+    W = rng.uniform(0, 1, size=(f, n))
+    basis = animation_pca(model, W)
+    X = model.evaluate(W).reshape(f, -1)
+    Xc = X - X.mean(axis=0)
+    _, s, vt = np.linalg.svd(Xc, full_matrices=False)
+    np.testing.assert_allclose(basis.mean, X.mean(axis=0), atol=1e-12)
+    np.testing.assert_allclose(basis.variances, s[:n] ** 2 / (f - 1), rtol=1e-10)
+    np.testing.assert_allclose(np.abs(basis.components.T @ vt[:n].T), np.eye(n), atol=1e-8)
