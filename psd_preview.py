@@ -7,10 +7,10 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from .bridge import posespace
+from .bridge import facespace, posespace
 from .core.result import ShapeSpaceError
 
-_cache = {}      # object name -> [revision, method, deformer, names, last pose, target driver]
+_cache = {}      # object name -> [revision, method, deformer, names, last pose, target driver, GP model]
 _busy = []       # re-entrancy guard: writing key values triggers another depsgraph update
 
 
@@ -20,12 +20,14 @@ def refresh(obj) -> bool:
     entry = _cache.get(obj.name)
     if entry is None or entry[0] != st.revision or entry[1] != st.method:
         deformer, names = posespace.trained_deformer(obj)
-        entry = [st.revision, st.method, deformer, names, None, posespace.target_driver(obj)]
+        entry = [st.revision, st.method, deformer, names, None, posespace.target_driver(obj),
+                 facespace.confidence_model(deformer)]
         _cache[obj.name] = entry
     pose = posespace.read_pose(obj)
     if entry[4] is not None and entry[4].shape == pose.shape and np.allclose(entry[4], pose, atol=1e-9):
         return False
     posespace.preview(obj, entry[2], entry[3], entry[5])
+    obj.shapespace_face.confidence = float(entry[6].variance(pose))    # the panel's live confidence
     entry[4] = pose
     return True
 

@@ -391,13 +391,19 @@ def inpaint_gap(obj, data_path: str, index: int, start: int, end: int, use_other
 CONFIDENCE_ATTRIBUTE = "ShapeSpace Confidence"
 
 
+def confidence_model(deformer):
+    """The Gaussian-process model of a trained pose-space deformer: its examples' poses, a Gaussian
+    kernel of the deformer's width (prior variance 1)."""
+    return facestats.GPConfidence.fit(deformer.poses, "gaussian", float(deformer.epsilon))
+
+
 def confidence(obj, heat_map: bool = False) -> dict:
     """Gaussian-process variance of the pose-space interpolant at the current pose (0 at an example,
     1 far from all), and optionally a per-vertex heat map of the predictive standard deviation
     (a colour attribute) showing where a new example would matter."""
     from . import posespace
     deformer, names = posespace.trained_deformer(obj)
-    conf = facestats.GPConfidence.fit(deformer.poses, "gaussian", float(deformer.epsilon))
+    conf = confidence_model(deformer)
     pose = posespace.read_pose(obj)
     out = {"variance": float(conf.variance(pose)), "examples": len(names)}
     if heat_map:

@@ -65,5 +65,5 @@ class SHAPESPACE_PT_correctives(ShapeSpaceSidebar, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("shapespace.psd_confidence", icon="INFO")
         face = context.active_object.shapespace_face
-        if face.confidence >= 0:
+        if face.confidence >= 0:   # live while Live Preview is on, else from the last run of the operator
             row.label(text=f"variance {face.confidence:.3f}")

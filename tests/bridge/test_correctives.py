@@ -110,8 +110,11 @@ def test_live_preview_follows_the_pose_and_bake_plays_without_the_add_on(registe
         scene.frame_set(f)       # the frame handler updates the correctives
         preview[f] = evaluated(ob)
     keys = ob.data.shape_keys.key_blocks
+    scene.frame_set(15)
+    between = ob.shapespace_face.confidence                 # live pose-space confidence (GP variance)
     scene.frame_set(10)
     assert keys[st.examples[0].name].value == pytest.approx(1.0, abs=1e-6)
+    assert ob.shapespace_face.confidence == pytest.approx(0.0, abs=1e-6) and 1e-4 < between < 1.0
     st.live_preview = False
     assert bpy.ops.shapespace.psd_bake(frame_start=1, frame_end=20) == {"FINISHED"}
     path = str(tmp_path / "baked.blend")
