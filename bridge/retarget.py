@@ -278,8 +278,10 @@ def mesh_sequence(source, scene, frames) -> np.ndarray:
 def dense_source_positions(source, target_model, target, scene, frames):
     """The source performance transferred onto the target's vertices: (f, p_t·3) positions and the rows used.
 
-    Same topology: vertex-to-vertex.  Otherwise landmarks (``lm_*`` groups on both meshes, ≥ 4): the source
-    neutral is warped onto the target neutral (similarity + thin-plate), every target vertex takes its
+    Same topology: vertex-to-vertex, the motion rotated and scaled by the similarity between the source's
+    rest (its reference shape key, else its mesh vertices — for a cache, as imported) and the target's
+    neutral.  Otherwise landmarks (``lm_*`` groups on both meshes, ≥ 3): the source neutral is warped
+    onto the target neutral (similarity + thin-plate), every target vertex takes its
     closest warped source vertex, and the source's motion is carried over rotated and scaled by the
     landmarks' similarity.  A ``stable`` vertex group on the source removes head motion per frame
     (rigid Procrustes onto the neutral).
@@ -300,7 +302,10 @@ def dense_source_positions(source, target_model, target, scene, frames):
     motion = seq - rest
     neutral_t = target_model.neutral
     if seq.shape[1] == neutral_t.shape[0] and not len(landmark_pairs(source, target)[0]):
-        corr, R, scale = np.arange(neutral_t.shape[0]), np.eye(3), 1.0
+        # same topology: vertex to vertex, the motion carried by the similarity that takes the source's
+        # rest onto the target's neutral (the source may live in another space, e.g. a world-space cache)
+        corr = np.arange(neutral_t.shape[0])
+        scale, R, _ = procrustes(rest, neutral_t)
     else:
         src_lm, dst_lm = landmark_pairs(source, target)
         if src_lm.size < 3:

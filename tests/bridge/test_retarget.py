@@ -469,3 +469,33 @@ def test_target_with_driven_shapes(registered):
     assert bpy.ops.shapespace.retarget(filepath=CSV, method="copy") == {"FINISHED"}
     curves = actions.shape_key_curves(ob, actions.active_action(ob.data.shape_keys))
     assert "JawOpen" in curves and "JawHalf" not in curves          # the driven key is not keyed
+
+
+def test_alembic_performance_through_mesh_sequence_cache(tmp_path):
+    """A world-space Alembic cache (Mesh Sequence Cache modifier, exported and imported by Blender) of the
+    capture, with a neutral first frame, retargeted onto the facecap rig: the sliders come back."""
+    src, scene = _facecap_scene()
+    model = shapekeys.read_blendshape_model(src)
+    capture = actions.active_action(src.data.shape_keys)
+    frames = np.arange(40.0, 61.0)
+    W = actions.sample_shape_keys(src, model.names, frames, capture)
+    perf = bpy.data.actions.new("perf")                 # frame 39 neutral, then the capture
+    actions.assign_action(src.data.shape_keys, perf)
+    for j, n in enumerate(model.names):
+        actions.write_curve(src.data.shape_keys, actions.shape_key_path(n), np.r_[39.0, frames], np.r_[0.0, W[:, j]])
+    scene.frame_start, scene.frame_end = 39, 60
+    for o in bpy.data.objects:
+        o.select_set(o == src)
+    bpy.context.view_layer.objects.active = src
+    path = str(tmp_path / "performance.abc")
+    assert bpy.ops.wm.alembic_export(filepath=path, selected=True, start=39, end=60, flatten=True) == {"FINISHED"}
+    scene.frame_set(39)
+    before = set(bpy.data.objects.keys())
+    assert bpy.ops.wm.alembic_import(filepath=path) == {"FINISHED"}
+    cached = next(bpy.data.objects[n] for n in bpy.data.objects.keys() if n not in before)
+    assert [m.type for m in cached.modifiers] == ["MESH_SEQUENCE_CACHE"]
+    actions.assign_action(src.data.shape_keys, capture)
+    rep = retarget.retarget_dense(src, cached, "perframe")
+    got = actions.sample_shape_keys(src, ["jawOpen", "eyeBlink_L"], frames, bpy.data.actions[rep["action"]])
+    want = W[:, [model.index("jawOpen"), model.index("eyeBlink_L")]]
+    np.testing.assert_allclose(got, np.clip(want, 0, 1), atol=0.02)
