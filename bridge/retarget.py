@@ -130,6 +130,41 @@ def _learned_weights(obj, model, frames, src, key_pose_action, report) -> np.nda
     return src[:, moving] @ E
 
 
+LAST_PROP = "shapespace_last_retarget"
+REPORT_KEYS = ("source", "method", "frames", "mapped_channels", "position_error_rms", "velocity_error_rms",
+               "clipping_frames", "keys_kept_frac", "converged", "action", "previous_action")
+
+
+def _remember(obj, report, previous) -> None:
+    """Keep the last retarget's report (and the action it replaced) on the Key, for the panel and Discard."""
+    report["previous_action"] = previous.name if previous is not None else ""
+    obj.data.shape_keys[LAST_PROP] = json.dumps({k: report[k] for k in REPORT_KEYS if k in report})
+
+
+def last_report(obj) -> dict:
+    key = obj.data.shape_keys if obj is not None and obj.type == "MESH" else None
+    return json.loads(key.get(LAST_PROP, "{}")) if key is not None else {}
+
+
+def discard_last(obj) -> str:
+    """Undo the last retarget's result: give the rig back the action it played before and delete the
+    retargeted action if nothing else uses it.  Returns the restored action's name ('' for none)."""
+    rep = last_report(obj)
+    if not rep:
+        raise ShapeSpaceError(f"{obj.name!r} has no retarget result to discard", "no_result")
+    key = obj.data.shape_keys
+    made = bpy.data.actions.get(rep.get("action", ""))
+    previous = bpy.data.actions.get(rep.get("previous_action", ""))
+    if previous is not None:
+        actions.assign_action(key, previous)
+    elif key.animation_data is not None:
+        key.animation_data.action = None
+    if made is not None and made.users == 0:
+        bpy.data.actions.remove(made)
+    del key[LAST_PROP]
+    return previous.name if previous is not None else ""
+
+
 def stored_mapping(obj) -> dict:
     """The channel-mapping overrides stored on ``obj``'s shape keys: ``{source: {target, gain, offset}}``."""
     key = obj.data.shape_keys
@@ -206,11 +241,13 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
     report["position_error_rms"] = float(np.sqrt(np.mean(pos_err ** 2)) / model.scale)
     report["velocity_error_rms"] = float(np.sqrt(np.mean(np.sum(vel ** 2, axis=1))) / model.scale)
     report["clipping_frames"] = int(np.sum(np.any((raw < lo - 1e-9) | (raw > hi + 1e-9), axis=1)))
+    previous = actions.active_action(obj.data.shape_keys)
     action = actions.key_shape_values(obj, model.names, frames, W,
                                       action_name or f"{obj.name}_{method}")
     if key_tolerance > 0:
         report["keys_kept_frac"] = reduce_action_keys(obj, model.names, frames, W, key_tolerance, key_shape)
     report["action"] = action.name
+    _remember(obj, report, previous)
     return report
 
 
@@ -355,10 +392,12 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
                    "position_error_rms": float(np.sqrt(np.mean(np.sum(residual ** 2, axis=(1, 2)))) / model.scale),
                    "velocity_error_rms": float(np.sqrt(np.mean(np.sum(vel ** 2, axis=(1, 2)))) / model.scale),
                    "issues": []})
+    previous = actions.active_action(obj.data.shape_keys)
     action = actions.key_shape_values(obj, model.names, frames, W, action_name or f"{obj.name}_{source_obj.name}")
     if key_tolerance > 0:
         report["keys_kept_frac"] = reduce_action_keys(obj, model.names, frames, W, key_tolerance, key_shape)
     report["action"] = action.name
+    _remember(obj, report, previous)
     return report
 
 

@@ -7,6 +7,7 @@ from .add_landmark import SHAPESPACE_OT_add_landmark
 from .add_pin import SHAPESPACE_OT_add_pin
 from .check_rig import SHAPESPACE_OT_check_rig
 from .clear_pins import SHAPESPACE_OT_clear_pins
+from .discard_retarget import SHAPESPACE_OT_discard_retarget
 from .drag_pins import SHAPESPACE_OT_drag_pins
 from .analyse_rig import SHAPESPACE_OT_analyse_rig
 from .compression_report import SHAPESPACE_OT_compression_report
@@ -57,6 +58,7 @@ classes = (
     SHAPESPACE_OT_psd_add_target,
     SHAPESPACE_OT_psd_record_targets,
     SHAPESPACE_OT_retarget,
+    SHAPESPACE_OT_discard_retarget,
     SHAPESPACE_OT_set_mapping,
     SHAPESPACE_OT_remove_mapping,
     SHAPESPACE_OT_add_landmark,

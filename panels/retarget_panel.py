@@ -35,6 +35,20 @@ class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
         op.source_object = st.source_object.name if st.source_kind == "MESH" and st.source_object else ""
         op.key_pose_action = st.key_pose_action.name if st.key_pose_action else ""
 
+        rep = retarget.last_report(ob)
+        if rep:
+            box = layout.box()
+            col = box.column(align=True)
+            col.label(text=f"{rep.get('action')}: {rep.get('method')}, {rep.get('frames')} frames", icon="ACTION")
+            if "velocity_error_rms" in rep:
+                col.label(text=f"error: position {rep['position_error_rms']:.3g}, velocity "
+                               f"{rep['velocity_error_rms']:.3g} (of the head size)")
+            if rep.get("clipping_frames"):
+                col.label(text=f"{rep['clipping_frames']} frames beyond the slider ranges", icon="ERROR")
+            if "keys_kept_frac" in rep:
+                col.label(text=f"{100 * rep['keys_kept_frac']:.1f} % of the keys kept")
+            box.operator("shapespace.discard_retarget", icon="LOOP_BACK")
+
         box = layout.box()
         box.label(text="Channel Mapping (overrides; the rest by name)")
         for src, entry in sorted(retarget.stored_mapping(ob).items()):

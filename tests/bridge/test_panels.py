@@ -98,6 +98,11 @@ def test_panels_on_a_face_rig(registered):
     assert bpy.ops.shapespace.set_mapping(source="JawOpen", target="MouthClose", gain=0.5) == {"FINISHED"}
     log = _draw_all(bpy.context)["SHAPESPACE_PT_retarget"]
     assert any(kind == "label" and text.startswith("JawOpen → MouthClose") for kind, text in log)
+    csv = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+    assert bpy.ops.shapespace.retarget(filepath=csv, method="perframe", key_tolerance=0.01) == {"FINISHED"}
+    log = _draw_all(bpy.context)["SHAPESPACE_PT_retarget"]
+    assert ("operator", "shapespace.discard_retarget") in log
+    assert any(kind == "label" and "% of the keys kept" in text for kind, text in log)
     assert bpy.ops.shapespace.remove_mapping(source="JawOpen") == {"FINISHED"}
     # face space: before and after analysis, prior and flagged frames
     assert "SHAPESPACE_PT_face_space" in _draw_all(bpy.context)

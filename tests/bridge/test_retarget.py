@@ -499,3 +499,24 @@ def test_alembic_performance_through_mesh_sequence_cache(tmp_path):
     got = actions.sample_shape_keys(src, ["jawOpen", "eyeBlink_L"], frames, bpy.data.actions[rep["action"]])
     want = W[:, [model.index("jawOpen"), model.index("eyeBlink_L")]]
     np.testing.assert_allclose(got, np.clip(want, 0, 1), atol=0.02)
+
+
+def test_retarget_result_can_be_reviewed_and_discarded(registered):
+    """Try a method, read its numbers, discard it: the rig plays its previous action again and the file's
+    actions are as before."""
+    from blender_support import blend_fingerprint
+    import_file(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
+    ob = bpy.data.objects["Mesh_2"]
+    bpy.context.view_layer.objects.active = ob
+    key = ob.data.shape_keys
+    capture = actions.active_action(key)
+    before = blend_fingerprint()
+    with pytest.raises(RuntimeError, match="Nothing retargeted"):
+        bpy.ops.shapespace.discard_retarget()
+    assert bpy.ops.shapespace.retarget(action=capture.name, method="perframe") == {"FINISHED"}
+    rep = retarget.last_report(ob)
+    assert rep["method"] == "perframe" and rep["previous_action"] == capture.name
+    assert actions.active_action(key).name == rep["action"] != capture.name
+    assert bpy.ops.shapespace.discard_retarget() == {"FINISHED"}
+    assert actions.active_action(key) == capture and rep["action"] not in bpy.data.actions
+    assert blend_fingerprint() == before
