@@ -95,7 +95,8 @@ def suggest_key_poses(source, scene, count: int = None) -> np.ndarray:
     X = src[:, moving]
     picks = list(dict.fromkeys(key_poses(X, components=min(int(np.ceil(need / 2)), int(moving.sum())))))
     # extremes repeat across components: top up with the frames farthest from every pose chosen so far
-    dist = np.min(np.linalg.norm(X[:, None, :] - X[picks][None], axis=2), axis=1)
+    sq = np.einsum("ij,ij->i", X, X)
+    dist = np.sqrt(np.maximum(np.min(sq[:, None] + sq[picks][None] - 2.0 * X @ X[picks].T, axis=1), 0.0))
     while len(picks) < min(need, len(frames)):
         k = int(np.argmax(dist))
         picks.append(k)
