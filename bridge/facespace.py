@@ -186,6 +186,19 @@ def to_pca_object_relative(obj, from_animation: bool, tolerance: float):
     return to_pca_object(obj, action, tolerance * linear_model(obj).scale)
 
 
+def make_convex(obj) -> dict:
+    """Convex slider mode (3.7.3): move the current slider values to the nearest ones whose whole-face
+    weights are a convex combination — each within its range and [0, 1], and Σw ≤ 1 so the neutral's
+    weight 1 − Σw stays ≥ 0.  Returns the sum before and after and how far the sliders moved."""
+    model = linear_model(obj)
+    w = shapekeys.read_slider_values(obj, model.names)
+    lo = np.clip(model.slider_min, 0.0, 1.0)
+    hi = np.clip(model.slider_max, 0.0, 1.0)
+    x = fs.project_convex(w, lo, np.maximum(hi, lo))
+    shapekeys.write_slider_values(obj, model.names, x)
+    return {"sum_before": float(w.sum()), "sum_after": float(x.sum()), "moved": float(np.linalg.norm(x - w))}
+
+
 # ------------------------------------------------------------------ reports and diagnostics (3.7)
 def _store(obj, prop: str, data: dict) -> None:
     obj.data.shape_keys[prop] = json.dumps(data)

@@ -30,6 +30,7 @@ from .psd_move_example import SHAPESPACE_OT_psd_move_example
 from .psd_record_targets import SHAPESPACE_OT_psd_record_targets
 from .psd_remove_example import SHAPESPACE_OT_psd_remove_example
 from .psd_update import SHAPESPACE_OT_psd_update
+from .make_convex import SHAPESPACE_OT_make_convex
 from .remove_mapping import SHAPESPACE_OT_remove_mapping
 from .remove_pin import SHAPESPACE_OT_remove_pin
 from .retarget import SHAPESPACE_OT_retarget
@@ -67,6 +68,7 @@ classes = (
     SHAPESPACE_OT_analyse_rig,
     SHAPESPACE_OT_compression_report,
     SHAPESPACE_OT_convert_rig,
+    SHAPESPACE_OT_make_convex,
     SHAPESPACE_OT_fill_between,
     SHAPESPACE_OT_find_implausible_frames,
     SHAPESPACE_OT_go_to_frame,

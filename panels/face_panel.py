@@ -29,6 +29,7 @@ class SHAPESPACE_PT_face_space(ShapeKeyPanel, bpy.types.Panel):
         row = box.row(align=True)
         for form, label in (("WHOLE_FACE", "Whole-Face"), ("DELTA", "Delta"), ("PCA", "PCA")):
             row.operator("shapespace.convert_rig", text=label).form = form
+        box.operator("shapespace.make_convex", icon="MESH_ICOSPHERE")
         analysis = facespace.stored(ob, facespace.ANALYSIS_PROP)
         row = box.row(align=True)
         row.operator("shapespace.compression_report", icon="FILE_ARCHIVE")

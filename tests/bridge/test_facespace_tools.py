@@ -333,3 +333,22 @@ def test_inpaint_leaves_every_key_outside_the_gap_as_it_was(registered):
         if htype == "FREE":     # hand-edited handles stay exactly; automatic ones are Blender's to recompute
             assert after[f][1:3] == (hl, hr)
     assert sorted(after) == sorted(before)
+
+
+def test_make_convex_projects_the_sliders_like_a_qp(registered):
+    """Make Convex moves the sliders to the nearest point of {0 ≤ w ≤ 1 (and the slider range), Σw ≤ 1};
+    reference: quadprog on the same projection."""
+    import quadprog
+    ob = _facecap(with_animation=False)
+    model = shapekeys.read_blendshape_model(ob)
+    w = np.random.default_rng(5).uniform(0.0, 0.5, model.n_targets)
+    _set(ob, model.names, w)
+    assert bpy.ops.shapespace.make_convex() == {"FINISHED"}
+    got = shapekeys.read_slider_values(ob, model.names)
+    n = model.n_targets
+    # min ½‖x − w‖² s.t. x ≥ 0, −x ≥ −1, −Σx ≥ −1   (quadprog: Cᵀ x ≥ b)
+    C = np.hstack([np.eye(n), -np.eye(n), -np.ones((n, 1))])
+    b = np.concatenate([np.zeros(n), -np.ones(n), [-1.0]])
+    ref = quadprog.solve_qp(np.eye(n), w, C, b)[0]
+    np.testing.assert_allclose(got, ref, atol=1e-6)      # float32 slider storage
+    assert got.sum() <= 1.0 + 1e-6
