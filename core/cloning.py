@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg import solve_banded, solveh_banded
+from scipy.linalg import lapack, solveh_banded
 from scipy.optimize import linprog
 
 from .boxqp import solve_box_qp
@@ -157,10 +157,8 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
 
     Decoupling: with ``W = Y Σ`` and ``Σ Bᵀ B Σ = Q diag(μ) Qᵀ`` the normal
     equations ``DᵀD Y (ΣBᵀBΣ) + λ Y = DᵀD S B Σ`` split into one tridiagonal
-    system ``(μ_j DᵀD + λ I) z_j = r_j`` per mode, and because the interior
-    ``DᵀD`` is the Dirichlet second difference, the orthonormal type-I sine
-    basis diagonalises all of them at once — O(n·f) per solve after an O(n³)
-    eigendecomposition, no Kronecker system.
+    system ``(μ_j DᵀD + λ I) z_j = r_j`` per mode (factored once) — O(n·f)
+    per solve after an O(n³) eigendecomposition, no Kronecker system.
 
     Bounds (lo ≤ w ≤ hi), around the fast solve: a primal–dual active-set
     iteration (Hintermüller–Ito–Kunisch) fixes the entries at or beyond a
@@ -169,9 +167,10 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     cycling a projected Newton method with an ε-active set and a projected
     Armijo search (monotone) takes over.  Each reduced Newton system
     ``𝓗_FF d_F = r_F`` is solved exactly by the cheapest route: few active
-    entries m — the m × m capacitance system ``(E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A``
-    (entries in closed form from the two eigenbases, CG with exact products
-    preconditioned by its single-precision inverse); many — a banded Cholesky
+    entries m — the m × m capacitance system ``(E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A``,
+    whose entries are lookups in two tables of per-mode Green's functions of
+    the Dirichlet second difference (closed form, exact), solved directly and
+    refined against exact products — two decoupled solves a step; many — a banded Cholesky
     of 𝓗 with the active rows replaced by the identity (bandwidth 2n − 1
     frame-major, O(f n³)); beyond ``BANDED_FLOP_LIMIT`` — CG preconditioned
     by the unbounded inverse.  Convergence test: the natural residual
@@ -190,8 +189,9 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
         Read ``lam`` relative to the data: λ · mean eigenvalue of ``ΣBᵀBΣ``
         (unit-free; used by the retarget command).
     max_exact_active : int
-        Largest active set for which a Newton step uses the exact capacitance
-        solve (cost O(f·m²)); larger ones use preconditioned CG.
+        Largest active set for which a Newton step uses the capacitance
+        system (cost O(m³) plus lookup tables of O(c²·f) for the c channels
+        involved); larger ones use the banded Cholesky (or CG).
     """
     B = np.asarray(B, dtype=np.float64)
     S = np.asarray(frames)                       # not copied: only S·B is needed (memory for long shots)
@@ -237,78 +237,76 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
         R[-1] += (Yl @ M)
         return R
 
-    # DᵀD on the interior (end frames fixed) is the Dirichlet second difference tridiag(−1, 2, −1), whose
-    # eigenvectors are the orthonormal type-I sine basis P with eigenvalues ν_i = 2 − 2 cos(πi/(F−1)):
-    # 𝓗 = DᵀD ⊗ M + λI is diagonal in P ⊗ Q with entries ν_i μ_j + λ.  One solve is a tridiagonal LAPACK
-    # solve per mode; a bounded solve on a short shot (many repeated solves) multiplies by the dense P.
-    nu = 2.0 - 2.0 * np.cos(np.pi * np.arange(1, F - 1) / (F - 1))
-    inv_spectrum = 1.0 / (nu[:, None] * mu[None, :] + lam)          # (inner, n)
-    ab = np.zeros((3, F - 2))
-    ab[0, 1:] = ab[2, :-1] = -1.0
-    ab[1] = 2.0
-    sine = None
-    if bounded and F - 2 <= 2048:
-        k = np.arange(1, F - 1)
-        sine = np.sqrt(2.0 / (F - 1)) * np.sin(np.pi * np.outer(k, k) / (F - 1))   # symmetric, orthogonal
-
-    def time_basis(t):
-        """Rows ``t`` of the sine basis P, shape (len(t), inner)."""
-        if sine is not None:
-            return sine[t]
-        return np.sqrt(2.0 / (F - 1)) * np.sin(np.pi * np.outer(t + 1, np.arange(1, F - 1)) / (F - 1))
+    # DᵀD on the interior (end frames fixed) is the Dirichlet second difference T = tridiag(−1, 2, −1), so
+    # in the spatial eigenbasis Q every mode is one symmetric positive definite tridiagonal system
+    # (μ_j T + λ I) z_j = r_j: factored once (LAPACK pttrf), then two O(f) sweeps per solve (pttrs).
+    factors = []
+    for j in range(n if F > 3 else 0):
+        diag_j, off_j, info = lapack.dpttrf(np.full(F - 2, 2.0 * mu[j] + lam), np.full(F - 3, -mu[j]))
+        if info:
+            raise ShapeSpaceError("the space-time system is not positive definite (λ must be > 0)", "range")
+        factors.append((diag_j, off_j))
 
     def solve_modes(rhs=None):
-        """(DᵀD ⊗ M + λ I) y = rhs over the interior, decoupled per mode (Q in space, P in time)."""
+        """(DᵀD ⊗ M + λ I) y = rhs over the interior, decoupled per mode."""
         Rq = (base_rhs() if rhs is None else rhs) @ Q
-        if sine is not None:
-            Z = sine @ ((sine @ Rq) * inv_spectrum)
-        else:
-            Z = np.empty_like(Rq)
-            for j in range(n):
-                band = ab * mu[j]
-                band[1] += lam
-                Z[:, j] = solve_banded((1, 1), band, Rq[:, j], check_finite=False)
+        if F == 3:                                          # one interior frame: a diagonal system
+            return (Rq / (2.0 * mu + lam)) @ Q.T
+        Z = np.empty_like(Rq)
+        for j, (diag_j, off_j) in enumerate(factors):
+            Z[:, j] = lapack.dpttrs(diag_j, off_j, Rq[:, j])[0]
         return Z @ Q.T
 
-    def inverse_entries(rows, cols):
-        """Entries 𝓗⁻¹[rows, cols] among flat interior indices, shape (len(rows), len(cols)), float32.
+    # Closed-form entries of 𝓗⁻¹ for the capacitance systems.  Per spatial mode j, (μ_j T + λ I)⁻¹ of the
+    # Dirichlet second difference T has, with ρ_j = μ_j / (μ_j + λ/2 + s_j), s_j = √(λμ_j + λ²/4) and
+    # 1-based frames s, l:  G_j(s, l) = [ρ^|s−l| + ρ^(2N+2−|s−l|) − ρ^(s+l) − ρ^(2N+2−s−l)] / D_j,
+    # D_j = 2 s_j (1 − ρ^(2N+2)) — a function of |s − l| minus a function of s + l.  Summed over the modes
+    # for each pair of channels once, every entry 𝓗⁻¹[(t,k),(t',k')] = Σ_j Q_kj Q_k'j G_j is a lookup.
+    green = {}
 
-        𝓗⁻¹[(t,k),(t',k')] = Σ_i P_ti P_t'i U_i[k,k'] with U_i = Q diag(1/(ν_i μ + λ)) Qᵀ (P the sine
-        basis): one GEMM for the U_i of the channels involved, then one product per row channel —
-        O(f·n·c·c' + f·r·m), no column of 𝓗⁻¹ is ever formed.
-        """
-        f32 = np.float32                                     # a preconditioner: single precision suffices
-        Pr = time_basis(rows // n).astype(f32)                                     # (r, inner)
-        Pc_t = np.ascontiguousarray(time_basis(cols // n).T, dtype=f32)           # (inner, m)
-        kr, kc = rows % n, cols % n
-        row_chans, row_k = np.unique(kr, return_inverse=True)
-        col_chans, col_k = np.unique(kc, return_inverse=True)
-        U = ((inv_spectrum[:, None, :] * Q[row_chans][None]).reshape(-1, n).astype(f32)
-             @ Q[col_chans].T.astype(f32))
-        U = U.reshape(F - 2, row_chans.size, col_chans.size)                       # (inner, c, c')
-        out = np.empty((rows.size, cols.size), f32)
-        for c_i in range(row_chans.size):
-            sel = row_k == c_i
-            out[sel] = Pr[sel] @ (Pc_t * U[:, c_i, col_k])
-        return out
+    def green_tables(chans):
+        """Tables V1[k, k', |Δt|] and V2[k, k', t + t' + 2] for (at least) the channels ``chans``."""
+        if "chans" in green and np.isin(chans, green["chans"]).all():
+            return green
+        chans = np.union1d(chans, green.get("chans", np.zeros(0, int)))
+        Ni = F - 2
+        s_ = np.sqrt(lam * mu + 0.25 * lam * lam)
+        rho = mu / (mu + 0.5 * lam + s_)
+        pw = rho[:, None] ** np.arange(2 * Ni + 3)[None, :]                      # (n, 2N + 3)
+        denom = (2.0 * s_ * (1.0 - pw[:, 2 * Ni + 2]))[:, None]
+        d = np.arange(Ni)
+        R1 = (pw[:, d] + pw[:, 2 * Ni + 2 - d]) / denom                          # (n, N): |Δt|
+        sig_ = np.arange(2, 2 * Ni + 1)
+        R2 = np.zeros((n, 2 * Ni + 1))
+        R2[:, 2:] = (pw[:, sig_] + pw[:, 2 * Ni + 2 - sig_]) / denom              # (n, 2N + 1): t + t' + 2
+        c = chans.size
+        iu, ju = np.triu_indices(c)                           # the tables are symmetric in the channel pair
+        QQ = Q[chans][iu] * Q[chans][ju]                      # (pairs, n)
+        pair = np.empty((c, c), dtype=np.int32)
+        pair[iu, ju] = pair[ju, iu] = np.arange(iu.size)
+        pos = np.full(n, -1, dtype=np.int32)
+        pos[chans] = np.arange(c)
+        green.update(chans=chans, pos=pos, pair=pair, V1=(QQ @ R1).ravel(), V2=(QQ @ R2).ravel(),
+                     n1=R1.shape[1], n2=R2.shape[1])
+        return green
 
-    cache = {"idx": np.empty(0, np.int64), "C": np.empty((0, 0), np.float32)}
+    def capacitance(active):
+        """𝓗⁻¹ restricted to the active entries (m, m), float64, by table lookups."""
+        t, k = np.divmod(active.astype(np.int32), np.int32(n))
+        g = green_tables(np.unique(k))
+        kk = g["pos"][k]
+        pr = g["pair"][kk[:, None], kk[None, :]]                                  # (m, m) channel pair
+        index = pr * np.int32(g["n1"])
+        index += np.abs(t[:, None] - t[None, :])
+        C = np.take(g["V1"], index)
+        np.multiply(pr, np.int32(g["n2"]), out=index)
+        index += t[:, None] + t[None, :] + np.int32(2)
+        C -= np.take(g["V2"], index)
+        return C                      # symmetric by construction (V1, V2 symmetric in the channel pair)
 
-    def inverse_block(active):
-        """𝓗⁻¹ restricted to the active entries, reusing rows computed for earlier active sets."""
-        old, C_old = cache["idx"], cache["C"]
-        known = np.isin(active, old)
-        pos_old = np.searchsorted(old, active[known])
-        C = np.empty((active.size, active.size), np.float32)
-        kn = np.flatnonzero(known)
-        C[np.ix_(kn, kn)] = C_old[np.ix_(pos_old, pos_old)]
-        new = np.flatnonzero(~known)
-        if new.size:
-            block = inverse_entries(active[new], active)
-            C[new] = block
-            C[:, new] = block.T
-        cache["idx"], cache["C"] = active, C
-        return C
+    def tables_fit(active) -> bool:
+        c = np.unique(active % n).size
+        return c * (c + 1) // 2 * 3 * (F - 2) <= 4e7           # ≤ 320 MB of lookup tables
 
     def assemble(Y_inner):
         W = np.empty((F, n))
@@ -408,19 +406,20 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
 
     def _capacitance_step(active, r):
         """Newton step on the free entries with the active ones held: 𝓗 d = r + E_A ν, d_A = 0, i.e.
-        the m × m capacitance system (E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A, solved by CG with exact products
-        (one decoupled solve each) preconditioned by the inverse of its single-precision entries."""
+        the m × m capacitance system (E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A, its matrix by closed-form lookups,
+        solved directly and refined against exact products (one decoupled solve each)."""
         nonlocal solves
         d = solve_modes(rhs=r)
         solves += 1
         if not active.size:
             return d
-        C = inverse_block(active).astype(np.float64)
-        try:        # numpy's LAPACK: scipy's own BLAS threads would contend with numpy's here
-            C_inv = np.linalg.inv(C)
-        except np.linalg.LinAlgError:
-            C_inv = np.linalg.pinv(C)
-        precondition = C_inv.__matmul__
+        C = capacitance(active)
+
+        def apply(v):                   # numpy's LU (refinement below rarely needs a second call)
+            try:
+                return np.linalg.solve(C, v)
+            except np.linalg.LinAlgError:
+                return np.linalg.lstsq(C, v, rcond=None)[0]
 
         def lifted_solve(v):                               # 𝓗⁻¹ E_A v, full (inner, n)
             nonlocal solves
@@ -431,22 +430,14 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
 
         b = -d.ravel()[active]
         b_norm = float(np.linalg.norm(b))
-        X = np.zeros_like(d)
-        res = b.copy()
-        z = precondition(res)
-        p_dir, Xp = z, lifted_solve(z)
-        rz = float(res @ z)
-        for _ in range(30):
-            Cp = Xp.ravel()[active]
-            alpha = rz / float(p_dir @ Cp)
-            X += alpha * Xp
-            res -= alpha * Cp
-            if np.linalg.norm(res) <= 1e-10 * b_norm:
+        nu = apply(b)
+        X = lifted_solve(nu)
+        for _ in range(5):                                 # iterative refinement on the exact products
+            res = b - X.ravel()[active]
+            if np.linalg.norm(res) <= 1e-12 * b_norm:
                 break
-            z = precondition(res)
-            rz_new = float(res @ z)
-            beta = rz_new / rz
-            p_dir, Xp, rz = z + beta * p_dir, lifted_solve(z) + beta * Xp, rz_new
+            delta = apply(res)
+            X += lifted_solve(delta)
         d += X
         d.ravel()[active] = 0.0
         return d
@@ -454,7 +445,7 @@ def spacetime(B, neutral, frames, sigma, lam: float = 1e-3, first=None, last=Non
     def reduced_step(act, r):
         """Exact Newton step on the free entries (𝓗_FF d_F = r_F, d_A = 0), by the cheapest route."""
         active = np.flatnonzero(act)
-        if active.size <= max_exact_active:
+        if active.size <= max_exact_active and tables_fit(active):
             return _capacitance_step(active, r)
         if Y.size * (2 * n) ** 2 <= BANDED_FLOP_LIMIT and Y.size * 2 * n <= BANDED_FLOP_LIMIT / 100:
             return _banded_step(~act, r)
