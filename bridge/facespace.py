@@ -39,18 +39,18 @@ def linear_model(obj):
     return model
 
 
-def animation_weights(obj, model, action=None, frame_range=None):
-    """Slider values of ``action`` (default: the rig's own) at every integer frame, (f, n), and frames."""
+def animation_weights(obj, names, action=None):
+    """Values of the shape keys ``names`` in ``action`` (default: the rig's own) at every integer frame of
+    the action, (f, n), and the frames."""
     key = obj.data.shape_keys
     action = action or actions.active_action(key)
     if action is None:
-        raise ShapeSpaceError(f"{obj.name!r} has no shape-key animation to learn from; choose an action",
-                              "no_action")
+        raise ShapeSpaceError(f"{obj.name!r} has no shape-key animation; choose an action", "no_action")
     if not actions.shape_key_curves(obj, action):
         raise ShapeSpaceError(f"action {action.name!r} animates none of {obj.name!r}'s shape keys", "no_channels")
-    first, last = frame_range or actions.frame_range(action)
+    first, last = actions.frame_range(action)
     frames = np.arange(np.ceil(first), np.floor(last) + 1)
-    return actions.sample_shape_keys(obj, model.names, frames, action), frames
+    return actions.sample_shape_keys(obj, names, frames, action), frames
 
 
 # ------------------------------------------------------------------ conversions (3.7.3, 3.4.6)
@@ -152,7 +152,7 @@ def to_pca_object(obj, action=None, tol: float = None):
     if action is None:
         basis = fs.pca_from_model(model)
     else:
-        W, frames = animation_weights(obj, model, action)
+        W, frames = animation_weights(obj, model.names, action)
         tol = tol if tol is not None else 1e-3 * model.scale
         report = fs.compression_report(model, W, tol)
         if report.value is None:
@@ -212,7 +212,7 @@ def stored(obj, prop: str) -> dict:
 def compression(obj, action, tol: float) -> dict:
     """How many PCA components keep an animation's max vertex error within ``tol`` (3.7.8)."""
     model = linear_model(obj)
-    W, frames = animation_weights(obj, model, action)
+    W, frames = animation_weights(obj, model.names, action)
     res = fs.compression_report(model, W, tol)
     d = res.diagnostics
     out = {"components": res.value, "targets": model.n_targets, "frames": int(frames.size), "tol": float(tol),
@@ -250,7 +250,7 @@ def analyse(obj, action=None, png_path: str = None, threshold: float = 0.95) -> 
            "empty_targets": fs.empty_targets(model), "image": img.name, "png": png_path or ""}
     key_action = action or actions.active_action(obj.data.shape_keys)
     if key_action is not None and actions.shape_key_curves(obj, key_action):
-        W, _ = animation_weights(obj, model, key_action)
+        W, _ = animation_weights(obj, model.names, key_action)
         sp = fs.sparsity_comparison(model, W)
         out["sparsity"] = {form: {k: float(v) for k, v in vals.items() if np.isscalar(v)}
                            for form, vals in sp.value.items()}
@@ -265,7 +265,7 @@ def analyse(obj, action=None, png_path: str = None, threshold: float = 0.95) -> 
 def learn_prior(obj, action=None) -> dict:
     """Fit the face-space Gaussian to an animation and store it on the rig (names, mean, eigenbasis)."""
     model = linear_model(obj)
-    W, frames = animation_weights(obj, model, action)
+    W, frames = animation_weights(obj, model.names, action)
     g = facestats.fit_face_gaussian(W)
     data = {"names": model.names, "mean": g.mean.tolist(), "eigvecs": g.eigvecs.tolist(),
             "eigvals": g.eigvals.tolist(), "dimension": g.dimension, "ridge": g.ridge,
@@ -310,13 +310,7 @@ def meter(obj) -> dict:
 def implausible_frames(obj, action=None, alpha: float = 0.01) -> list:
     """``[(frame, reason)]`` of an animation's frames outside the prior's typical shell."""
     g, names = _prior_or_error(obj)
-    key = obj.data.shape_keys
-    action = action or actions.active_action(key)
-    if action is None:
-        raise ShapeSpaceError(f"{obj.name!r} has no shape-key animation to check", "no_action")
-    first, last = actions.frame_range(action)
-    frames = np.arange(np.ceil(first), np.floor(last) + 1)
-    W = actions.sample_shape_keys(obj, names, frames, action)
+    W, frames = animation_weights(obj, names, action)
     idx, reasons = g.implausible_frames(W, alpha)
     return [(int(frames[i]), r) for i, r in zip(idx, reasons)]
 
@@ -339,8 +333,8 @@ def fill_between(obj, frame_a: int, frame_b: int, mode: str = "SHELL") -> int:
     W = (facestats.shell_interpolate(g, ends[0], ends[1], t) if mode == "SHELL"
          else facestats.linear_interpolate(ends[0], ends[1], t))
     for j, name in enumerate(names):
-        for f, v in zip(inner, W[:, j]):
-            actions.insert_key(key, actions.shape_key_path(name), float(f), float(v))
+        fc = actions.ensure_fcurve(key, actions.shape_key_path(name))
+        actions.replace_keys_between(fc, frame_a + 1, frame_b - 1, inner, W[:, j])
     return int(inner.size)
 
 

@@ -242,24 +242,38 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
     report["position_error_rms"] = float(np.sqrt(np.mean(pos_err ** 2)) / model.scale)
     report["velocity_error_rms"] = float(np.sqrt(np.mean(np.sum(vel ** 2, axis=1))) / model.scale)
     report["clipping_frames"] = int(np.sum(np.any((raw < lo - 1e-9) | (raw > hi + 1e-9), axis=1)))
-    previous = actions.active_action(obj.data.shape_keys)
-    action = actions.key_shape_values(obj, model.names, frames, W,
-                                      action_name or f"{obj.name}_{method}")
-    if key_tolerance > 0:
-        report["keys_kept_frac"] = reduce_action_keys(obj, model.names, frames, W, key_tolerance, key_shape)
-    report["action"] = action.name
-    _remember(obj, report, previous)
-    return report
+    return _write_result(obj, model.names, frames, W, action_name or f"{obj.name}_{method}", key_tolerance,
+                         key_shape, report)
 
 
 KEY_SHAPES = ("BEZIER", "LINEAR")
 
 
+def _check_key_shape(key_shape: str) -> None:
+    if key_shape not in KEY_SHAPES:
+        raise ShapeSpaceError(f"key shape must be one of {', '.join(KEY_SHAPES)}, got {key_shape!r}", "key_shape")
+
+
+def _write_result(obj, names, frames, W, action_name, key_tolerance, key_shape, report) -> dict:
+    """Key ``W`` (f, n) into a new action on ``obj`` — every frame, or the fewest keys within
+    ``key_tolerance`` — and remember the report and the action it replaces (for Discard Result)."""
+    _check_key_shape(key_shape)                       # before anything is written
+    key = obj.data.shape_keys
+    previous = actions.active_action(key)
+    if key_tolerance > 0:
+        action = actions.new_action(key, action_name)
+        report["keys_kept_frac"] = reduce_action_keys(obj, names, frames, W, key_tolerance, key_shape)
+    else:
+        action = actions.key_shape_values(obj, names, frames, W, action_name)
+    report["action"] = action.name
+    _remember(obj, report, previous)
+    return report
+
+
 def reduce_action_keys(obj, names, frames, W, tolerance: float, key_shape: str = "BEZIER") -> float:
     """Rewrite the dense curves ``W`` (f, n) of ``names`` with the fewest keys within ``tolerance``
     (smooth Bézier keys, or linear ones); returns the fraction of keys kept."""
-    if key_shape not in KEY_SHAPES:
-        raise ShapeSpaceError(f"key shape must be one of {', '.join(KEY_SHAPES)}, got {key_shape!r}", "key_shape")
+    _check_key_shape(key_shape)
     key = obj.data.shape_keys
     kept = 0
     for j, name in enumerate(names):
@@ -393,13 +407,8 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
                    "position_error_rms": float(np.sqrt(np.mean(np.sum(residual ** 2, axis=(1, 2)))) / model.scale),
                    "velocity_error_rms": float(np.sqrt(np.mean(np.sum(vel ** 2, axis=(1, 2)))) / model.scale),
                    "issues": []})
-    previous = actions.active_action(obj.data.shape_keys)
-    action = actions.key_shape_values(obj, model.names, frames, W, action_name or f"{obj.name}_{source_obj.name}")
-    if key_tolerance > 0:
-        report["keys_kept_frac"] = reduce_action_keys(obj, model.names, frames, W, key_tolerance, key_shape)
-    report["action"] = action.name
-    _remember(obj, report, previous)
-    return report
+    return _write_result(obj, model.names, frames, W, action_name or f"{obj.name}_{source_obj.name}",
+                         key_tolerance, key_shape, report)
 
 
 def add_landmark(obj, name: str, vertex: int) -> str:

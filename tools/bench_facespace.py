@@ -260,7 +260,7 @@ def representations():
     head = bpy.data.objects["Mesh_2"]
     capture = actions.active_action(head.data.shape_keys)
     model = shapekeys.read_blendshape_model(head)
-    W, frames = facespace.animation_weights(head, model, capture)
+    W, frames = facespace.animation_weights(head, model.names, capture)
     rigs = {"facecap": (model, W)}
     assets.load(os.path.join(SHARED, "ict_facekit", "ict_facekit_expressions.glb"), replace=False)
     ict = bpy.data.objects["ICTFace"]
