@@ -2,9 +2,9 @@
 
 Registration only; the numerics live in ``core``, Blender I/O in ``bridge``.
 """
-from . import cli, operators, overlay, panels, properties, psd_preview, viewport_tool
+from . import cli, operators, panels, properties, ui
 
-_modules = (properties, operators, panels, overlay, viewport_tool, psd_preview, cli)
+_modules = (properties, operators, panels, ui, cli)
 
 
 def register():

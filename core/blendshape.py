@@ -337,7 +337,7 @@ def diagnose_model(model: BlendshapeModel, rel_tol: float = 1e-7) -> Result:
                             f"NaN or infinite coordinates in shape keys: {', '.join(bad_targets)}",
                             tuple(bad_targets)))
     if any(i.severity == "error" for i in issues):
-        return Result(None, -1, issues[0].message, {}, issues)
+        return Result(value=None, status=-1, message=issues[0].message, diagnostics={}, issues=issues)
 
     scale = model.scale or 1.0
     flat = model.deltas.reshape(model.n_targets, 3 * model.n_vertices)
@@ -379,5 +379,5 @@ def diagnose_model(model: BlendshapeModel, rel_tol: float = 1e-7) -> Result:
     rank = int(np.linalg.matrix_rank(flat[live], tol=rel_tol * scale)) if live.size else 0
     status = 1 if issues else 0
     msg = issues[0].message if issues else f"{model.n_targets} targets, rank {rank}"
-    return Result(rank, status, msg, {"rank": rank, "n_targets": model.n_targets,
-                                       "n_vertices": model.n_vertices, "scale": scale}, issues)
+    return Result(value=rank, status=status, message=msg, diagnostics={"rank": rank, "n_targets": model.n_targets,
+                                       "n_vertices": model.n_vertices, "scale": scale}, issues=issues)

@@ -444,11 +444,9 @@ def compression_report(model, weights, tol, max_components=None):
             "singular_values": np.sqrt(basis.variances * (raw.shape[0] - 1))}
     if m is None:
         msg = f"{M} components leave a max vertex error of {errors[-1]:.3g} > tol {tol:.3g}"
-        return Result(None, -1, msg, diag, [Issue("error", "tolerance_not_met", msg)])
-    return Result(m, 0, f"{m} of {model.n_targets} components reach max vertex error "
-                        f"{errors[m]:.3g} ≤ {tol:.3g}", diag)
-
-
+        return Result(value=None, status=-1, message=msg, diagnostics=diag, issues=[Issue("error", "tolerance_not_met", msg)])
+    return Result(value=m, status=0, message=f"{m} of {model.n_targets} components reach max vertex error "
+                        f"{errors[m]:.3g} ≤ {tol:.3g}", diagnostics=diag)
 # ---------------------------------------------------------------- diagnostics
 def _empty_mask(model, rel_tol):
     _check_model(model, need_targets=False)
@@ -593,5 +591,4 @@ def sparsity_comparison(model, weights, basis=None):
     msg = (f"blendshape ({model.n_targets} weights) vs PCA ({basis.n_components} coefficients): Hoyer "
            f"{bs['hoyer']:.2f} vs {pc['hoyer']:.2f}, RMS-scaled {bs['hoyer_rms']:.2f} vs {pc['hoyer_rms']:.2f}, "
            f"idle curve samples {bs['curve_small_fraction']:.2f} vs {pc['curve_small_fraction']:.2f}")
-    return Result({"blendshape": bs, "pca": pc}, 0, msg,
-                  {"n_frames": raw.shape[0], "n_targets": model.n_targets, "n_components": basis.n_components})
+    return Result(value={"blendshape": bs, "pca": pc}, status=0, message=msg, diagnostics={"n_frames": raw.shape[0], "n_targets": model.n_targets, "n_components": basis.n_components})

@@ -120,8 +120,8 @@ class FaceGaussian:
                                     tuple(f"frame {i}" for i in idx)))
         bad = int(np.count_nonzero(flat != "typical"))
         message = f"{bad} of {flat.size} frame(s) implausible at α = {alpha:g}"
-        return Result(status, 1 if bad else 0, message, {"norm": norm, "percentile": pct, "alpha": float(alpha),
-                      "dimension": self.dimension, "shell_radius": self.shell_radius}, issues)
+        return Result(value=status, status=1 if bad else 0, message=message, diagnostics={"norm": norm, "percentile": pct, "alpha": float(alpha),
+                      "dimension": self.dimension, "shell_radius": self.shell_radius}, issues=issues)
 
     def implausible_frames(self, frames_weights, alpha: float = 0.01):
         """Indices (k,) of the frames of ``frames_weights`` (f, n) that are not typical, and per index its
@@ -441,7 +441,7 @@ def inpaint_curve(values, known, window: int = None, ridge: float = 1e-6, autoco
     message = "; ".join([message] + [i.message for i in issues])
     issues.sort(key=lambda i: i.severity != "warning")
     status = 1 if any(i.severity == "warning" for i in issues) else 0
-    return Result(out[:, 0] if one_d else out, status, message, diag, issues)
+    return Result(value=out[:, 0] if one_d else out, status=status, message=message, diagnostics=diag, issues=issues)
 
 
 def context_channels(values, target: int, known, gap_length: int, window: int = None) -> np.ndarray:

@@ -1,26 +1,75 @@
-"""Result objects shared by every ShapeSpace solver and reader.
+"""The one result family of ShapeSpace's core, and its error type.
 
-Every public entry point in :mod:`core` returns (or raises with) plain data:
-arrays in, small dataclasses out.  :class:`Result` carries a value together
-with a machine-readable ``status``, a one-line human ``message`` and a
-``diagnostics`` dictionary, in the spirit of ``scipy.optimize.OptimizeResult``.
+Every public computation in :mod:`core` either raises :class:`ShapeSpaceError`
+(bad input, detected before any work) or returns a :class:`Result` (or one of
+its subclasses).  A result always carries
+
+- ``value`` — what was computed (an array, a dataclass, …), ``None`` on failure;
+- ``status`` — a :class:`Status`, with one convention everywhere;
+- ``message`` — one line for the artist or the command line;
+- ``iterations`` — solver iterations (0 for direct methods);
+- ``diagnostics`` — extra numbers for reports and tests;
+- ``issues`` — findings of validation (:class:`Issue`), most severe first.
+
+Solvers that have a natural name for their value expose it as a read-only
+alias (``BoxQPResult.x``, ``SpacetimeResult.weights`` …), in the spirit of
+``scipy.optimize.OptimizeResult``.
+
+Status convention (:data:`STATUS_MESSAGES` is the table)::
+
+     0  OK             the value is exact to the solver's tolerance
+     1  WARNING        the value is usable; ``issues``/``message`` say what to look at
+     2  NOT_CONVERGED  the solver stopped at its iteration limit (or stalled); the value is the
+                       best iterate — never reported as "ok" (the CLI exits non-zero)
+    -1  FAILED         no usable value
+
+Error codes (:class:`ErrorCode`) are listed in one place, :mod:`core.errors`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import enum
+import math
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
 from typing import Any
+
+import numpy as np
+
+from .errors import ErrorCode
+
+__all__ = ["ErrorCode", "Issue", "Report", "Result", "STATUS_MESSAGES", "ShapeSpaceError", "Status",
+           "to_jsonable"]
+
+
+class Status(enum.IntEnum):
+    """Outcome of a core computation (the same meaning in every result type)."""
+
+    FAILED = -1
+    OK = 0
+    WARNING = 1
+    NOT_CONVERGED = 2
+
+
+#: Default one-line message of each status.
+STATUS_MESSAGES = {
+    Status.FAILED: "failed",
+    Status.OK: "ok",
+    Status.WARNING: "ok, with warnings",
+    Status.NOT_CONVERGED: "stopped at the iteration limit before converging",
+}
 
 
 class ShapeSpaceError(ValueError):
-    """Bad input detected by core validation.
+    """Bad input detected by core (or bridge) validation.
 
     The message is a single line meant for the artist (operator report or the
-    command line).  ``code`` is a short stable identifier tests can match.
+    command line) and names the culprit (argument and shape, key, vertex, flag,
+    line).  ``code`` is an :class:`ErrorCode` (a ``str`` enum, so tests can
+    compare it with the plain string).
     """
 
-    def __init__(self, message: str, code: str = "invalid"):
+    def __init__(self, message: str, code: ErrorCode | str = ErrorCode.INVALID):
         super().__init__(message)
-        self.code = code
+        self.code = ErrorCode(code)
 
 
 @dataclass
@@ -45,36 +94,88 @@ class Issue:
     items: tuple = ()
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Result:
-    """Outcome of a core computation.
+    """Outcome of a core computation (base of every result type).
 
     Attributes
     ----------
     value : Any
-        The computed value (array, dataclass, ...).  ``None`` on failure.
-    status : int
-        ``0`` success, ``1`` success with warnings, negative on failure.
+        The computed value.  ``None`` on failure.
+    status : Status
+        See the module docstring.
     message : str
         One-line summary.
+    iterations : int
+        Solver iterations (0 for a direct method).
     diagnostics : dict
-        Extra numbers (iterations, residuals, timings) for reports and tests.
+        Extra numbers (residuals, timings, routes taken) for reports and tests.
     issues : list of Issue
         Findings of validation, most severe first.
     """
 
     value: Any = None
-    status: int = 0
-    message: str = "ok"
+    status: Status = Status.OK
+    message: str = ""
+    iterations: int = 0
     diagnostics: dict = field(default_factory=dict)
     issues: list = field(default_factory=list)
 
+    def __post_init__(self):
+        self.status = Status(int(self.status))
+        if not self.message:
+            self.message = STATUS_MESSAGES[self.status]
+
     @property
     def success(self) -> bool:
-        return self.status >= 0
+        """True when the value is usable as it is (``OK`` or ``WARNING``)."""
+        return self.status in (Status.OK, Status.WARNING)
+
+    @property
+    def converged(self) -> bool:
+        """True unless the computation failed or stopped at its iteration limit."""
+        return self.status != Status.NOT_CONVERGED and self.status != Status.FAILED
 
     def errors(self) -> list:
         return [i for i in self.issues if i.severity == "error"]
 
     def warnings(self) -> list:
         return [i for i in self.issues if i.severity == "warning"]
+
+
+def to_jsonable(obj):
+    """Convert dataclasses, numpy values, enums and non-finite floats into plain JSON values.
+
+    Non-finite floats become ``None`` (JSON has no NaN); enums their value;
+    arrays lists.
+    """
+    if is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in fields(obj)}
+    if isinstance(obj, enum.Enum):
+        return to_jsonable(obj.value)
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return to_jsonable(obj.item())
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    return obj
+
+
+@dataclass
+class Report:
+    """Base of the typed reports the command line prints and the panels show.
+
+    Subclasses are plain dataclasses; :meth:`to_json` gives the JSON-ready dict
+    (NaN → ``null``), so every report is serialised the same way.
+    """
+
+    def to_json(self) -> dict:
+        return to_jsonable(self)
+
+    def as_dict(self) -> dict:
+        return asdict(self)

@@ -413,8 +413,7 @@ def diagnose_weights(weights: SkinWeights, vertex_names=None, tol: float = 1e-3)
         issues.append(Issue("warning", "unnormalised_weights",
                             f"{unnorm.size} vertices have weights that do not sum to 1 "
                             f"(Blender normalises them; first: vertex {int(unnorm[0])}, sum {total[unnorm[0]]:.4g})"))
-    return Result(total, 1 if issues else 0, issues[0].message if issues else "weights ok",
-                  {"unweighted": int(zero.size), "unnormalised": int(unnorm.size)}, issues)
+    return Result(value=total, status=1 if issues else 0, message=issues[0].message if issues else "weights ok", diagnostics={"unweighted": int(zero.size), "unnormalised": int(unnorm.size)}, issues=issues)
 
 
 def forward_kinematics(rest, parents, basis) -> np.ndarray:

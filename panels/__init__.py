@@ -1,11 +1,11 @@
-"""Sidebar panels (View3D ▸ Sidebar ▸ ShapeSpace)."""
+"""Sidebar panels (View3D ▸ Sidebar ▸ ShapeSpace), one module per capability, registered in sidebar order."""
 import bpy
 
-from .face_panel import SHAPESPACE_PT_face_space, SHAPESPACE_UL_flagged_frames
-from .direct_panel import SHAPESPACE_PT_direct, SHAPESPACE_UL_pins
-from .psd_panel import SHAPESPACE_PT_correctives, SHAPESPACE_UL_examples, SHAPESPACE_UL_readers
-from .retarget_panel import SHAPESPACE_PT_retarget
-from .rig_panel import SHAPESPACE_PT_rig
+from .facespace import SHAPESPACE_PT_face_space, SHAPESPACE_UL_flagged_frames
+from .manipulation import SHAPESPACE_PT_direct, SHAPESPACE_UL_pins
+from .posespace import SHAPESPACE_PT_correctives, SHAPESPACE_UL_examples, SHAPESPACE_UL_readers
+from .retarget import SHAPESPACE_PT_retarget
+from .rig import SHAPESPACE_PT_rig
 
 classes = (SHAPESPACE_PT_rig, SHAPESPACE_UL_pins, SHAPESPACE_PT_direct, SHAPESPACE_UL_examples,
            SHAPESPACE_UL_readers, SHAPESPACE_PT_correctives, SHAPESPACE_PT_retarget,

@@ -190,7 +190,7 @@ def _init_gpu():
 def test_overlay_draws_pins_offscreen(registered):
     import gpu
     from mathutils import Matrix
-    from shapespace import overlay
+    from shapespace.ui import overlay
 
     _init_gpu()
     ob = _facecap()

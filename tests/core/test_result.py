@@ -7,7 +7,7 @@ from core.result import Issue, Result, ShapeSpaceError
 def test_result_success_and_issue_filters():
     issues = [Issue("error", "non_finite", "bad"), Issue("warning", "empty_target", "empty", ("a",)),
               Issue("info", "note", "fyi")]
-    r = Result(None, -1, "bad", {}, issues)
+    r = Result(value=None, status=-1, message="bad", diagnostics={}, issues=issues)
     assert not r.success
     assert [i.code for i in r.errors()] == ["non_finite"]
     assert [i.code for i in r.warnings()] == ["empty_target"]

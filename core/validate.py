@@ -1,0 +1,114 @@
+"""Shared input validation for every core entry point (validate first, then compute).
+
+One dialect: each helper takes the value and the *argument name* and either
+returns the checked value (a float64 array or a float) or raises
+:class:`~core.result.ShapeSpaceError` with a one-line message naming the
+argument, what was expected and what was given, and a code from
+:class:`~core.errors.ErrorCode`.
+
+Shape specifications use ``None`` for "any size" in a dimension, e.g.
+``array(x, "neutral", shape=(None, 3))``.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from .errors import ErrorCode
+from .result import ShapeSpaceError
+
+__all__ = ["array", "finite_scalar", "positive", "non_negative", "in_range", "choice", "shape_text"]
+
+
+def shape_text(shape: Sequence) -> str:
+    """``(None, 3)`` → ``"(n, 3)"`` (the names used in messages)."""
+    letters = iter("nmkpqr")
+    dims = [str(d) if d is not None else next(letters, "?") for d in shape]
+    return "(" + ", ".join(dims) + ("," if len(dims) == 1 else "") + ")"
+
+
+def array(x, name: str, ndim: int | Sequence[int] | None = None, shape: Sequence | None = None,
+          finite: bool = True, dtype=np.float64) -> np.ndarray:
+    """``x`` as an array, checked.
+
+    Parameters
+    ----------
+    x : array_like
+    name : str
+        Argument name used in the message.
+    ndim : int or sequence of int, optional
+        Allowed numbers of dimensions.
+    shape : sequence of (int or None), optional
+        Required shape; ``None`` entries match any size.  Implies ``ndim``.
+    finite : bool
+        Refuse NaN and infinities (code ``non_finite``).
+    dtype : numpy dtype
+        Result dtype (float64 by default).
+
+    Returns
+    -------
+    ndarray
+    """
+    try:
+        arr = np.asarray(x, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ShapeSpaceError(f"{name} must be numeric, got {type(x).__name__} ({exc})", ErrorCode.DTYPE) from None
+    if shape is not None:
+        ok = arr.ndim == len(shape) and all(s is None or s == a for s, a in zip(shape, arr.shape))
+        if not ok:
+            raise ShapeSpaceError(f"{name} must have shape {shape_text(shape)}, got {arr.shape}", ErrorCode.SHAPE)
+    elif ndim is not None:
+        allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
+        if arr.ndim not in allowed:
+            want = " or ".join(str(d) for d in allowed)
+            raise ShapeSpaceError(f"{name} must have {want} dimensions, got shape {arr.shape}", ErrorCode.SHAPE)
+    if finite and arr.size and not np.isfinite(arr).all():
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        where = tuple(int(i) for i in bad)
+        raise ShapeSpaceError(f"{name} contains NaN or infinite values (first at index {where})",
+                              ErrorCode.NON_FINITE)
+    return arr
+
+
+def finite_scalar(x, name: str) -> float:
+    """``x`` as a finite float (code ``non_finite`` for NaN/inf, ``not_number`` otherwise)."""
+    try:
+        value = float(x)
+    except (TypeError, ValueError):
+        raise ShapeSpaceError(f"{name} must be a number, got {x!r}", ErrorCode.NOT_NUMBER) from None
+    if not math.isfinite(value):
+        raise ShapeSpaceError(f"{name} must be finite, got {value}", ErrorCode.NON_FINITE)
+    return value
+
+
+def positive(x, name: str) -> float:
+    """``x`` as a finite float > 0 (code ``range``)."""
+    value = finite_scalar(x, name)
+    if value <= 0:
+        raise ShapeSpaceError(f"{name} must be positive, got {value}", ErrorCode.RANGE)
+    return value
+
+
+def non_negative(x, name: str) -> float:
+    """``x`` as a finite float ≥ 0 (code ``range``)."""
+    value = finite_scalar(x, name)
+    if value < 0:
+        raise ShapeSpaceError(f"{name} must be ≥ 0, got {value}", ErrorCode.RANGE)
+    return value
+
+
+def in_range(x, name: str, lo: float, hi: float) -> float:
+    """``x`` as a finite float in ``[lo, hi]`` (code ``range``)."""
+    value = finite_scalar(x, name)
+    if not lo <= value <= hi:
+        raise ShapeSpaceError(f"{name} must be in [{lo}, {hi}], got {value}", ErrorCode.RANGE)
+    return value
+
+
+def choice(x, name: str, options: Sequence[str], code: ErrorCode = ErrorCode.METHOD) -> str:
+    """``x`` if it is one of ``options`` (message lists them)."""
+    if x not in options:
+        raise ShapeSpaceError(f"{name} must be one of {', '.join(map(repr, options))}, got {x!r}", code)
+    return x

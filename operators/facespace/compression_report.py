@@ -1,0 +1,32 @@
+import bpy
+
+from ...bridge import facespace
+from ..polls import animated_object, active_rig
+from ..reporting import FAILED, attempt
+
+
+class SHAPESPACE_OT_compression_report(bpy.types.Operator):
+    """How many PCA components keep the rig's animation within a max vertex error (thesis 3.7.8)"""
+
+    bl_idname = "shapespace.compression_report"
+    bl_label = "Compression Report"
+    bl_options = {"REGISTER", "UNDO"}
+
+    tolerance: bpy.props.FloatProperty(name="Tolerance", default=0.001, min=1e-7, max=0.5,
+                                       description="Max vertex error, as a fraction of the head size")
+
+    @classmethod
+    def poll(cls, context):
+        return active_rig(cls, context) is not None and animated_object(cls, context) is not None
+
+    def execute(self, context):
+        ob = context.active_object
+        scale = attempt(self, lambda: facespace.linear_model(ob).scale)
+        if scale is FAILED:
+            return {"CANCELLED"}
+        rep = attempt(self, facespace.compression, ob, None, self.tolerance * scale)
+        if rep is FAILED:
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{rep['components']} of {rep['targets']} components keep {rep['frames']} frames "
+                              f"within {self.tolerance:g} of the head size ({rep['ratio']:.2f}:1)")
+        return {"FINISHED"}

@@ -1,0 +1,34 @@
+import bpy
+
+from ...bridge import facespace
+from ..polls import prior_rig
+from ..reporting import FAILED, attempt
+
+
+class SHAPESPACE_OT_find_implausible_frames(bpy.types.Operator):
+    """List the frames whose expression lies outside the face prior's high-probability shell (too extreme,
+or too close to the average face)"""
+
+    bl_idname = "shapespace.find_implausible_frames"
+    bl_label = "Find Implausible Frames"
+    bl_options = {"REGISTER", "UNDO"}
+
+    alpha: bpy.props.FloatProperty(name="Significance", default=0.01, min=1e-6, max=0.5,
+                                   description="Flag frames in either tail of this total probability")
+
+    @classmethod
+    def poll(cls, context):
+        return prior_rig(cls, context) is not None
+
+    def execute(self, context):
+        ob = context.active_object
+        found = attempt(self, facespace.implausible_frames, ob, None, self.alpha)
+        if found is FAILED:
+            return {"CANCELLED"}
+        items = ob.shapespace_face.implausible
+        items.clear()
+        for frame, reason in found:
+            item = items.add()
+            item.frame, item.reason = frame, reason
+        self.report({"INFO"}, f"{len(found)} implausible frame(s)")
+        return {"FINISHED"}

@@ -1,0 +1,43 @@
+import bpy
+
+from ...bridge import drag
+from ...core.result import ShapeSpaceError
+from ..polls import pinned_rig
+
+
+class SHAPESPACE_OT_solve_pins(bpy.types.Operator):
+    """Move a pin's target (optional) and set the sliders so every pin reaches its target.
+The scriptable form of a viewport drag"""
+
+    bl_idname = "shapespace.solve_pins"
+    bl_label = "Solve Pins"
+    bl_options = {"REGISTER", "UNDO"}
+
+    pin: bpy.props.IntProperty(name="Pin", default=-1, description="Pin to move first; -1 moves none")
+    target: bpy.props.FloatVectorProperty(name="Target", size=3, subtype="XYZ",
+                                          description="New target of that pin, shape-key space")
+    key: bpy.props.BoolProperty(name="Key Sliders", description="Key the changed sliders at the current frame")
+
+    @classmethod
+    def poll(cls, context):
+        return pinned_rig(cls, context) is not None
+
+    def execute(self, context):
+        ob = context.active_object
+        st = ob.shapespace
+        if self.pin >= 0:
+            if self.pin >= len(st.pins):
+                self.report({"ERROR"}, f"there is no pin {self.pin}")
+                return {"CANCELLED"}
+            st.pins[self.pin].target = self.target
+        try:
+            before = drag.current_sliders(ob)
+            result = drag.solve_pins(ob)
+            if self.key:
+                drag.key_changed(ob, before, result.weights, context.scene.frame_current)
+        except ShapeSpaceError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        level = {"WARNING"} if result.status else {"INFO"}
+        self.report(level, f"{result.message}; largest pin error {result.residuals.max():.4g}")
+        return {"FINISHED"}

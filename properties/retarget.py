@@ -1,0 +1,31 @@
+"""Stored per object: retarget settings and the last result (``Object.shapespace_retarget``)."""
+import bpy
+
+
+RETARGET_METHODS = [
+    ("copy", "Copy", "Copy the mapped channels (corresponding parameterisation)"),
+    ("learned", "Learned", "Linear expression cloning learnt from the target posed at key poses"),
+    ("perframe", "Per Frame", "Fit the sliders to the source motion frame by frame"),
+    ("spacetime", "Space-Time", "Match the motion's velocities (keeps its shape at slider limits)")]
+KEY_SHAPES = [("BEZIER", "Smooth", "Bézier keys with aligned handles along the curve's slope (fewest keys)"),
+              ("LINEAR", "Linear", "Linear keys (a subset of the frames, straight segments)")]
+
+
+class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
+    """Retarget settings of a target rig (what the Retarget panel edits)."""
+
+    source_kind: bpy.props.EnumProperty(
+        name="Source", items=[("CSV", "Capture File", "A Live Link Face CSV recording"),
+                              ("ACTION", "Action", "An action animating shape keys (any naming convention)"),
+                              ("MESH", "Mesh Performance", "An animated mesh: shape keys, Mesh Cache, any modifier")],
+        default="CSV")
+    csv_path: bpy.props.StringProperty(name="CSV File", subtype="FILE_PATH")
+    action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action)
+    source_object: bpy.props.PointerProperty(name="Mesh", type=bpy.types.Object)
+    key_pose_action: bpy.props.PointerProperty(
+        name="Key Poses", type=bpy.types.Action,
+        description="Learned method: an action keying this rig's shape keys at the key-pose frames")
+    method: bpy.props.EnumProperty(name="Method", items=RETARGET_METHODS, default="spacetime")
+    key_tolerance: bpy.props.FloatProperty(name="Key Tolerance", default=0.01, min=0.0, max=0.1,
+                                           description="Keep the fewest keys within this slider error (0: all)")
+    key_shape: bpy.props.EnumProperty(name="Key Shape", items=KEY_SHAPES, default="BEZIER")

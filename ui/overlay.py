@@ -1,0 +1,72 @@
+"""Viewport overlay: pins (on the deformed surface) and their targets, drawn with the gpu module."""
+import bpy
+import gpu
+import numpy as np
+from gpu_extras.batch import batch_for_shader
+
+from ..bridge import compat, drag
+
+PIN_COLOR = (1.0, 0.55, 0.0, 1.0)
+STILL_COLOR = (0.2, 0.6, 1.0, 1.0)
+TARGET_COLOR = (1.0, 1.0, 1.0, 1.0)
+
+_handles = []
+
+
+def pin_world_points(obj, depsgraph):
+    """World-space pin positions, target positions (both on the deformed surface) and stationary flags."""
+    pins, targets, still = drag.read_pins(obj)
+    if not pins:
+        return np.zeros((0, 3)), np.zeros((0, 3)), still
+    drag.check_pins(obj)
+    current = drag.deformed_pin_positions(obj, depsgraph)
+    goal = drag.shape_to_deformed_targets(obj, depsgraph, pins, targets, current)
+    from ..bridge import meshes
+    return meshes.to_world(obj, current), meshes.to_world(obj, goal), still
+
+
+def draw_pins(obj, depsgraph, point_size: float = 8.0) -> int:
+    """Draw ``obj``'s pins with the current gpu matrices; return how many were drawn."""
+    try:
+        current, goal, still = pin_world_points(obj, depsgraph)
+    except Exception:  # a stale pin (mesh edited): the panel reports it, the overlay stays quiet
+        return 0
+    if not len(current):
+        return 0
+    shader = gpu.shader.from_builtin("UNIFORM_COLOR")
+    points = gpu.shader.from_builtin(compat.POINT_SHADER)
+    gpu.state.point_size_set(point_size)
+    gpu.state.depth_test_set("NONE")
+    lines = np.empty((2 * len(current), 3), dtype=np.float32)
+    lines[0::2], lines[1::2] = current, goal
+    shader.bind()
+    shader.uniform_float("color", TARGET_COLOR)
+    batch_for_shader(shader, "LINES", {"pos": lines.tolist()}).draw(shader)
+    points.bind()
+    points.uniform_float("color", TARGET_COLOR)
+    batch_for_shader(points, "POINTS", {"pos": goal.astype(np.float32).tolist()}).draw(points)
+    for mask, color in ((~still, PIN_COLOR), (still, STILL_COLOR)):
+        if mask.any():
+            points.uniform_float("color", color)
+            batch_for_shader(points, "POINTS", {"pos": current[mask].astype(np.float32).tolist()}).draw(points)
+    gpu.state.point_size_set(1.0)
+    return len(current)
+
+
+def _draw_callback():
+    context = bpy.context
+    obj = context.active_object
+    if obj is None or obj.type != "MESH" or not hasattr(obj, "shapespace") or not len(obj.shapespace.pins):
+        return
+    if obj.shapespace.mode == "SLIDERS":
+        return
+    draw_pins(obj, context.evaluated_depsgraph_get())
+
+
+def register():
+    _handles.append(bpy.types.SpaceView3D.draw_handler_add(_draw_callback, (), "WINDOW", "POST_VIEW"))
+
+
+def unregister():
+    while _handles:
+        bpy.types.SpaceView3D.draw_handler_remove(_handles.pop(), "WINDOW")
