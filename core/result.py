@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from dataclasses import KW_ONLY, asdict, dataclass, field, fields, is_dataclass
 from typing import Any
 
 import numpy as np
@@ -94,14 +94,14 @@ class Issue:
     items: tuple = ()
 
 
-@dataclass(kw_only=True)
+@dataclass
 class Result:
     """Outcome of a core computation (base of every result type).
 
     Attributes
     ----------
     value : Any
-        The computed value.  ``None`` on failure.
+        The computed value (the only positional field).  ``None`` on failure.
     status : Status
         See the module docstring.
     message : str
@@ -115,6 +115,7 @@ class Result:
     """
 
     value: Any = None
+    _: KW_ONLY
     status: Status = Status.OK
     message: str = ""
     iterations: int = 0
