@@ -138,7 +138,7 @@ def write_curve(id_block, data_path: str, frames, values, index: int = 0,
 def write_bezier_curve(id_block, data_path: str, frames, values, slopes, index: int = 0, group: str = ""):
     """Replace one curve's keys with smooth Bézier keys: value ``values[i]`` at ``frames[i]`` with
     aligned handles along ``slopes[i]`` at a third of each neighbouring segment, so Blender evaluates
-    exactly the cubic Hermite of :func:`core.cloning.hermite`."""
+    exactly the cubic Hermite of :func:`core.retarget.cloning.hermite`."""
     x = np.asarray(frames, dtype=np.float64).ravel()
     y = np.asarray(values, dtype=np.float64).ravel()
     m = np.asarray(slopes, dtype=np.float64).ravel()

@@ -6,7 +6,7 @@ import numpy as np
 import bpy
 from mathutils.bvhtree import BVHTree
 
-from ..core.direct import Pin, pin_positions, solve_drag, train_prior
+from ..core.manipulation.solve import Pin, pin_positions, solve_drag, train_prior
 from ..core.result import ShapeSpaceError
 from . import actions, meshes, shapekeys
 from .arrays import read_float

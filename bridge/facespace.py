@@ -2,7 +2,7 @@
 shell in-betweens, curve inpainting and pose-space confidence.
 
 Everything here reads Blender data through the other bridge modules, calls :mod:`core.facespace` /
-:mod:`core.facestats`, and writes *new* keys, objects, images or actions — the user's shape keys are
+:mod:`core.facespace.stats`, and writes *new* keys, objects, images or actions — the user's shape keys are
 only changed by the operators that say so (filling frames, inpainting a gap).
 """
 from __future__ import annotations
@@ -13,8 +13,9 @@ import os
 import bpy
 import numpy as np
 
-from ..core import facespace as fs
-from ..core import facestats
+from ..core.facespace import forms as fs
+from ..core.facespace import stats as facestats
+from ..core.posespace import confidence as gpconf
 from ..core.result import ShapeSpaceError
 from . import actions, shapekeys
 from .arrays import write_float
@@ -367,7 +368,7 @@ def inpaint_gap(obj, data_path: str, index: int, start: int, end: int, use_other
 
     With ``use_other_channels`` the other curves of the action whose motion correlates with the target's
     condition the fill too (superresolution: a knee from the hips), as many as the animation's length
-    can support (:func:`core.facestats.context_channels`)."""
+    can support (:func:`core.facespace.stats.context_channels`)."""
     owner, action = _curve_owner(obj)
     curves = actions.fcurves(action, owner)
     target = next((fc for fc in curves if fc.data_path == data_path and fc.array_index == index), None)
@@ -401,7 +402,7 @@ CONFIDENCE_ATTRIBUTE = "ShapeSpace Confidence"
 def confidence_model(deformer):
     """The Gaussian-process model of a trained pose-space deformer: its examples' poses, a Gaussian
     kernel of the deformer's width (prior variance 1)."""
-    return facestats.GPConfidence.fit(deformer.poses, "gaussian", float(deformer.epsilon))
+    return gpconf.GPConfidence.fit(deformer.poses, "gaussian", float(deformer.epsilon))
 
 
 def confidence(obj, heat_map: bool = False) -> dict:
@@ -414,7 +415,7 @@ def confidence(obj, heat_map: bool = False) -> dict:
     pose = posespace.read_pose(obj)
     out = {"variance": float(conf.variance(pose)), "examples": len(names)}
     if heat_map:
-        sd = facestats.vertex_uncertainty(conf, pose, deformer.correctives)
+        sd = gpconf.vertex_uncertainty(conf, pose, deformer.correctives)
         top = float(sd.max()) or 1.0
         t = np.clip(sd / top, 0.0, 1.0)
         rgba = np.column_stack([t, 0.2 * (1 - t), 1.0 - t, np.ones_like(t)])

@@ -7,9 +7,9 @@ import bpy
 import numpy as np
 
 from ..core import rbf
-from ..core.inversion import invert_deformation
-from ..core.posespace import PoseReader, pose_features
-from ..core.psd import example_issues, train_psd
+from ..core.posespace.inversion import invert_deformation
+from ..core.posespace.readers import PoseReader, pose_features
+from ..core.posespace.psd import example_issues, train_psd
 from ..core.result import ShapeSpaceError
 from ..core.skinning import deform
 from . import meshes, shapekeys, skin
@@ -191,7 +191,7 @@ def apply_example(obj, example_name: str, sculpt_positions=None):
     elif [m for m in obj.modifiers if m.show_viewport]:
         result = _invert_through_blender(obj, rest, sculpt_positions)
     else:
-        from ..core.inversion import InversionResult
+        from ..core.posespace.inversion import InversionResult
         result = InversionResult(sculpt_positions - rest, 0.0, 0, 0, "no armature: the sculpt is the corrective")
     key = obj.data.shape_keys
     basis = read_float(key.reference_key.data, "co", 3).astype(np.float64)
@@ -278,7 +278,7 @@ def trained_deformer(obj):
 
 def _skin_groups(obj):
     rs = readers(obj)
-    from ..core.posespace import feature_groups
+    from ..core.posespace.readers import feature_groups
     groups = feature_groups(rs)
     sources = list(groups)
     rig = skin.read_skinning(obj)
@@ -437,7 +437,7 @@ def move_example(obj, example_name: str, reset: bool = False) -> None:
 def mirror_example(obj, example_name: str, tolerance: float = 1e-4) -> str:
     """Add the left↔right mirror of an example: mirrored pose and corrective (mesh mirrored across local X)."""
     from scipy.spatial import cKDTree
-    from ..core.posespace import mirror_name, mirror_pose
+    from ..core.posespace.readers import mirror_name, mirror_pose
     st = settings(obj)
     ex = st.examples.get(example_name)
     if ex is None:
@@ -523,7 +523,7 @@ def record_targets(obj, example_name: str) -> list:
 
 def target_driver(obj):
     """The pose-space interpolant of the driven targets, or None when there are none."""
-    from ..core.psd import train_driver
+    from ..core.posespace.psd import train_driver
     st = settings(obj)
     if not len(st.targets):
         return None

@@ -7,10 +7,10 @@ import os
 import bpy
 import numpy as np
 
-from ..core.capture import read_live_link_csv, resample
-from ..core.cloning import (cloning_matrix, copy_weights, fit_frames, key_poses, reduce_keys, reduce_keys_bezier,
+from ..core.retarget.capture import read_live_link_csv, resample
+from ..core.retarget.cloning import (cloning_matrix, copy_weights, fit_frames, key_poses, reduce_keys, reduce_keys_bezier,
                              spacetime)
-from ..core.direct import NORMALISED_DIAGONAL
+from ..core.manipulation.solve import NORMALISED_DIAGONAL
 from ..core.names import match_channels
 from ..core.result import ShapeSpaceError
 from . import actions, shapekeys
@@ -338,7 +338,7 @@ def dense_source_positions(source, target_model, target, scene, frames):
     landmarks' similarity.  A ``stable`` vertex group on the source removes head motion per frame
     (rigid Procrustes onto the neutral).
     """
-    from ..core.cloning import check_landmarks, closest_points, landmark_warp, procrustes
+    from ..core.retarget.cloning import check_landmarks, closest_points, landmark_warp, procrustes
     from .arrays import read_float
     from .meshes import vertex_positions
     seq = mesh_sequence(source, scene, frames)
@@ -424,7 +424,7 @@ def landmarks_from_shapes(source, target) -> list:
     """Create landmark pairs from the shapes both meshes share (by mapped name): each pair's vertices are
     the ones that shape moves most on each mesh (chin for jawOpen, lids for eyeBlink, …).  Existing
     ``lm_auto_*`` groups are replaced; hand-placed landmarks are kept.  Returns the group names."""
-    from ..core.cloning import peak_landmarks
+    from ..core.retarget.cloning import peak_landmarks
     for ob in (source, target):
         if ob.type != "MESH" or ob.data.shape_keys is None or len(ob.data.shape_keys.key_blocks) < 2:
             raise ShapeSpaceError(f"{ob.name!r} has no shape keys to find landmarks from", "no_shape_keys")

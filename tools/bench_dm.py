@@ -27,7 +27,7 @@ def synthetic_model(n, p=3000, seed=0):
 
 
 def drag_problem(model, k, seed):
-    from shapespace.core.direct import Pin, pin_positions
+    from shapespace.core.manipulation.solve import Pin, pin_positions
     rng = np.random.default_rng(seed)
     w_true = np.where(rng.random(model.n_targets) < 0.15, rng.uniform(0, 1, model.n_targets), 0.0)
     pins = [Pin.at_vertex(int(i)) for i in rng.choice(model.n_vertices, k, replace=False)]
@@ -37,7 +37,7 @@ def drag_problem(model, k, seed):
 
 def qp_matrices(model, pins, targets, w0, alpha=0.1, mu=0.001):
     """Eq. 4.5 as ½xᵀPx + qᵀx (for the peers), built independently of the solver's internals."""
-    from shapespace.core.direct import NORMALISED_DIAGONAL, pin_matrix, pin_rest_positions
+    from shapespace.core.manipulation.solve import NORMALISED_DIAGONAL, pin_matrix, pin_rest_positions
     unit = model.scale / NORMALISED_DIAGONAL
     R = pin_matrix(model, pins) / unit
     m = (targets - pin_rest_positions(model, pins)).reshape(-1) / unit
@@ -90,7 +90,7 @@ def peers(P, q, lo, hi, R, m, w0, alpha, mu, reps):
 
 def solve_speed(quick):
     from shapespace.bridge import assets, shapekeys
-    from shapespace.core.direct import solve_drag
+    from shapespace.core.manipulation.solve import solve_drag
     import bpy
 
     reps = 3 if quick else 15
@@ -142,7 +142,7 @@ def solve_speed(quick):
 
 
 def pin_rest(model, pins):
-    from shapespace.core.direct import pin_positions
+    from shapespace.core.manipulation.solve import pin_positions
     return pin_positions(model, pins, np.zeros(model.n_targets))
 
 
@@ -161,7 +161,7 @@ def update_overhead(quick):
 def _update_overhead(quick):
     import bpy
     from shapespace.bridge import assets, drag, meshes, shapekeys
-    from shapespace.core.direct import Pin, pin_positions
+    from shapespace.core.manipulation.solve import Pin, pin_positions
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
     ob = bpy.data.objects["Mesh_2"]
     ob.data.shape_keys.animation_data.action = None
@@ -197,7 +197,7 @@ def _update_overhead(quick):
 # ---------------------------------------------------------------------------- artist effort
 def simulate_artist(model, w_target, tol, prior=None, cap=25):
     """Drags until every vertex is within ``tol`` (model units) of the target expression."""
-    from shapespace.core.direct import Pin, solve_drag
+    from shapespace.core.manipulation.solve import Pin, solve_drag
     goal = model.evaluate(w_target)
     w = np.zeros(model.n_targets)
     pins, targets = [], []
@@ -232,7 +232,7 @@ def llf_weights(names):
 def artist_effort(quick):
     import bpy
     from shapespace.bridge import actions, assets, shapekeys
-    from shapespace.core.direct import NORMALISED_DIAGONAL, train_prior
+    from shapespace.core.manipulation.solve import NORMALISED_DIAGONAL, train_prior
 
     datasets = {}
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))

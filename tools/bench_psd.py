@@ -53,7 +53,7 @@ def _random_rotations(rng, n, max_angle):
 
 class Region:
     def __init__(self, name):
-        from shapespace.core.posespace import PoseReader, quaternion_to_matrix
+        from shapespace.core.posespace.readers import PoseReader, quaternion_to_matrix
         asset, mesh, joints = REGIONS[name]
         self.ob, self.arm, self.rig, self.rest, self.parents = _rig(asset, mesh)
         d = self.rig.deformers[0]
@@ -81,7 +81,7 @@ class Region:
         return forward_kinematics(d.rest, self.parents, basis)
 
     def features(self, quats):
-        from shapespace.core.posespace import pose_features
+        from shapespace.core.posespace.readers import pose_features
         return pose_features(self.readers, list(quats))
 
     def deform(self, coords, pose, dqs):
@@ -92,7 +92,7 @@ class Region:
 
 def _bulge(region, quats):
     """A second nonlinear reference: a bulge driven by the bend of the first two joints (rest space)."""
-    from shapespace.core.posespace import quaternion_distance
+    from shapespace.core.posespace.readers import quaternion_distance
     ident = np.array([1.0, 0, 0, 0])
     a = np.sin(quaternion_distance(quats[0], ident) / 2) * np.sin(quaternion_distance(quats[1], ident) / 2)
     head = region.rig.deformers[0].rest[region.joints[1], :3, 3]
@@ -105,8 +105,8 @@ def _bulge(region, quats):
 
 
 def quality(quick):
-    from shapespace.core.inversion import invert_deformation
-    from shapespace.core.psd import train_psd
+    from shapespace.core.posespace.inversion import invert_deformation
+    from shapespace.core.posespace.psd import train_psd
     out = {}
     curves = {}
     n_test = 100
@@ -220,8 +220,8 @@ def roundtrip():
 def speed(quick):
     from scipy.interpolate import RBFInterpolator
     from shapespace.core import rbf
-    from shapespace.core.inversion import invert_deformation
-    from shapespace.core.psd import train_psd
+    from shapespace.core.posespace.inversion import invert_deformation
+    from shapespace.core.posespace.psd import train_psd
     from shapespace.core.skinning import ArmatureDeform, SkinningRig, SkinWeights, deform
     rng = np.random.default_rng(0)
     p, n_ex, joints = 30000, 30, 20
@@ -252,7 +252,7 @@ def speed(quick):
     pose = rest_m.copy()
     for j in range(joints):
         q = _random_rotations(rng, 1, 0.8)[0]
-        from shapespace.core.posespace import quaternion_to_matrix
+        from shapespace.core.posespace.readers import quaternion_to_matrix
         pose[j, :3, :3] = quaternion_to_matrix(q)
     rig = SkinningRig(np.eye(4), [ArmatureDeform(SkinWeights(gi, gw), [f"b{j}" for j in range(joints)], rest_m,
                                                  np.eye(4))])

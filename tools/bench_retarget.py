@@ -42,7 +42,7 @@ def _explicit(B, b0, S, sigma, lam, first, last):
 
 
 def speed(quick):
-    from shapespace.core.cloning import spacetime
+    from shapespace.core.retarget.cloning import spacetime
     reps = 2 if quick else 5
     out = {}
     B, b0, S, W = _problem(500, 52, 3000)
@@ -213,7 +213,7 @@ def landmark_cases():
     real FBHead problem (slider ranges [0, 1], dense noisy correspondence)."""
     import bpy
     from shapespace.bridge import assets, retarget
-    from shapespace.core import cloning
+    from shapespace.core.retarget import cloning
     out = {}
     assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"), replace=False)

@@ -1,7 +1,7 @@
 import bpy
 
 from ...bridge import drag, shapekeys
-from ...core.direct import Pin, pin_positions
+from ...core.manipulation.solve import Pin, pin_positions
 from ...core.result import ShapeSpaceError
 from ..polls import active_rig
 

@@ -3,7 +3,7 @@ import numpy as np
 from bpy_extras import view3d_utils
 
 from ...bridge import drag, meshes, shapekeys
-from ...core.direct import pin_positions
+from ...core.manipulation.solve import pin_positions
 from ...core.result import ShapeSpaceError
 from ..polls import pinnable_rig
 

@@ -368,7 +368,7 @@ def test_driven_targets_follow_pose_space_and_bake(registered, tmp_path):
 
 def test_property_shape_key_swing_and_twist_readers(registered):
     """Adjective (custom property), weighted-pose-space (shape key), swing and twist readers read Blender."""
-    from shapespace.core.posespace import PoseReader, pose_features, swing_twist
+    from shapespace.core.posespace.readers import PoseReader, pose_features, swing_twist
     ob, arm = _cesium()
     st = ob.shapespace_psd
     bone = arm.pose.bones[5].name

@@ -7,7 +7,7 @@ import pytest
 from support import ASSETS, shared
 from blender_support import blend_fingerprint, bpy, evaluated, import_file, rel_error
 from shapespace.bridge import actions, drag, meshes, shapekeys, skin
-from shapespace.core.direct import Pin, pin_positions, solve_drag_reference
+from shapespace.core.manipulation.solve import Pin, pin_positions, solve_drag_reference
 
 FACECAP = os.path.join(ASSETS, "facecap", "facecap_decoded.glb")
 

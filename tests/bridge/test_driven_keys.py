@@ -5,7 +5,7 @@ import pytest
 from support import ASSETS
 from blender_support import blend_fingerprint, bpy, evaluated, import_file, rel_error
 from shapespace.bridge import actions, driven, shapekeys
-from shapespace.core.direct import Pin, pin_positions, solve_drag
+from shapespace.core.manipulation.solve import Pin, pin_positions, solve_drag
 from shapespace.core.result import ShapeSpaceError
 import os
 

@@ -4,7 +4,7 @@ import numpy as np
 from support import shared
 from blender_support import bpy, import_file
 from shapespace.bridge import actions
-from shapespace.core import facestats
+from shapespace.core.facespace import stats as facestats
 
 GAP = 20
 

@@ -10,7 +10,7 @@ import pytest
 from support import ASSETS, ROOT, shared
 from blender_support import bpy, import_file
 from shapespace.bridge import actions, retarget, shapekeys
-from shapespace.core.capture import read_live_link_csv, resample
+from shapespace.core.retarget.capture import read_live_link_csv, resample
 
 CSV = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
 BLEND = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")
@@ -256,7 +256,7 @@ def test_key_reduction_beats_blender_decimate_at_equal_error():
 
 
 def test_bezier_keys_evaluate_as_the_core_hermite():
-    from shapespace.core.cloning import hermite, reduce_keys_bezier
+    from shapespace.core.retarget.cloning import hermite, reduce_keys_bezier
     import_file(BLEND)
     ob = bpy.data.objects["FBHead"]
     key = ob.data.shape_keys

@@ -1,4 +1,4 @@
-"""core.capture: Live Link Face timecodes, CSV reading/validation and resampling (thesis 3.5).
+"""core.retarget.capture: Live Link Face timecodes, CSV reading/validation and resampling (thesis 3.5).
 
 References are independent: timecodes are converted by hand (HH·3600 + MM·60 + SS + FF/60), the real
 recording is re-read with the ``csv`` module, interpolated values are written out as explicit
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.capture import WeightStream, parse_timecode, read_live_link_csv, resample
+from core.retarget.capture import WeightStream, parse_timecode, read_live_link_csv, resample
 from core.names import ARKIT_52
 from core.result import ShapeSpaceError
 

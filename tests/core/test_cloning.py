@@ -1,4 +1,4 @@
-"""core.cloning: expression cloning, per-frame fits, space-time cloning (thesis ch. 5), key reduction,
+"""core.retarget.cloning: expression cloning, per-frame fits, space-time cloning (thesis ch. 5), key reduction,
 Procrustes and landmark warps (thesis 3.5).
 
 Every reference is built here independently of the code under test:
@@ -23,7 +23,7 @@ from scipy.optimize import lsq_linear
 from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
-from core.cloning import (closest_points, cloning_matrix, copy_weights, fit_frames, key_poses, landmark_layout,
+from core.retarget.cloning import (closest_points, cloning_matrix, copy_weights, fit_frames, key_poses, landmark_layout,
                           landmark_warp, peak_landmarks,
                           curve_slopes, hermite, procrustes, reduce_keys, reduce_keys_bezier, spacetime)
 from core.result import ShapeSpaceError
@@ -487,7 +487,7 @@ def test_spacetime_bounded_every_newton_step_matches_quadprog(route, monkeypatch
     # A mid-size problem (F=60, n=5) where many entries clip: the three ways of computing the reduced
     # Newton step — capacitance (small active sets), banded Cholesky (large ones), preconditioned CG
     # (huge problems) — each reach quadprog's exact active-set optimum of the explicit Kronecker QP.
-    import core.cloning as cloning
+    import core.retarget.cloning as cloning
     max_exact_active = 1000 if route == "capacitance" else 0
     if route == "cg":
         monkeypatch.setattr(cloning, "BANDED_FLOP_LIMIT", 0.0)

@@ -2,7 +2,7 @@
 
 References are built here from the raw arrays (neutral, deltas, barycentric pins) and solved with
 OSQP, scipy (lsq_linear / L-BFGS-B), numpy linear algebra or analytic answers; they never go through
-core.direct's own matrix builders.
+core.manipulation.solve's own matrix builders.
 """
 import numpy as np
 import osqp
@@ -10,9 +10,9 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import minimize
 
-import core.direct as direct
+import core.manipulation.solve as direct
 from core.blendshape import BlendshapeModel, Combination, InBetween
-from core.direct import (DragResult, Pin, WeightPrior, drag_objective, pin_matrix, pin_positions,
+from core.manipulation.solve import (DragResult, Pin, WeightPrior, drag_objective, pin_matrix, pin_positions,
                          pin_rest_positions, solve_drag, solve_drag_reference, train_prior)
 from core.result import ShapeSpaceError
 

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from core.facestats import (FaceGaussian, GPConfidence, cubic_fill, fit_face_gaussian, gp_variance, inpaint_curve,
-                            linear_fill, linear_interpolate, shell_interpolate, vertex_uncertainty)
+from core.facespace.stats import (FaceGaussian, cubic_fill, fit_face_gaussian, inpaint_curve, linear_fill,
+                                  linear_interpolate, shell_interpolate)
+from core.posespace.confidence import GPConfidence, gp_variance, vertex_uncertainty
 from core.result import Result, ShapeSpaceError
 
 BVH = "/work/shared/data/cmu_mocap/131_01.bvh"
@@ -424,7 +425,7 @@ def test_vertex_uncertainty_scales_with_the_correctives_and_vanishes_for_unmoved
 
 # --------------------------------------------------------------------------- context channel choice
 def test_context_channels_picks_the_correlated_channel_and_respects_the_budget():
-    from core.facestats import context_channels
+    from core.facespace.stats import context_channels
     rng = np.random.default_rng(11)
     T = 600
     t = np.arange(T)
@@ -441,7 +442,7 @@ def test_context_channels_picks_the_correlated_channel_and_respects_the_budget()
 
 
 def test_context_channels_bad_input():
-    from core.facestats import context_channels
+    from core.facespace.stats import context_channels
     with pytest.raises(ShapeSpaceError):
         context_channels(np.zeros((50, 3)), 5, np.ones(50, bool), 5)
     with pytest.raises(ShapeSpaceError):

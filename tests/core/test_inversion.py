@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core.inversion import InversionResult, invert_deformation, vertex_jacobians
+from core.posespace.inversion import InversionResult, invert_deformation, vertex_jacobians
 from core.result import ShapeSpaceError
 from core.skinning import ArmatureDeform, SkinningRig, SkinWeights, deform
 

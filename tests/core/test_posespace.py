@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core.posespace import (READER_DIMS, PoseReader, feature_groups, mirror_features, mirror_name, mirror_pose,
+from core.posespace.readers import (READER_DIMS, PoseReader, feature_groups, mirror_features, mirror_name, mirror_pose,
                             pose_features, quaternion_distance, quaternion_to_matrix, reader_features,
                             swing_twist)
 from core.result import ShapeSpaceError

@@ -8,7 +8,7 @@ import pytest
 from scipy.interpolate import RBFInterpolator
 from scipy.spatial.distance import cdist
 
-from core.psd import PoseSpaceDeformer, example_issues, train_driver, train_psd
+from core.posespace.psd import PoseSpaceDeformer, example_issues, train_driver, train_psd
 from core.result import ShapeSpaceError
 
 
@@ -568,7 +568,7 @@ def test_wpsd_stabiliser_leaves_well_conditioned_vertices_exact_and_tames_the_re
     exact = train_psd(X, D, "wpsd", vertex_ridge=0.0, vertex_groups=gi, vertex_weights=gw,
                       group_columns=GROUP_COLUMNS)
     tamed = train_psd(X, D, "wpsd", vertex_groups=gi, vertex_weights=gw, group_columns=GROUP_COLUMNS)
-    from core.psd import AMPLIFICATION_LIMIT
+    from core.posespace.psd import AMPLIFICATION_LIMIT
     scale = np.abs(D).max(axis=(0, 2))
     wild = np.abs(exact.folded).max(axis=(1, 2)) > AMPLIFICATION_LIMIT * scale
     np.testing.assert_array_equal(tamed.folded[~wild], exact.folded[~wild])

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .result import ShapeSpaceError
+from ..result import ShapeSpaceError
 
 __all__ = ["InversionResult", "vertex_jacobians", "invert_deformation"]
 

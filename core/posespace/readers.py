@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .result import ShapeSpaceError
+from ..result import ShapeSpaceError
 
 __all__ = ["PoseReader", "READER_DIMS", "quaternion_distance", "quaternion_to_matrix", "swing_twist",
            "reader_features", "pose_features", "feature_groups", "mirror_name", "mirror_features", "mirror_pose"]

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .names import ARKIT_52, canonical_name
-from .result import Issue, ShapeSpaceError
+from ..names import ARKIT_52, canonical_name
+from ..result import Issue, ShapeSpaceError
 
 __all__ = ["WeightStream", "parse_timecode", "read_live_link_csv", "resample"]
 

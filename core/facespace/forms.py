@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .blendshape import BlendshapeModel
-from .result import Issue, Result, ShapeSpaceError
+from ..blendshape import BlendshapeModel
+from ..result import Issue, Result, ShapeSpaceError
 
 __all__ = [
     "PCABasis", "to_whole_face", "from_whole_face", "whole_face_weights", "delta_weights",

@@ -25,8 +25,8 @@ import numpy as np
 from scipy.linalg import lapack, solveh_banded
 from scipy.optimize import linprog
 
-from .boxqp import solve_box_qp
-from .result import ShapeSpaceError
+from ..boxqp import solve_box_qp
+from ..result import ShapeSpaceError
 
 __all__ = ["copy_weights", "cloning_matrix", "key_poses", "fit_frames", "spacetime", "SpacetimeResult",
            "reduce_keys", "reduce_keys_bezier", "curve_slopes", "hermite", "procrustes", "landmark_warp", "landmark_layout", "check_landmarks",
@@ -769,7 +769,7 @@ def landmark_warp(source_landmarks, target_landmarks, points):
     biharmonic kernel ``r`` with a constant, which they determine, instead of
     thin plates with an affine part, which they do not.
     """
-    from .rbf import fit_rbf
+    from ..rbf import fit_rbf
     src, dst, layouts = check_landmarks(source_landmarks, target_landmarks)
     s, R, t = procrustes(src, dst)
     aligned = s * src @ R.T + t

@@ -33,9 +33,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .blendshape import BlendshapeModel
-from .boxqp import solve_box_lsq_dual, solve_box_qp
-from .result import ShapeSpaceError
+from ..blendshape import BlendshapeModel
+from ..boxqp import solve_box_lsq_dual, solve_box_qp
+from ..result import ShapeSpaceError
 
 #: Positions are measured as if the model's bounding-box diagonal were this long (a head in cm).
 NORMALISED_DIAGONAL = 30.0

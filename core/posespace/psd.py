@@ -1,7 +1,7 @@
 """Pose-space deformation: PSD, Shape-by-Example and weighted PSD (thesis ch. 7–8).
 
 The rigger sculpts correctives at example poses; each is stored in rest space
-(see :mod:`core.inversion`) and interpolated over pose space:
+(see :mod:`core.posespace.inversion`) and interpolated over pose space:
 
 - **PSD** (Lewis et al. 2000): every vertex's corrective interpolated by a
   Gaussian RBF over pose space.  With one kernel for all vertices this is the
@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import rbf
-from .result import Issue, ShapeSpaceError
+from .. import rbf
+from ..result import Issue, ShapeSpaceError
 
 __all__ = ["PoseSpaceDeformer", "train_psd", "example_issues", "ScalarDriver", "train_driver"]
 

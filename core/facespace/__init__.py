@@ -1,0 +1,5 @@
+"""Face-space tools: representations, diagnostics, prior, shell interpolation, inpainting (thesis 3.7, ch. 6, 9)."""
+from .forms import (PCABasis, to_whole_face, from_whole_face, whole_face_weights, delta_weights, project_convex, fit_pca, pca_from_model, animation_pca, blendshape_to_pca_maps, pca_to_blendshape_maps, compression_report, coherence_matrix, mutual_coherence, similar_pairs, empty_targets, coherence_image, sparsity_comparison)
+from .stats import (FaceGaussian, fit_face_gaussian, shell_interpolate, linear_interpolate, inpaint_curve, context_channels, linear_fill, cubic_fill)
+
+__all__ = ['PCABasis', 'to_whole_face', 'from_whole_face', 'whole_face_weights', 'delta_weights', 'project_convex', 'fit_pca', 'pca_from_model', 'animation_pca', 'blendshape_to_pca_maps', 'pca_to_blendshape_maps', 'compression_report', 'coherence_matrix', 'mutual_coherence', 'similar_pairs', 'empty_targets', 'coherence_image', 'sparsity_comparison', 'FaceGaussian', 'fit_face_gaussian', 'shell_interpolate', 'linear_interpolate', 'inpaint_curve', 'context_channels', 'linear_fill', 'cubic_fill']
