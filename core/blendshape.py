@@ -17,7 +17,13 @@ import numpy as np
 
 from .result import Issue, Result, ShapeSpaceError
 
-__all__ = ["BlendshapeModel", "InBetween", "Combination", "diagnose_model", "bounding_box_diagonal", "hat"]
+__all__ = ["BlendshapeModel", "InBetween", "Combination", "diagnose_model", "bounding_box_diagonal", "hat",
+           "NORMALISED_DIAGONAL", "normalised_unit"]
+
+#: Bounding-box diagonal of the normalised model space: 30, a real head's diagonal in centimetres (the scale
+#: at which the thesis' α = 0.1 and μ = 0.001 were tuned).  Solvers and error metrics work in units where
+#: the model measures this, so a rig in metres, centimetres or int16 capture units behaves the same.
+NORMALISED_DIAGONAL = 30.0
 
 
 def hat(w, left: float, peak: float, right: float):
@@ -381,3 +387,18 @@ def diagnose_model(model: BlendshapeModel, rel_tol: float = 1e-7) -> Result:
     msg = issues[0].message if issues else f"{model.n_targets} targets, rank {rank}"
     return Result(value=rank, status=status, message=msg, diagnostics={"rank": rank, "n_targets": model.n_targets,
                                        "n_vertices": model.n_vertices, "scale": scale}, issues=issues)
+
+
+def normalised_unit(model: BlendshapeModel) -> float:
+    """Model units per normalised unit: ``model.scale / NORMALISED_DIAGONAL`` (1 for an empty model).
+
+    Parameters
+    ----------
+    model : BlendshapeModel
+
+    Returns
+    -------
+    float
+        Multiply a normalised length by this to get model units.
+    """
+    return (model.scale or NORMALISED_DIAGONAL) / NORMALISED_DIAGONAL
