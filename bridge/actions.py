@@ -16,6 +16,9 @@ from ..core.animation import CONSTANT, LINEAR, sample_keys
 from ..core.result import ShapeSpaceError
 
 LAYERED = "slots" in bpy.types.Action.bl_rna.properties
+#: Blender 5.0+ ``ActionChannelbagFCurves.new`` takes ``group_name``; 4.4/4.5 do not.
+FCURVE_NEW_TAKES_GROUP = LAYERED and "group_name" in bpy.types.ActionChannelbagFCurves.bl_rna.functions[
+    "new"].parameters
 
 _INTERP_CODE = {"CONSTANT": CONSTANT, "LINEAR": LINEAR}
 
@@ -110,7 +113,14 @@ def ensure_fcurve(id_block, data_path: str, index: int = 0, group: str = ""):
         slot = id_block.animation_data.action_slot
     bag = _channelbag(action, slot, create=True)
     fc = bag.fcurves.find(data_path, index=index)
-    return fc or bag.fcurves.new(data_path, index=index, group_name=group)
+    if fc is not None:
+        return fc
+    if FCURVE_NEW_TAKES_GROUP:
+        return bag.fcurves.new(data_path, index=index, group_name=group)
+    fc = bag.fcurves.new(data_path, index=index)
+    if group:
+        fc.group = bag.groups.get(group) or bag.groups.new(group)
+    return fc
 
 
 def write_curve(id_block, data_path: str, frames, values, index: int = 0,
@@ -268,15 +278,6 @@ def action_users(action) -> list:
     return [action.id_root]
 
 
-def slider_names(obj) -> list:
-    """Names of the object's sliders: non-reference keys that no ShapeSpace driver sets, in order."""
-    from .driven import prune
-    key = obj.data.shape_keys
-    meta = prune(key)
-    driven_keys = set(meta["inbetweens"]) | set(meta["combinations"])
-    return [kb.name for kb in key.key_blocks if kb != key.reference_key and kb.name not in driven_keys]
-
-
 def key_sliders(obj, names, frame: float, only_nonzero: bool = False) -> int:
     """Key the current value of each named shape key at ``frame``; return how many were keyed."""
     key = obj.data.shape_keys
@@ -322,3 +323,16 @@ def blender_decimate(id_block, action, curves, error_margin: float) -> None:
     finally:
         space.dopesheet.show_only_selected = old_only_selected
         area.type = old_type
+
+
+def action_fcurves(action) -> list:
+    """Every F-Curve of ``action``, whatever it animates: all slots' channelbags (4.4+), ``Action.fcurves`` (4.2)."""
+    if action is None:
+        return []
+    if not LAYERED:
+        return list(action.fcurves)
+    out = []
+    for slot in action.slots:
+        bag = _channelbag(action, slot)
+        out += list(bag.fcurves) if bag is not None else []
+    return out

@@ -14,28 +14,55 @@ What was built is recorded as JSON in the ``Key`` datablock's custom property
 """
 from __future__ import annotations
 
-import json
+import re
 
 import bpy
 import numpy as np
 
 from ..core.result import ShapeSpaceError
+from ..core.schema import Schema
+from . import storage
 from .arrays import read_float, write_float
 
 PROP = "shapespace_driven"
 
 
-def metadata(key) -> dict:
-    """``{"inbetweens": {key: {"primary", "at"}}, "combinations": {key: {"inputs"}}}``."""
-    raw = key.get(PROP) if key is not None else None
-    data = json.loads(raw) if raw else {}
+def _migrate_v0(data: dict) -> dict:
     data.setdefault("inbetweens", {})
     data.setdefault("combinations", {})
     return data
 
 
+#: ``{"inbetweens": {key: {"primary": str, "at": float}}, "combinations": {key: {"inputs": [str]}}}``
+SCHEMA = Schema("driven in-betweens and combinations", 1,
+                fields={"inbetweens": "object", "combinations": "object"}, migrations={0: _migrate_v0})
+
+
+def metadata(key) -> dict:
+    """``{"inbetweens": {key: {"primary", "at"}}, "combinations": {key: {"inputs"}}}`` (checked on read)."""
+    data = storage.read_id_blob(key, PROP, SCHEMA)
+    data.setdefault("inbetweens", {})
+    data.setdefault("combinations", {})
+    _check_entries(data, storage.where(key, PROP) if key is not None else PROP)
+    return data
+
+
+def _check_entries(data: dict, where: str) -> None:
+    for name, entry in data["inbetweens"].items():
+        ok = isinstance(entry, dict) and isinstance(entry.get("primary"), str) \
+            and isinstance(entry.get("at"), (int, float)) and not isinstance(entry.get("at"), bool)
+        if not ok:
+            raise ShapeSpaceError(f"damaged ShapeSpace data in {where}: in-between '{name}' needs a primary "
+                                  f"key name and a weight", "corrupt_metadata")
+    for name, entry in data["combinations"].items():
+        inputs = entry.get("inputs") if isinstance(entry, dict) else None
+        if not (isinstance(inputs, list) and all(isinstance(i, str) for i in inputs)):
+            raise ShapeSpaceError(f"damaged ShapeSpace data in {where}: combination '{name}' needs a list of "
+                                  f"input key names", "corrupt_metadata")
+
+
 def _store(key, data) -> None:
-    key[PROP] = json.dumps(data, sort_keys=True)
+    storage.write_id_blob(key, PROP, SCHEMA, data)
 
 
 def knots_for(data: dict, primary: str) -> dict:
@@ -80,11 +107,19 @@ def _shape(key, name) -> np.ndarray:
     return read_float(key.key_blocks[name].data, "co", 3).astype(np.float64)
 
 
-def add_inbetween(obj, primary: str, source: str, at: float, name: str = None, keep_source: bool = False) -> str:
-    """Turn shape key ``source`` (a full sculpt) into an in-between of ``primary`` at weight ``at``."""
+def _rig_key(obj):
+    """The object's Key, refusing meshes ShapeSpace cannot build driven keys on."""
     key = obj.data.shape_keys
     if key is None:
         raise ShapeSpaceError(f"mesh {obj.name!r} has no shape keys", "no_shape_keys")
+    if len(obj.data.vertices) == 0:
+        raise ShapeSpaceError(f"mesh {obj.name!r} has no vertices", "empty")
+    return key
+
+
+def add_inbetween(obj, primary: str, source: str, at: float, name: str = None, keep_source: bool = False) -> str:
+    """Turn shape key ``source`` (a full sculpt) into an in-between of ``primary`` at weight ``at``."""
+    key = _rig_key(obj)
     blocks = key.key_blocks
     for n in (primary, source):
         if n not in blocks:
@@ -93,7 +128,7 @@ def add_inbetween(obj, primary: str, source: str, at: float, name: str = None, k
         raise ShapeSpaceError("the in-between shape must be a different key than its primary", "same_key")
     if not 0.0 < at < 1.0:
         raise ShapeSpaceError(f"an in-between weight must lie strictly between 0 and 1, got {at}", "range")
-    data = metadata(key)
+    data = prune(key)
     if primary in data["inbetweens"] or primary in data["combinations"]:
         raise ShapeSpaceError(f"{primary!r} is itself a driven key", "driven_primary")
     if any(v["primary"] == primary and abs(v["at"] - at) < 1e-6 for v in data["inbetweens"].values()):
@@ -117,9 +152,7 @@ def add_inbetween(obj, primary: str, source: str, at: float, name: str = None, k
 
 def add_combination(obj, inputs, source: str, name: str = None, keep_source: bool = False) -> str:
     """Turn shape key ``source`` (the full sculpt at all ``inputs`` = 1) into a combination shape."""
-    key = obj.data.shape_keys
-    if key is None:
-        raise ShapeSpaceError(f"mesh {obj.name!r} has no shape keys", "no_shape_keys")
+    key = _rig_key(obj)
     inputs = list(inputs)
     if not 2 <= len(inputs) <= 3 or len(set(inputs)) != len(inputs):
         raise ShapeSpaceError("a combination needs 2 or 3 different primary keys", "combination_inputs")
@@ -129,7 +162,7 @@ def add_combination(obj, inputs, source: str, name: str = None, keep_source: boo
             raise ShapeSpaceError(f"mesh {obj.name!r} has no shape key named {n!r}", "missing_key")
     if source in inputs:
         raise ShapeSpaceError("the combination shape must be a different key than its inputs", "same_key")
-    data = metadata(key)
+    data = prune(key)
     driven = set(data["inbetweens"]) | set(data["combinations"])
     if driven & set(inputs):
         raise ShapeSpaceError("combination inputs must be primary (undriven) keys", "driven_primary")
@@ -151,10 +184,67 @@ def add_combination(obj, inputs, source: str, name: str = None, keep_source: boo
 
 
 def prune(key) -> dict:
-    """Metadata restricted to driven keys (and their inputs) that still exist."""
-    data = metadata(key)
-    names = set(key.key_blocks.keys())
-    data["inbetweens"] = {k: v for k, v in data["inbetweens"].items() if k in names and v["primary"] in names}
-    data["combinations"] = {k: v for k, v in data["combinations"].items()
-                            if k in names and all(i in names for i in v["inputs"])}
+    """The driven keys as they are now, re-derived from the drivers ShapeSpace built.
+
+    Blender renames driver paths when a shape key is renamed, so the drivers are the source of truth: a
+    renamed primary, in-between or combination key is followed, and a key whose ShapeSpace driver was
+    removed is a plain slider again.  The stored metadata only supplies the exact in-between weights
+    (the driver expression holds them to the last bit as well).
+    """
+    stored = metadata(key)
+    data = {"inbetweens": {}, "combinations": {}}
+    if key is None or key.animation_data is None:
+        return data
+    for fc in key.animation_data.drivers:
+        found = _parse_driver(key, fc)
+        if found is None:
+            continue
+        kind, name, entry = found
+        if kind == "inbetweens":
+            old = next((v for v in stored["inbetweens"].values()
+                        if v.get("primary") == entry["primary"] and abs(v.get("at", -1.0) - entry["at"]) < 1e-9),
+                       None)
+            if old is not None:
+                entry["at"] = float(old["at"])
+        data[kind][name] = entry
     return data
+
+
+_HAT = re.compile(r"^max\(0\.0, min\(\(w - (?P<left>[-+0-9.e]+)\) / (?P<rise>[-+0-9.e]+), "
+                  r"\((?P<right>[-+0-9.e]+) - w\) / (?P<fall>[-+0-9.e]+)\)\)$")
+_KEY_VALUE = re.compile(r'^key_blocks\["(?P<name>(?:[^"\\]|\\.)*)"\]\.value$')
+
+
+def _key_name(path: str, blocks):
+    m = _KEY_VALUE.match(path or "")
+    if m is None:
+        return None
+    name = m.group("name").replace('\\"', '"').replace("\\\\", "\\")
+    return name if name in blocks else None
+
+
+def _parse_driver(key, fc):
+    """``(kind, driven key, entry)`` for a driver ShapeSpace built on ``key``, else None."""
+    blocks = key.key_blocks
+    name = _key_name(fc.data_path, blocks)
+    drv = fc.driver
+    if name is None or drv.type != "SCRIPTED" or fc.modifiers:
+        return None
+    sources = []
+    for var in drv.variables:
+        tgt = var.targets[0]
+        if var.type != "SINGLE_PROP" or tgt.id != key:
+            return None
+        src = _key_name(tgt.data_path, blocks)
+        if src is None:
+            return None
+        sources.append((var.name, src))
+    expr = drv.expression.strip()
+    m = _HAT.match(expr)
+    if m is not None and [v for v, _ in sources] == ["w"]:
+        left, rise = float(m.group("left")), float(m.group("rise"))
+        return "inbetweens", name, {"primary": sources[0][1], "at": left + rise}
+    letters = [v for v, _ in sources]
+    if letters in (["a", "b"], ["a", "b", "c"]) and expr == "*".join(letters):
+        return "combinations", name, {"inputs": [src for _, src in sources]}
+    return None

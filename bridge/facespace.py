@@ -1,30 +1,52 @@
-"""Face-space tools in Blender (thesis 3.7, ch. 6, 9): rig conversions, diagnostics, the face prior,
-shell in-betweens, curve inpainting and pose-space confidence.
+"""Face-space tools in Blender (thesis 3.7, ch. 6, 9.3): rig conversions, diagnostics, the face prior,
+shell in-betweens and curve inpainting.
 
-Everything here reads Blender data through the other bridge modules, calls :mod:`core.facespace` /
-:mod:`core.facespace.stats`, and writes *new* keys, objects, images or actions — the user's shape keys are
-only changed by the operators that say so (filling frames, inpainting a gap).
+Blender I/O and orchestration only: this module reads Blender data through the other bridge modules, hands
+arrays to :mod:`core.facespace`, and writes *new* keys, objects, images or actions — the user's shape keys are
+only changed by the verbs that say so (making the sliders convex, filling frames, inpainting a gap).  The JSON
+blobs kept on the rig's Key datablock (:data:`REPRESENTATION_SCHEMA`, :data:`PRIOR_SCHEMA`,
+:data:`ANALYSIS_SCHEMA`) are written and read through :mod:`bridge.storage`.
 """
 from __future__ import annotations
-
-import json
-import os
 
 import bpy
 import numpy as np
 
-from ..core.facespace import forms as fs
-from ..core.facespace import stats as facestats
-from ..core.posespace import confidence as gpconf
-from ..core.result import ShapeSpaceError
-from . import actions, shapekeys
-from .arrays import write_float
+from ..core import facespace as fs
+from ..core import validate
+from ..core.errors import ErrorCode
+from ..core.result import ShapeSpaceError, to_jsonable
+from ..core.schema import Schema
+from . import actions, shapekeys, storage
+from .arrays import read_float, write_float
 
 REPRESENTATION_PROP = "shapespace_representation"
 PRIOR_PROP = "shapespace_face_prior"
 ANALYSIS_PROP = "shapespace_analysis"
 NEUTRAL_KEY = "Neutral"
 ZERO_KEY = "Zero"
+#: Forms :func:`convert_rig` makes.
+FORMS = ("WHOLE_FACE", "DELTA", "PCA")
+
+#: What a converted copy is (Key custom property :data:`REPRESENTATION_PROP`): ``form`` "whole_face" (with
+#: ``convex``) or "pca" (with the source ``sliders`` and the slider map ``A`` (m, n), ``a`` (m,)).
+REPRESENTATION_SCHEMA = Schema("face-space representation", version=1,
+                               fields={"form": "string", "source": "string"},
+                               optional={"convex": "bool", "sliders": "list", "A": "list", "a": "list"})
+#: The learnt face Gaussian (Key custom property :data:`PRIOR_PROP`), see :class:`core.facespace.FaceGaussian`.
+PRIOR_SCHEMA = Schema("face prior", version=1,
+                      fields={"names": "list", "mean": "list", "eigvecs": "list", "eigvals": "list",
+                              "dimension": "number", "ridge": "number", "regularised": "bool", "message": "string"},
+                      optional={"frames": "int"})
+#: The last compression report and rig analysis (Key custom property :data:`ANALYSIS_PROP`), for the panel.
+ANALYSIS_SCHEMA = Schema("face-space analysis", version=1,
+                         optional={"compression": "object", "coherence": "object"})
+_SCHEMAS = {REPRESENTATION_PROP: REPRESENTATION_SCHEMA, PRIOR_PROP: PRIOR_SCHEMA, ANALYSIS_PROP: ANALYSIS_SCHEMA}
+
+
+def blob_schemas() -> dict:
+    """The face-space blobs on a Key: property name → schema (for :func:`bridge.storage.upgrade_file`)."""
+    return dict(_SCHEMAS)
 
 
 # ------------------------------------------------------------------ shared readers
@@ -34,10 +56,16 @@ def linear_model(obj):
     model = shapekeys.read_blendshape_model(obj)
     if not model.is_linear:
         raise ShapeSpaceError("the rig has in-between or combination shapes: face-space tools work on its "
-                              "primary sliders only; use a copy without them", "nonlinear")
+                              "primary sliders only; use a copy without them", ErrorCode.NONLINEAR)
     if model.n_targets == 0:
-        raise ShapeSpaceError(f"{obj.name!r} has no shape keys besides its reference key", "no_targets")
+        raise ShapeSpaceError(f"{obj.name!r} has no shape keys besides its reference key", ErrorCode.NO_TARGETS)
     return model
+
+
+def _integer_frames(action) -> np.ndarray:
+    """Every whole frame of ``action``'s frame range."""
+    first, last = actions.frame_range(action)
+    return np.arange(np.ceil(first), np.floor(last) + 1)
 
 
 def animation_weights(obj, names, action=None):
@@ -46,12 +74,24 @@ def animation_weights(obj, names, action=None):
     key = obj.data.shape_keys
     action = action or actions.active_action(key)
     if action is None:
-        raise ShapeSpaceError(f"{obj.name!r} has no shape-key animation; choose an action", "no_action")
+        raise ShapeSpaceError(f"{obj.name!r} has no shape-key animation; choose an action", ErrorCode.NO_ACTION)
     if not actions.shape_key_curves(obj, action):
-        raise ShapeSpaceError(f"action {action.name!r} animates none of {obj.name!r}'s shape keys", "no_channels")
-    first, last = actions.frame_range(action)
-    frames = np.arange(np.ceil(first), np.floor(last) + 1)
+        raise ShapeSpaceError(f"action {action.name!r} animates none of {obj.name!r}'s shape keys",
+                              ErrorCode.NO_CHANNELS)
+    frames = _integer_frames(action)
     return actions.sample_shape_keys(obj, names, frames, action), frames
+
+
+def stored(obj, prop: str) -> dict:
+    """The blob ``prop`` (one of the ``*_PROP`` keys) on ``obj``'s shape keys, checked and migrated; an empty
+    blob (only ``schema_version``) when absent or when ``obj`` is not a mesh."""
+    key = obj.data.shape_keys if obj is not None and obj.type == "MESH" else None
+    return storage.read_id_blob(key, prop, _SCHEMAS[prop])
+
+
+def _store(obj, prop: str, data: dict) -> None:
+    """Write the blob ``prop`` on ``obj``'s shape keys (NaN and infinities become ``null``)."""
+    storage.write_id_blob(obj.data.shape_keys, prop, _SCHEMAS[prop], to_jsonable(data))
 
 
 # ------------------------------------------------------------------ conversions (3.7.3, 3.4.6)
@@ -113,7 +153,8 @@ def to_whole_face_object(obj, convex: bool = True):
     for k, name in enumerate(model.names):
         _add_key(new, name, targets[k], ZERO_KEY, model.slider_min[k], model.slider_max[k])
     key = new.data.shape_keys
-    key[REPRESENTATION_PROP] = json.dumps({"form": "whole_face", "source": obj.name, "convex": bool(convex)})
+    storage.write_id_blob(key, REPRESENTATION_PROP, REPRESENTATION_SCHEMA,
+                          {"form": "whole_face", "source": obj.name, "convex": bool(convex)})
     if convex:
         _convex_driver(key, model.names)
     else:
@@ -124,10 +165,9 @@ def to_whole_face_object(obj, convex: bool = True):
 def to_delta_object(obj):
     """Back from a whole-face object to an ordinary (delta) rig: the Neutral key becomes the basis."""
     key = obj.data.shape_keys
-    meta = json.loads(key.get(REPRESENTATION_PROP, "{}")) if key is not None else {}
+    meta = storage.read_id_blob(key, REPRESENTATION_PROP, REPRESENTATION_SCHEMA) if key is not None else {}
     if meta.get("form") != "whole_face":
-        raise ShapeSpaceError(f"{obj.name!r} is not a whole-face rig made by ShapeSpace", "not_whole_face")
-    from .arrays import read_float
+        raise ShapeSpaceError(f"{obj.name!r} is not a whole-face rig made by ShapeSpace", ErrorCode.NOT_WHOLE_FACE)
     blocks = [kb for kb in key.key_blocks if kb.name not in (ZERO_KEY, NEUTRAL_KEY)]
     neutral = read_float(key.key_blocks[NEUTRAL_KEY].data, "co", 3).astype(np.float64)
     targets = np.stack([read_float(kb.data, "co", 3).astype(np.float64) for kb in blocks])
@@ -154,26 +194,21 @@ def to_pca_object(obj, action=None, tol: float = None):
         basis = fs.pca_from_model(model)
     else:
         W, frames = animation_weights(obj, model.names, action)
-        tol = tol if tol is not None else 1e-3 * model.scale
-        report = fs.compression_report(model, W, tol)
-        if report.value is None:
-            raise ShapeSpaceError(report.message, "tolerance_not_met")
-        full = fs.animation_pca(model, W)                      # never forms the frames × 3p matrix
-        m = max(int(report.value), 1)
-        basis = fs.PCABasis(full.mean, full.components[:, :m], full.variances[:m])
-    unit = np.sqrt(np.maximum(basis.variances, 1e-300))
-    A, a = fs.blendshape_to_pca_maps(model, basis)
-    new = _new_object(obj, "pca", basis.mean.reshape(-1, 3))
+        res = fs.compressed_animation_pca(model, W, tol if tol is not None else 1e-3 * model.scale)
+        if res.value is None:
+            raise ShapeSpaceError(res.message, ErrorCode.TOLERANCE_NOT_MET)
+        basis = res.value
+    sliders = fs.pca_sliders(model, basis)
+    new = _new_object(obj, "pca", sliders.rest)
     new.shape_key_add(name="Mean", from_mix=False)
     names = [f"PC{i + 1:02d}" for i in range(basis.n_components)]
-    for i, name in enumerate(names):
-        _add_key(new, name, (basis.mean + unit[i] * basis.components[:, i]).reshape(-1, 3), None, -10.0, 10.0)
-    key = new.data.shape_keys
-    key[REPRESENTATION_PROP] = json.dumps({"form": "pca", "source": obj.name, "sliders": model.names,
-                                           "A": (A / unit[:, None]).tolist(), "a": (a / unit).tolist()})
+    for name, positions in zip(names, sliders.keys):
+        _add_key(new, name, positions, None, -10.0, 10.0)
+    storage.write_id_blob(new.data.shape_keys, REPRESENTATION_PROP, REPRESENTATION_SCHEMA,
+                          {"form": "pca", "source": obj.name, "sliders": model.names,
+                           "A": sliders.A.tolist(), "a": sliders.a.tolist()})
     if action is not None:
-        C = (W @ A.T + a) / unit
-        actions.key_shape_values(new, names, frames, C, f"{action.name}_pca")
+        actions.key_shape_values(new, names, frames, sliders.slider_values(W), f"{action.name}_pca")
     return new
 
 
@@ -183,8 +218,20 @@ def to_pca_object_relative(obj, from_animation: bool, tolerance: float):
         return to_pca_object(obj)
     action = actions.active_action(obj.data.shape_keys)
     if action is None:
-        raise ShapeSpaceError(f"{obj.name!r} has no shape-key animation to take components from", "no_action")
+        raise ShapeSpaceError(f"{obj.name!r} has no shape-key animation to take components from",
+                              ErrorCode.NO_ACTION)
     return to_pca_object(obj, action, tolerance * linear_model(obj).scale)
+
+
+def convert_rig(obj, form: str, convex: bool = True, from_animation: bool = False, tolerance: float = 1e-3):
+    """A converted copy of the rig in ``form`` (one of :data:`FORMS`): :func:`to_whole_face_object`,
+    :func:`to_delta_object` or :func:`to_pca_object_relative`."""
+    validate.choice(form, "form", FORMS, ErrorCode.MODE)
+    if form == "WHOLE_FACE":
+        return to_whole_face_object(obj, convex)
+    if form == "DELTA":
+        return to_delta_object(obj)
+    return to_pca_object_relative(obj, from_animation, tolerance)
 
 
 def make_convex(obj) -> dict:
@@ -193,23 +240,12 @@ def make_convex(obj) -> dict:
     weight 1 − Σw stays ≥ 0.  Returns the sum before and after and how far the sliders moved."""
     model = linear_model(obj)
     w = shapekeys.read_slider_values(obj, model.names)
-    lo = np.clip(model.slider_min, 0.0, 1.0)
-    hi = np.clip(model.slider_max, 0.0, 1.0)
-    x = fs.project_convex(w, lo, np.maximum(hi, lo))
-    shapekeys.write_slider_values(obj, model.names, x)
-    return {"sum_before": float(w.sum()), "sum_after": float(x.sum()), "moved": float(np.linalg.norm(x - w))}
+    res = fs.convex_slider_values(w, model.slider_min, model.slider_max)
+    shapekeys.write_slider_values(obj, model.names, res.value)
+    return {k: res.diagnostics[k] for k in ("sum_before", "sum_after", "moved")}
 
 
 # ------------------------------------------------------------------ reports and diagnostics (3.7)
-def _store(obj, prop: str, data: dict) -> None:
-    obj.data.shape_keys[prop] = json.dumps(data)
-
-
-def stored(obj, prop: str) -> dict:
-    key = obj.data.shape_keys if obj is not None and obj.type == "MESH" else None
-    return json.loads(key.get(prop, "{}")) if key is not None else {}
-
-
 def compression(obj, action, tol: float) -> dict:
     """How many PCA components keep an animation's max vertex error within ``tol`` (3.7.8)."""
     model = linear_model(obj)
@@ -223,17 +259,17 @@ def compression(obj, action, tol: float) -> dict:
     data["compression"] = out
     _store(obj, ANALYSIS_PROP, data)
     if res.value is None:
-        raise ShapeSpaceError(res.message, "tolerance_not_met")
+        raise ShapeSpaceError(res.message, ErrorCode.TOLERANCE_NOT_MET)
     return out
 
 
-def analyse(obj, action=None, png_path: str = None, threshold: float = 0.95) -> dict:
-    """Coherence image (PNG + image datablock), near-duplicate pairs, empty targets and, with an
-    animation, the sparsity of its blendshape weights vs PCA coefficients (3.7.1, 3.7.6, Figs 3.12–3.15)."""
-    model = linear_model(obj)
-    C = fs.coherence_matrix(model)
-    image = fs.coherence_image(C)
-    name = f"ShapeSpace Coherence {obj.name}"
+def compression_relative(obj, tolerance: float) -> dict:
+    """:func:`compression` of the rig's own action with ``tolerance`` a fraction of the head size."""
+    return compression(obj, None, tolerance * linear_model(obj).scale)
+
+
+def _coherence_image(name: str, image: np.ndarray, png_path: str = None):
+    """The image datablock ``name`` holding ``image`` (rows top-down, RGBA uint8), saved as a PNG or packed."""
     img = bpy.data.images.get(name)
     if img is not None and tuple(img.size) != (image.shape[1], image.shape[0]):
         bpy.data.images.remove(img)
@@ -246,6 +282,15 @@ def analyse(obj, action=None, png_path: str = None, threshold: float = 0.95) -> 
         img.save()
     else:
         img.pack()
+    return img
+
+
+def analyse(obj, action=None, png_path: str = None, threshold: float = 0.95) -> dict:
+    """Coherence image (PNG + image datablock), near-duplicate pairs, empty targets and, with an
+    animation, the sparsity of its blendshape weights vs PCA coefficients (3.7.1, 3.7.6, Figs 3.12–3.15)."""
+    model = linear_model(obj)
+    img = _coherence_image(f"ShapeSpace Coherence {obj.name}", fs.coherence_image(fs.coherence_matrix(model)),
+                           png_path)
     out = {"targets": model.n_targets, "mutual_coherence": float(fs.mutual_coherence(model)),
            "similar_pairs": [[a, b, float(c)] for a, b, c in fs.similar_pairs(model, threshold)],
            "empty_targets": fs.empty_targets(model), "image": img.name, "png": png_path or ""}
@@ -257,7 +302,7 @@ def analyse(obj, action=None, png_path: str = None, threshold: float = 0.95) -> 
                            for form, vals in sp.value.items()}
         out["sparsity_message"] = sp.message
     data = stored(obj, ANALYSIS_PROP)
-    data.update({"coherence": out})
+    data["coherence"] = out
     _store(obj, ANALYSIS_PROP, data)
     return out
 
@@ -267,7 +312,7 @@ def learn_prior(obj, action=None) -> dict:
     """Fit the face-space Gaussian to an animation and store it on the rig (names, mean, eigenbasis)."""
     model = linear_model(obj)
     W, frames = animation_weights(obj, model.names, action)
-    g = facestats.fit_face_gaussian(W)
+    g = fs.fit_face_gaussian(W)
     data = {"names": model.names, "mean": g.mean.tolist(), "eigvecs": g.eigvecs.tolist(),
             "eigvals": g.eigvals.tolist(), "dimension": g.dimension, "ridge": g.ridge,
             "regularised": g.regularised, "message": g.message, "frames": int(frames.size)}
@@ -276,14 +321,19 @@ def learn_prior(obj, action=None) -> dict:
             "message": g.message}
 
 
+def has_prior(obj) -> bool:
+    """Whether ``obj``'s shape keys carry a learnt face prior."""
+    key = obj.data.shape_keys if obj is not None and obj.type == "MESH" else None
+    return key is not None and PRIOR_PROP in key
+
+
 def prior(obj):
     """The stored face Gaussian and its slider names, or ``(None, None)``."""
     data = stored(obj, PRIOR_PROP)
-    if not data:
+    if "mean" not in data:
         return None, None
-    g = facestats.FaceGaussian(np.array(data["mean"]), np.array(data["eigvecs"]), np.array(data["eigvals"]),
-                               float(data["dimension"]), float(data["ridge"]), bool(data["regularised"]),
-                               data["message"])
+    g = fs.FaceGaussian(np.array(data["mean"]), np.array(data["eigvecs"]), np.array(data["eigvals"]),
+                        float(data["dimension"]), float(data["ridge"]), bool(data["regularised"]), data["message"])
     return g, data["names"]
 
 
@@ -291,11 +341,11 @@ def _prior_or_error(obj):
     g, names = prior(obj)
     if g is None:
         raise ShapeSpaceError(f"{obj.name!r} has no face prior yet: learn one from an animation first",
-                              "no_prior")
+                              ErrorCode.NO_PRIOR)
     missing = [n for n in names if n not in obj.data.shape_keys.key_blocks]
     if missing:
         raise ShapeSpaceError(f"the face prior was learnt with shape keys that are gone: {', '.join(missing)}",
-                              "stale_prior")
+                              ErrorCode.STALE_PRIOR)
     return g, names
 
 
@@ -316,38 +366,52 @@ def implausible_frames(obj, action=None, alpha: float = 0.01) -> list:
     return [(int(frames[i]), r) for i, r in zip(idx, reasons)]
 
 
+def flag_implausible_frames(obj, action=None, alpha: float = 0.01) -> list:
+    """:func:`implausible_frames`, also listed in ``obj.shapespace_face.implausible`` for the panel."""
+    found = implausible_frames(obj, action, alpha)
+    items = obj.shapespace_face.implausible
+    items.clear()
+    for frame, reason in found:
+        item = items.add()
+        item.frame, item.reason = frame, reason
+    return found
+
+
 def fill_between(obj, frame_a: int, frame_b: int, mode: str = "SHELL") -> int:
     """Key every frame strictly between ``frame_a`` and ``frame_b`` with expressions interpolated
     around the prior's hyperellipsoid (``SHELL``, norm-preserving, 6.5) or linearly (``LINEAR``)."""
-    if mode not in ("SHELL", "LINEAR"):
-        raise ShapeSpaceError(f"mode must be SHELL or LINEAR, got {mode!r}", "mode")
-    if frame_b - frame_a < 2:
-        raise ShapeSpaceError(f"frames {frame_a} and {frame_b} have nothing in between", "range")
+    validate.choice(mode, "mode", fs.INTERPOLATIONS, ErrorCode.MODE)
+    inner, t = fs.inbetween_times(frame_a, frame_b)
     g, names = _prior_or_error(obj)
     key = obj.data.shape_keys
     action = actions.active_action(key)
     if action is None:
-        raise ShapeSpaceError(f"{obj.name!r} has no shape-key animation to fill", "no_action")
+        raise ShapeSpaceError(f"{obj.name!r} has no shape-key animation to fill", ErrorCode.NO_ACTION)
     ends = actions.sample_shape_keys(obj, names, [frame_a, frame_b], action)
-    inner = np.arange(frame_a + 1, frame_b)
-    t = (inner - frame_a) / float(frame_b - frame_a)
-    W = (facestats.shell_interpolate(g, ends[0], ends[1], t) if mode == "SHELL"
-         else facestats.linear_interpolate(ends[0], ends[1], t))
+    W = fs.interpolate(g, ends[0], ends[1], t, mode)
     for j, name in enumerate(names):
         fc = actions.ensure_fcurve(key, actions.shape_key_path(name))
         actions.replace_keys_between(fc, frame_a + 1, frame_b - 1, inner, W[:, j])
     return int(inner.size)
 
 
-def bracketing_keys(obj, frame: float):
-    """The keyed frames just before and after ``frame`` over the rig's shape-key curves."""
+def keyed_frames(obj) -> np.ndarray:
+    """Every keyed frame (k,) of the rig's shape-key curves (repeats included)."""
     curves = actions.shape_key_curves(obj)
-    keyed = np.unique(np.concatenate([actions.read_curve(fc)[0] for fc in curves.values()])) if curves \
-        else np.zeros(0)
-    before, after = keyed[keyed < frame], keyed[keyed > frame]
-    if not before.size or not after.size:
-        raise ShapeSpaceError(f"frame {frame:g} is not between two keys", "no_keys")
-    return int(round(before[-1])), int(round(after[0]))
+    return np.concatenate([actions.read_curve(fc)[0] for fc in curves.values()]) if curves else np.zeros(0)
+
+
+def fill_around(obj, frame: float, frame_start: int = -1, frame_end: int = -1, mode: str = "SHELL") -> dict:
+    """:func:`fill_between` from ``frame_start`` to ``frame_end``; a negative one means the key just
+    before / after ``frame``.  Returns the frames filled and the two frames used."""
+    keyed = keyed_frames(obj) if frame_start < 0 or frame_end < 0 else np.zeros(0)
+    a, b = fs.fill_range(keyed, frame, frame_start, frame_end)
+    return {"frames": fill_between(obj, a, b, mode), "start": a, "end": b}
+
+
+def set_frame(scene, frame: int) -> None:
+    """Make ``frame`` the scene's current frame."""
+    scene.frame_set(frame)
 
 
 # ------------------------------------------------------------------ inpainting (9.3)
@@ -358,7 +422,7 @@ def _curve_owner(obj):
         return key, actions.active_action(key)
     act = actions.active_action(obj)
     if act is None:
-        raise ShapeSpaceError(f"{obj.name!r} has no animation", "no_action")
+        raise ShapeSpaceError(f"{obj.name!r} has no animation", ErrorCode.NO_ACTION)
     return obj, act
 
 
@@ -368,71 +432,18 @@ def inpaint_gap(obj, data_path: str, index: int, start: int, end: int, use_other
 
     With ``use_other_channels`` the other curves of the action whose motion correlates with the target's
     condition the fill too (superresolution: a knee from the hips), as many as the animation's length
-    can support (:func:`core.facespace.stats.context_channels`)."""
+    can support (:func:`core.facespace.fill_gap`)."""
     owner, action = _curve_owner(obj)
     curves = actions.fcurves(action, owner)
     target = next((fc for fc in curves if fc.data_path == data_path and fc.array_index == index), None)
     if target is None:
-        raise ShapeSpaceError(f"{action.name!r} has no curve {data_path}[{index}]", "missing_curve")
-    first, last = actions.frame_range(action)
-    frames = np.arange(np.ceil(first), np.floor(last) + 1)
-    if not (frames[0] <= start <= end <= frames[-1]):
-        raise ShapeSpaceError(f"the gap {start}–{end} is outside the animation's frames "
-                              f"{frames[0]:g}–{frames[-1]:g}", "range")
+        raise ShapeSpaceError(f"{action.name!r} has no curve {data_path}[{index}]", ErrorCode.MISSING_CURVE)
+    frames = _integer_frames(action)
+    gap = fs.gap_mask(frames, start, end)
     others = [fc for fc in curves if use_other_channels
               and (fc.data_path, fc.array_index) != (target.data_path, target.array_index)]
-    chans = [target] + others
-    X = np.column_stack([actions.sample_curve(fc, frames) for fc in chans])
-    gap_frames = (frames >= start) & (frames <= end)
-    chosen = facestats.context_channels(X, 0, ~gap_frames, int(gap_frames.sum()))   # what the data supports
-    X, chans = X[:, chosen], [chans[i] for i in chosen]
-    known = np.ones(X.shape, bool)
-    known[gap_frames, 0] = False
-    res = facestats.inpaint_curve(X, known)
-    filled = np.asarray(res.value)[:, 0]
-    actions.replace_keys_between(target, start, end, frames[gap_frames], filled[gap_frames])
-    return {"frames": int(gap_frames.sum()), "channels": len(chans), "method": res.diagnostics.get("method", ""),
-            "message": res.message}
-
-
-# ------------------------------------------------------------------ pose-space confidence (9.1–9.2)
-CONFIDENCE_ATTRIBUTE = "ShapeSpace Confidence"
-
-
-def confidence_model(deformer):
-    """The Gaussian-process model of a trained pose-space deformer: its examples' poses, a Gaussian
-    kernel of the deformer's width (prior variance 1)."""
-    return gpconf.GPConfidence.fit(deformer.poses, "gaussian", float(deformer.epsilon))
-
-
-def confidence(obj, heat_map: bool = False) -> dict:
-    """Gaussian-process variance of the pose-space interpolant at the current pose (0 at an example,
-    1 far from all), and optionally a per-vertex heat map of the predictive standard deviation
-    (a colour attribute) showing where a new example would matter."""
-    from . import posespace
-    deformer, names = posespace.trained_deformer(obj)
-    conf = confidence_model(deformer)
-    pose = posespace.read_pose(obj)
-    out = {"variance": float(conf.variance(pose)), "examples": len(names)}
-    if heat_map:
-        sd = gpconf.vertex_uncertainty(conf, pose, deformer.correctives)
-        top = float(sd.max()) or 1.0
-        t = np.clip(sd / top, 0.0, 1.0)
-        rgba = np.column_stack([t, 0.2 * (1 - t), 1.0 - t, np.ones_like(t)])
-        me = obj.data
-        attr = me.color_attributes.get(CONFIDENCE_ATTRIBUTE)
-        if attr is None or attr.domain != "POINT" or attr.data_type != "FLOAT_COLOR":
-            if attr is not None:
-                me.color_attributes.remove(attr)
-            attr = me.color_attributes.new(CONFIDENCE_ATTRIBUTE, "FLOAT_COLOR", "POINT")
-        write_float(attr.data, "color", rgba)
-        me.color_attributes.active_color = attr
-        out["max_sd"] = float(sd.max())
-        out["attribute"] = CONFIDENCE_ATTRIBUTE
-    return out
-
-
-def default_png_path(obj) -> str:
-    """Where the coherence PNG goes by default: next to the saved .blend, else the temp folder."""
-    folder = os.path.dirname(bpy.data.filepath) if bpy.data.filepath else bpy.app.tempdir
-    return os.path.join(folder, f"{bpy.path.clean_name(obj.name)}_coherence.png")
+    X = np.column_stack([actions.sample_curve(fc, frames) for fc in [target] + others])
+    res = fs.fill_gap(X, gap)
+    actions.replace_keys_between(target, start, end, frames[gap], res.value[gap])
+    return {"frames": int(gap.sum()), "channels": len(res.diagnostics["channels"]),
+            "method": res.diagnostics.get("method", ""), "message": res.message}

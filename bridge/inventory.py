@@ -1,11 +1,12 @@
-"""A JSON-ready description of the rigs in the open file (for ``shapespace info``)."""
+"""The rigs in the open file as a :class:`core.inventory.FileInventory` (for ``shapespace info``)."""
 from __future__ import annotations
 
 import bpy
 
 from ..core.blendshape import diagnose_model
+from ..core.inventory import (ActionInfo, ArmatureInfo, ArmatureModifierInfo, FileInventory, IssueInfo, SceneInfo,
+                              ShapeKeyMeshInfo, SkinnedMeshInfo)
 from ..core.names import ARKIT_52, canonical_name
-from ..core.result import ShapeSpaceError
 from ..core.skinning import diagnose_weights
 from . import actions, shapekeys, skin
 
@@ -19,93 +20,74 @@ def bone_shape_objects() -> set:
     return shapes
 
 
-def _issues(issues):
-    return [{"severity": i.severity, "code": i.code, "message": i.message} for i in issues]
+def _issues(issues) -> list:
+    return [IssueInfo.of(i) for i in issues]
 
 
-def describe_shape_keys(obj) -> dict:
+def describe_shape_keys(obj) -> ShapeKeyMeshInfo:
     problems = shapekeys.check_shape_keys(obj)
-    info = {"object": obj.name, "vertices": len(obj.data.vertices)}
+    info = ShapeKeyMeshInfo(object=obj.name, vertices=len(obj.data.vertices))
     if any(i.severity == "error" for i in problems):
-        info["issues"] = _issues(problems)
+        info.issues = _issues(problems)
         return info
-    model = shapekeys.read_blendshape_model(obj)
+    model = shapekeys.read_blendshape_model(obj, finite=False)
     diag = diagnose_model(model)
     canon = {canonical_name(n) for n in model.names}
-    key = obj.data.shape_keys
-    info.update({
-        "shape_keys": model.n_targets,
-        "reference_key": model.reference_name,
-        "names": model.names,
-        "rank": diag.diagnostics.get("rank"),
-        "arkit_channels": len(canon & set(ARKIT_52)),
-        "bbox_diagonal_local": model.scale,
-        "animated_by": actions.active_action(key).name if actions.active_action(key) else None,
-        "issues": _issues(problems + diag.issues),
-    })
+    action = actions.active_action(obj.data.shape_keys)
+    info.shape_keys = model.n_targets
+    info.reference_key = model.reference_name
+    info.names = model.names
+    info.rank = diag.diagnostics.get("rank")
+    info.arkit_channels = len(canon & set(ARKIT_52))
+    info.bbox_diagonal_local = model.scale
+    info.animated_by = action.name if action else None
+    info.issues = _issues(problems + diag.issues)
     return info
 
 
-def describe_skin(obj) -> dict:
+def describe_skin(obj) -> SkinnedMeshInfo:
     problems = skin.check_skinning(obj)
-    info = {"object": obj.name, "vertices": len(obj.data.vertices),
-            "modifiers": [{"name": m.name, "armature": m.object.name,
-                           "preserve_volume": bool(m.use_deform_preserve_volume)}
-                          for m in skin.armature_modifiers(obj)]}
+    mods = [ArmatureModifierInfo(m.name, m.object.name, bool(m.use_deform_preserve_volume))
+            for m in skin.armature_modifiers(obj)]
     if not any(i.severity == "error" for i in problems):
         rig = skin.read_skinning(obj)
         for d in rig.deformers:
             problems += diagnose_weights(d.weights).issues
-    info["issues"] = _issues(problems)
-    return info
+    return SkinnedMeshInfo(obj.name, len(obj.data.vertices), mods, _issues(problems))
 
 
-def describe_action(action) -> dict:
+def describe_action(action) -> ActionInfo:
     first, last = actions.frame_range(action)
-    curves = []
-    if actions.LAYERED:
-        for slot in action.slots:
-            bag = actions._channelbag(action, slot)
-            curves += list(bag.fcurves) if bag is not None else []
-    else:
-        curves = list(action.fcurves)
+    curves = actions.action_fcurves(action)
     paths = [fc.data_path for fc in curves]
-    return {
-        "name": action.name,
-        "frame_range": [first, last],
-        "fcurves": len(curves),
-        "shape_key_curves": sum(p.startswith("key_blocks[") for p in paths),
-        "bone_curves": sum(p.startswith("pose.bones[") for p in paths),
-        "slots": actions.action_users(action),
-        "fractional_keys": any(
-            any(abs(k.co[0] - round(k.co[0])) > 1e-4 for k in fc.keyframe_points) for fc in curves),
-    }
+    return ActionInfo(
+        name=action.name, frame_range=[first, last], fcurves=len(curves),
+        shape_key_curves=sum(p.startswith("key_blocks[") for p in paths),
+        bone_curves=sum(p.startswith("pose.bones[") for p in paths),
+        slots=actions.action_users(action),
+        fractional_keys=any(any(abs(k.co[0] - round(k.co[0])) > 1e-4 for k in fc.keyframe_points) for fc in curves))
 
 
-def describe_file() -> dict:
+def _describe_armature(ob) -> ArmatureInfo:
+    action = actions.active_action(ob)
+    return ArmatureInfo(ob.name, len(ob.data.bones), sum(b.use_deform for b in ob.data.bones),
+                        action.name if action else None)
+
+
+def describe_file() -> FileInventory:
     """Rigs, armatures and actions in ``bpy.data`` plus scene timing."""
     scene = bpy.context.scene
     shapes = bone_shape_objects()
     meshes = [ob for ob in bpy.data.objects if ob.type == "MESH" and ob.name not in shapes]
-    report = {
-        "file": bpy.data.filepath or None,
-        "blender": bpy.app.version_string,
-        "scene": {"name": scene.name, "fps": scene.render.fps / scene.render.fps_base,
-                  "frame_start": scene.frame_start, "frame_end": scene.frame_end},
-        "shape_key_meshes": [describe_shape_keys(ob) for ob in meshes if ob.data.shape_keys],
-        "skinned_meshes": [describe_skin(ob) for ob in meshes if skin.armature_modifiers(ob)],
-        "armatures": [{"object": ob.name, "bones": len(ob.data.bones),
-                       "deform_bones": sum(b.use_deform for b in ob.data.bones),
-                       "action": actions.active_action(ob).name if actions.active_action(ob) else None}
-                      for ob in bpy.data.objects if ob.type == "ARMATURE"],
-        "actions": [describe_action(a) for a in bpy.data.actions],
-    }
-    return report
-
-
-def require_rigs(report: dict) -> None:
-    if not (report["shape_key_meshes"] or report["skinned_meshes"] or report["armatures"]):
-        raise ShapeSpaceError("no meshes with shape keys, armatures or skinned meshes found", "no_rigs")
+    return FileInventory(
+        file=bpy.data.filepath or None,
+        blender=bpy.app.version_string,
+        scene=SceneInfo(scene.name, scene.render.fps / scene.render.fps_base, scene.frame_start, scene.frame_end),
+        shape_key_meshes=[describe_shape_keys(ob) for ob in meshes if ob.data.shape_keys],
+        skinned_meshes=[describe_skin(ob) for ob in meshes if skin.armature_modifiers(ob)],
+        armatures=[_describe_armature(ob) for ob in bpy.data.objects if ob.type == "ARMATURE"],
+        actions=[describe_action(a) for a in bpy.data.actions],
+    )
 
 
 def check_object(obj) -> list:
@@ -123,7 +105,7 @@ def check_object(obj) -> list:
     if has_keys or not has_skin:
         found += shapekeys.check_shape_keys(obj)
         if not any(i.severity == "error" for i in found):
-            found += diagnose_model(shapekeys.read_blendshape_model(obj)).issues
+            found += diagnose_model(shapekeys.read_blendshape_model(obj, finite=False)).issues
     if has_skin:
         problems = skin.check_skinning(obj)
         found += problems

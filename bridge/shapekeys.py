@@ -35,6 +35,8 @@ def check_shape_keys(obj) -> list:
         issues.append(Issue("error", "absolute_keys",
                             f"mesh {obj.name!r} uses absolute shape keys; ShapeSpace needs relative keys"))
     p = len(obj.data.vertices)
+    if p == 0:
+        return [Issue("error", "empty", f"mesh {obj.name!r} has no vertices")]
     wrong = [kb.name for kb in key.key_blocks if len(kb.data) != p]
     if wrong:
         issues.append(Issue("error", "vertex_count_mismatch",
@@ -44,13 +46,48 @@ def check_shape_keys(obj) -> list:
     return issues
 
 
-def read_blendshape_model(obj) -> BlendshapeModel:
+def slider_names(obj, meta: dict = None) -> list:
+    """Names of the object's sliders, in key order: the one definition of "which keys are sliders".
+
+    A slider is a non-reference shape key that no ShapeSpace driver sets (in-betweens and combination
+    shapes are driven by their primaries, see :mod:`bridge.driven`).  ``meta`` is the pruned driven-key
+    metadata when the caller already has it.
+    """
+    key = obj.data.shape_keys
+    if key is None:
+        return []
+    meta = driven.prune(key) if meta is None else meta
+    driven_keys = set(meta["inbetweens"]) | set(meta["combinations"])
+    return [kb.name for kb in key.key_blocks if kb != key.reference_key and kb.name not in driven_keys]
+
+
+def _check_finite(obj, blocks, coords: dict) -> None:
+    """Refuse NaN/inf coordinates or slider ranges, naming the key, the vertex and the field."""
+    for kb in blocks:
+        bad = ~np.isfinite(coords[kb.name])
+        if bad.any():
+            v, axis = (int(i) for i in np.argwhere(bad)[0])
+            raise ShapeSpaceError(
+                f"shape key {kb.name!r} of {obj.name!r} has a non-finite coordinate ({'xyz'[axis]} = "
+                f"{coords[kb.name][v, axis]}) at vertex {v}; fix or delete the key (Check Rig lists every one)",
+                "non_finite")
+        for field in ("slider_min", "slider_max", "value"):
+            value = getattr(kb, field)
+            if not np.isfinite(value):
+                raise ShapeSpaceError(f"shape key {kb.name!r} of {obj.name!r} has {field} = {value}",
+                                      "non_finite")
+
+
+def read_blendshape_model(obj, finite: bool = True) -> BlendshapeModel:
     """Read an object's relative shape keys as a :class:`core.BlendshapeModel`.
+
+    ``finite`` (the default) refuses a rig with a NaN or infinite coordinate, slider range or value,
+    naming the key and vertex; diagnostics (Check Rig) read with ``finite=False`` to report them.
 
     Raises
     ------
     core.ShapeSpaceError
-        For the structural problems of :func:`check_shape_keys`.
+        For the structural problems of :func:`check_shape_keys` and, with ``finite``, non-finite data.
     """
     errors = [i for i in check_shape_keys(obj) if i.severity == "error"]
     if errors:
@@ -60,10 +97,11 @@ def read_blendshape_model(obj) -> BlendshapeModel:
     ref = key.reference_key
     neutral = read_float(ref.data, "co", 3).astype(np.float64)
     meta = driven.prune(key)
-    driven_names = set(meta["inbetweens"]) | set(meta["combinations"])
-    everything = [kb for kb in blocks if kb != ref]
-    targets = [kb for kb in everything if kb.name not in driven_names]
+    sliders = set(slider_names(obj, meta))
+    targets = [kb for kb in blocks if kb.name in sliders]
     coords = {kb.name: read_float(kb.data, "co", 3).astype(np.float64) for kb in blocks}
+    if finite:
+        _check_finite(obj, blocks, coords)
     need_groups = any(kb.vertex_group for kb in targets)
     groups = vertex_groups(obj) if need_groups else None
     masks = {}

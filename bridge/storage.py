@@ -8,6 +8,8 @@ naming the datablock and property.
 """
 from __future__ import annotations
 
+import json
+
 from ..core import schema as _schema
 
 
@@ -36,3 +38,60 @@ def read_string_blob(owner, attr: str, schema: _schema.Schema) -> dict:
 
 def write_string_blob(owner, attr: str, schema: _schema.Schema, data: dict) -> None:
     setattr(owner, attr, _schema.dumps(data, schema))
+
+
+def _key_blob_schemas() -> dict:
+    """Every JSON blob ShapeSpace keeps on a shape-key datablock: property name → schema."""
+    from . import driven, facespace, retarget
+    return {driven.PROP: driven.SCHEMA, retarget.MAPPING_PROP: retarget.MAPPING_SCHEMA,
+            retarget.LAST_PROP: retarget.LAST_SCHEMA, **facespace.blob_schemas()}
+
+
+def _example_blob_schemas() -> dict:
+    """Every JSON string of a pose-space example: attribute name → schema."""
+    from .posespace import stored
+    return {"pose": stored.POSE_SCHEMA, "pseudo_pose": stored.PSEUDO_POSE_SCHEMA,
+            "target_values": stored.TARGET_VALUES_SCHEMA}
+
+
+def _upgraded(text, schema: _schema.Schema, where_: str):
+    """The blob re-serialised at the current version, or None when it is current, empty or damaged
+    (a damaged blob is left exactly as it is: Check Rig names it)."""
+    if not isinstance(text, str) or not text.strip():
+        return None
+    try:
+        parsed = json.loads(text)
+        if isinstance(parsed, dict) and parsed.get("schema_version") == schema.version:
+            return None
+        return _schema.dumps(_schema.loads(text, schema, where_), schema)
+    except (ValueError, RecursionError):
+        return None
+
+
+def upgrade_file(data) -> int:
+    """Rewrite every readable older-version blob in ``data`` (``bpy.data``) at the current schema version.
+
+    Runs before each save, so files written by this version hold only current blobs; linked (library)
+    data and damaged blobs are left untouched.  Returns how many blobs were rewritten.
+    """
+    count = 0
+    key_schemas = _key_blob_schemas()
+    for key in data.shape_keys:
+        if key.library is not None:
+            continue
+        for prop, schema in key_schemas.items():
+            new = _upgraded(key.get(prop), schema, where(key, prop))
+            if new is not None:
+                key[prop] = new
+                count += 1
+    example_schemas = _example_blob_schemas()
+    for ob in data.objects:
+        if ob.library is not None or ob.type != "MESH":
+            continue
+        for ex in ob.shapespace_psd.examples:
+            for attr, schema in example_schemas.items():
+                new = _upgraded(getattr(ex, attr), schema, where(ex, attr))
+                if new is not None:
+                    setattr(ex, attr, new)
+                    count += 1
+    return count

@@ -58,13 +58,13 @@ def _cmd_info(args) -> int:
         for path in args.files:
             assets.load(path)
             rep = inventory.describe_file()
-            rep["file"] = path
+            rep.file = path
             reports.append(rep)
     else:
         reports.append(inventory.describe_file())
     for rep in reports:
-        inventory.require_rigs(rep)
-    payload = reports[0] if len(reports) == 1 else reports
+        rep.require_rigs()
+    payload = reports[0].to_json() if len(reports) == 1 else [rep.to_json() for rep in reports]
     text = json.dumps(payload, indent=2)
     if args.out:
         with open(args.out, "w", encoding="utf-8") as fh:
@@ -105,7 +105,7 @@ def _cmd_retarget(args) -> int:
             else:
                 rep = retarget.retarget(obj, src, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
                                         action_name=name, key_shape=args.key_shape, key_pose_action=args.key_poses)
-            rep["ok"] = True
+            rep = {**rep.to_json(), "ok": True}
         except ShapeSpaceError as exc:
             print(f"shapespace: error: {src}: {exc}", file=sys.stderr)
             rep = {"source": src, "ok": False, "error": str(exc)}

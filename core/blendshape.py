@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .result import Issue, Result, ShapeSpaceError
 
@@ -26,7 +27,7 @@ __all__ = ["BlendshapeModel", "InBetween", "Combination", "diagnose_model", "bou
 NORMALISED_DIAGONAL = 30.0
 
 
-def hat(w, left: float, peak: float, right: float):
+def hat(w: ArrayLike, left: float, peak: float, right: float) -> np.ndarray:
     """Piecewise-linear tent: 0 at ``left`` and ``right``, 1 at ``peak`` (thesis 3.3.2).
 
     This is the driver expression ShapeSpace writes for an in-between key:
@@ -36,7 +37,7 @@ def hat(w, left: float, peak: float, right: float):
     return np.maximum(0.0, np.minimum((w - left) / (peak - left), (right - w) / (right - peak)))
 
 
-def hat_slope(w, left: float, peak: float, right: float, side: str = "right"):
+def hat_slope(w: ArrayLike, left: float, peak: float, right: float, side: str = "right") -> np.ndarray:
     """One-sided derivative of :func:`hat` (``side`` = "right" or "left"), used by Gauss–Newton."""
     w = np.asarray(w, dtype=np.float64)
     if side == "right":
@@ -93,7 +94,7 @@ class Combination:
     delta: np.ndarray
 
 
-def bounding_box_diagonal(points) -> float:
+def bounding_box_diagonal(points: ArrayLike) -> float:
     """Length of the axis-aligned bounding-box diagonal of ``points`` (p, 3)."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if pts.shape[0] == 0:
@@ -220,7 +221,7 @@ class BlendshapeModel:
             raise ShapeSpaceError(f"the rig has no shape key named {name!r}", "missing_key") from None
 
     # ------------------------------------------------------------- evaluation
-    def effective_weights(self, weights) -> np.ndarray:
+    def effective_weights(self, weights: ArrayLike) -> np.ndarray:
         """Weights as Blender applies them: clamped to the slider range, 0 when muted.
 
         Parameters
@@ -239,7 +240,7 @@ class BlendshapeModel:
         """True when the rig has no in-betweens or combination shapes."""
         return not (self.inbetweens or self.combinations)
 
-    def driven_values(self, weights) -> np.ndarray:
+    def driven_values(self, weights: ArrayLike) -> np.ndarray:
         """Values Blender's drivers give the in-between and combination keys, shape (..., d)."""
         w = np.clip(np.asarray(weights, dtype=np.float64), self.slider_min, self.slider_max)
         cols = [hat(w[..., ib.primary], *ib.knots) for ib in self.inbetweens]
@@ -253,7 +254,7 @@ class BlendshapeModel:
         pts = {k for ib in self.inbetweens if ib.primary == index for k in ib.knots}
         return np.array(sorted(pts))
 
-    def segment(self, index: int, w: float, direction: int, eps: float = 1e-9):
+    def segment(self, index: int, w: float, direction: int, eps: float = 1e-9) -> tuple:
         """The interval between kinks that slider ``index`` enters moving from ``w`` in ``direction`` (±1)."""
         knots = self.knots_of(index)
         lo, hi = self.slider_min[index], self.slider_max[index]
@@ -264,7 +265,7 @@ class BlendshapeModel:
         above = knots[knots > probe]
         return (max(lo, below[-1]) if below.size else lo), (min(hi, above[0]) if above.size else hi)
 
-    def driven_slopes(self, weights, sides=None) -> np.ndarray:
+    def driven_slopes(self, weights: ArrayLike, sides: ArrayLike | None = None) -> np.ndarray:
         """Derivative of :meth:`driven_values` w.r.t. the sliders, shape (d, n), at one setting.
 
         ``sides`` (n,) of ±1 picks, at a kink of an in-between's tent, the
@@ -291,7 +292,7 @@ class BlendshapeModel:
             return np.zeros((0, self.n_vertices, 3))
         return np.stack([np.asarray(d, dtype=np.float64) for d in items])
 
-    def evaluate(self, weights=None) -> np.ndarray:
+    def evaluate(self, weights: ArrayLike | None = None) -> np.ndarray:
         """Vertex positions ``b0 + B w`` (+ driven in-betweens and combinations) for slider settings.
 
         Parameters
@@ -342,6 +343,12 @@ def diagnose_model(model: BlendshapeModel, rel_tol: float = 1e-7) -> Result:
         issues.append(Issue("error", "non_finite",
                             f"NaN or infinite coordinates in shape keys: {', '.join(bad_targets)}",
                             tuple(bad_targets)))
+    bad_ranges = [model.names[k] for k in range(model.n_targets)
+                  if not (np.isfinite(model.slider_min[k]) and np.isfinite(model.slider_max[k]))]
+    if bad_ranges:
+        issues.append(Issue("error", "non_finite",
+                            f"NaN or infinite slider range (slider_min/slider_max) on shape keys: "
+                            f"{', '.join(bad_ranges)}", tuple(bad_ranges)))
     if any(i.severity == "error" for i in issues):
         return Result(value=None, status=-1, message=issues[0].message, diagnostics={}, issues=issues)
 

@@ -23,42 +23,65 @@ ill-conditioned problem), a residual ≤ 1e-8 · max(1, ‖g‖∞).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .result import ShapeSpaceError
+from .errors import ErrorCode
+from .result import Result, ShapeSpaceError, Status
+from .validate import array, positive
 
-__all__ = ["BoxQPResult", "DualLSQResult", "solve_box_qp", "solve_box_lsq_dual", "objective"]
+__all__ = ["BoxQPResult", "DualLSQResult", "solve_box_qp", "solve_box_lsq_dual"]
 
 
-@dataclass
-class BoxQPResult:
-    x: np.ndarray
-    iterations: int
-    status: int          # 0 converged, 1 iteration limit
-    residual: float      # final natural residual (∞-norm)
-    message: str
+@dataclass(kw_only=True)
+class BoxQPResult(Result):
+    """Outcome of :func:`solve_box_qp` (``value``: the minimiser, also readable as ``x``).
+
+    Attributes
+    ----------
+    value : ndarray, shape (n,)
+    iterations : int
+        Projected-Newton iterations.
+    status : Status
+        ``OK`` at the KKT point (to ``tol``, or to rounding), ``NOT_CONVERGED`` at the iteration limit or
+        when no step decreases the objective any more (``value`` is then the last iterate).
+    residual : float
+        Final natural residual ``‖x − clip(x − ∇f(x))‖∞``.
+    """
+
+    residual: float = float("nan")
+
+    @property
+    def x(self) -> np.ndarray:
+        """The minimiser (alias of ``value``), shape (n,)."""
+        return self.value
 
 
 def _hess_apply(a, V, s, x):
     return a * x + V @ (s * (V.T @ x))
 
 
-def objective(a, V, s, g, x) -> float:
-    """``½ xᵀ H x − gᵀ x`` for ``H = a I + V diag(s) Vᵀ``."""
-    return float(0.5 * x @ _hess_apply(a, V, s, x) - g @ x)
+def _vector(x, name, n, finite=True):
+    """``x`` as a float64 vector of ``n`` entries (any shape holding ``n`` values is flattened)."""
+    v = array(x, name, finite=finite)
+    if v.size != n:
+        raise ShapeSpaceError(f"{name} must have {n} entries, got shape {v.shape}", ErrorCode.SHAPE)
+    return v.reshape(n)
 
 
-def _free_solve(a, Vf, s, rhs):
-    """Solve ``(a I + Vf diag(s) Vfᵀ) d = rhs`` by Woodbury (Vf: free rows of V)."""
-    if Vf.shape[1] == 0:
-        return rhs / a
-    inner = np.diag(a / s) + Vf.T @ Vf
-    return (rhs - Vf @ np.linalg.solve(inner, Vf.T @ rhs)) / a
+def _bounds(lo, hi, n):
+    """Checked box ``[lo, hi]``: ``n`` entries each, ±inf allowed, no NaN, ``lo ≤ hi``."""
+    lo, hi = _vector(lo, "lo", n, finite=False), _vector(hi, "hi", n, finite=False)
+    if np.isnan(lo).any() or np.isnan(hi).any():
+        raise ShapeSpaceError("lo and hi must not contain NaN (use -inf/inf for no bound)", ErrorCode.NON_FINITE)
+    if np.any(lo > hi):
+        raise ShapeSpaceError(f"lo must not exceed hi (first at index {int(np.argmax(lo > hi))})", ErrorCode.RANGE)
+    return lo, hi
 
 
-def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=500) -> BoxQPResult:
+def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 x0: np.ndarray | None = None, tol: float = 1e-13, max_iter: int = 500) -> BoxQPResult:
     """Minimise ``½ xᵀ(aI + V diag(s) Vᵀ)x − gᵀx`` over the box ``[lo, hi]``.
 
     Parameters
@@ -80,26 +103,29 @@ def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=500) -> BoxQPR
     Returns
     -------
     BoxQPResult
+        ``status`` ``OK`` or ``NOT_CONVERGED`` (iteration limit, or stalled).
+
+    Raises
+    ------
+    ShapeSpaceError
+        ``shape`` for mismatched sizes, ``range`` for ``a ≤ 0``, a zero in ``s`` or ``lo > hi``,
+        ``non_finite`` for NaN/inf in ``a``, ``V``, ``s``, ``g`` or NaN in the bounds.
     """
-    g = np.asarray(g, dtype=np.float64)
+    g = array(g, "g", ndim=1)
     n = g.shape[0]
-    V = np.asarray(V, dtype=np.float64)
-    if V.ndim == 1:
+    V = array(V, "V", ndim=(1, 2))
+    if V.ndim == 1 and V.shape[0] == n:
         V = V.reshape(n, 1)
     if V.ndim != 2 or V.shape[0] != n:
-        raise ShapeSpaceError(f"V must have shape ({n}, r), got {V.shape}", "shape")
-    s = np.asarray(s, dtype=np.float64).reshape(-1)
-    lo = np.asarray(lo, dtype=np.float64).reshape(n)
-    hi = np.asarray(hi, dtype=np.float64).reshape(n)
-    if not a > 0:
-        raise ShapeSpaceError(f"a must be positive, got {a}", "shape")
+        raise ShapeSpaceError(f"V must have shape ({n}, r), got {V.shape}", ErrorCode.SHAPE)
+    s = array(s, "s").reshape(-1)
+    lo, hi = _bounds(lo, hi, n)
+    a = positive(a, "a")
     if V.shape[1] != s.shape[0]:
-        raise ShapeSpaceError(f"V has {V.shape[1]} columns but s has {s.shape[0]} entries", "shape")
+        raise ShapeSpaceError(f"V has {V.shape[1]} columns but s has {s.shape[0]} entries", ErrorCode.SHAPE)
     if np.any(s == 0):
-        raise ShapeSpaceError("s must have no zero entries (drop those columns of V)", "shape")
-    if np.any(lo > hi):
-        raise ShapeSpaceError("lo must not exceed hi", "range")
-    x = np.clip(np.zeros(n) if x0 is None else np.asarray(x0, dtype=np.float64), lo, hi)
+        raise ShapeSpaceError("s must have no zero entries (drop those columns of V)", ErrorCode.RANGE)
+    x = np.clip(np.zeros(n) if x0 is None else _vector(x0, "x0", n), lo, hi)
     scale = max(1.0, float(np.abs(g).max(initial=0.0)))
     sigma = 1e-4
     dense = V.shape[1] >= n             # low rank buys nothing: solve the free block directly
@@ -111,7 +137,7 @@ def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=500) -> BoxQPR
         grad = a * x + V @ (s * vx) - g
         res = float(np.abs(x - np.clip(x - grad, lo, hi)).max(initial=0.0))
         if res <= tol * scale:
-            return BoxQPResult(x, it - 1, 0, res, "converged")
+            return BoxQPResult(x, iterations=it - 1, status=Status.OK, residual=res, message="converged")
         eps = min(1e-3, res)
         active = ((x <= lo + eps) & (grad > 0)) | ((x >= hi - eps) & (grad < 0))
         d = -grad / a
@@ -142,26 +168,46 @@ def solve_box_qp(a, V, s, g, lo, hi, x0=None, tol=1e-13, max_iter=500) -> BoxQPR
         if f - ft <= 4 * np.finfo(float).eps * max(abs(f), 1e-300):
             # no measurable decrease: at the optimum to rounding, or stalled
             if res <= 1e-8 * scale:
-                return BoxQPResult(x if ft > f else xt, it, 0, res, "converged (rounding limit)")
-            return BoxQPResult(x, it, 1, res, "stalled: no decrease possible")
+                return BoxQPResult(x if ft > f else xt, iterations=it, status=Status.OK, residual=res,
+                                   message="converged (rounding limit)")
+            return BoxQPResult(x, iterations=it, status=Status.NOT_CONVERGED, residual=res,
+                               message="stalled: no decrease possible")
         x, f, vx = xt, ft, vxt
     grad = _hess_apply(a, V, s, x) - g
     res = float(np.abs(x - np.clip(x - grad, lo, hi)).max(initial=0.0))
-    status = 0 if res <= tol * scale else 1
-    return BoxQPResult(x, max_iter, status, res, "converged" if status == 0 else "iteration limit reached")
+    status = Status.OK if res <= tol * scale else Status.NOT_CONVERGED
+    return BoxQPResult(x, iterations=max_iter, status=status, residual=res,
+                       message="converged" if status == Status.OK else "iteration limit reached")
 
 
-@dataclass
-class DualLSQResult:
-    x: np.ndarray
-    dual: np.ndarray
-    iterations: int
-    status: int          # 0 converged, 1 iteration limit
-    gap: float           # final duality gap, relative to the primal objective
-    message: str
+@dataclass(kw_only=True)
+class DualLSQResult(Result):
+    """Outcome of :func:`solve_box_lsq_dual` (``value``: the primal minimiser, also readable as ``x``).
+
+    Attributes
+    ----------
+    value : ndarray, shape (n,)
+    dual : ndarray, shape (q,)
+        Final dual variables λ (warm-start the next solve with them).
+    iterations : int
+        Semismooth Newton iterations.
+    status : Status
+        ``OK`` when the duality gap met the tolerance (or rounding), ``NOT_CONVERGED`` at the iteration limit.
+    gap : float
+        Final duality gap, relative to the primal objective.
+    """
+
+    dual: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    gap: float = float("nan")
+
+    @property
+    def x(self) -> np.ndarray:
+        """The primal minimiser (alias of ``value``), shape (n,)."""
+        return self.value
 
 
-def solve_box_lsq_dual(R, m, c, b, lo, hi, dual0=None, tol=1e-14, max_iter=100) -> DualLSQResult:
+def solve_box_lsq_dual(R: np.ndarray, m: np.ndarray, c: float, b: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                       dual0: np.ndarray | None = None, tol: float = 1e-14, max_iter: int = 100) -> DualLSQResult:
     """``min_x ‖R x − m‖² + c‖x − b‖²`` over the box ``[lo, hi]``, through its small dual.
 
     The Hessian is ``c·I + RᵀR`` with ``R`` of size ``q × n`` (``q = 3k`` rows
@@ -192,14 +238,20 @@ def solve_box_lsq_dual(R, m, c, b, lo, hi, dual0=None, tol=1e-14, max_iter=100) 
     Returns
     -------
     DualLSQResult
+        ``status`` ``OK`` or ``NOT_CONVERGED`` (iteration limit; the caller may finish in the primal).
+
+    Raises
+    ------
+    ShapeSpaceError
+        ``shape`` for mismatched sizes, ``range`` for ``c ≤ 0`` or ``lo > hi``, ``non_finite`` for NaN/inf.
     """
-    R = np.asarray(R, dtype=np.float64)
+    R = array(R, "R", ndim=2)
     q, n = R.shape
-    m = np.asarray(m, dtype=np.float64).reshape(q)
-    b = np.asarray(b, dtype=np.float64).reshape(n)
-    if not c > 0:
-        raise ShapeSpaceError(f"c must be positive, got {c}", "shape")
-    lam = np.zeros(q) if dual0 is None else np.asarray(dual0, dtype=np.float64).reshape(q).copy()
+    m = _vector(m, "m", q)
+    b = _vector(b, "b", n)
+    c = positive(c, "c")
+    lo, hi = _bounds(lo, hi, n)
+    lam = np.zeros(q) if dual0 is None else _vector(dual0, "dual0", q).copy()
     gram = R @ R.T
 
     def parts(lam):
@@ -218,7 +270,8 @@ def solve_box_lsq_dual(R, m, c, b, lo, hi, dual0=None, tol=1e-14, max_iter=100) 
         primal = res @ res + c * ((x - b) @ (x - b))
         gap = primal - d
         if gap <= tol * max(primal, 1e-300):
-            return DualLSQResult(x, lam, it, 0, gap / max(primal, 1e-300), "converged")
+            return DualLSQResult(x, dual=lam, iterations=it, status=Status.OK, gap=gap / max(primal, 1e-300),
+                                 message="converged")
         if it == max_iter:
             break
         grad = res - 0.5 * lam
@@ -253,8 +306,9 @@ def solve_box_lsq_dual(R, m, c, b, lo, hi, dual0=None, tol=1e-14, max_iter=100) 
                 break
             t *= 0.5
         if d_t < d:  # no ascent possible in floating point: optimal to rounding
-            return DualLSQResult(x, lam, it, 0, gap / max(primal, 1e-300), "converged (rounding limit)")
+            return DualLSQResult(x, dual=lam, iterations=it, status=Status.OK, gap=gap / max(primal, 1e-300),
+                                 message="converged (rounding limit)")
         lam, x, rx, d = lam_t, x_t, rx_t, d_t
-    status = 0 if gap <= 1e-10 * max(primal, 1e-300) else 1
-    return DualLSQResult(x, lam, max_iter, status, gap / max(primal, 1e-300),
-                         "converged" if status == 0 else "iteration limit reached")
+    status = Status.OK if gap <= 1e-10 * max(primal, 1e-300) else Status.NOT_CONVERGED
+    return DualLSQResult(x, dual=lam, iterations=max_iter, status=status, gap=gap / max(primal, 1e-300),
+                         message="converged" if status == Status.OK else "iteration limit reached")

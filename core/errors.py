@@ -142,7 +142,8 @@ DESCRIPTIONS = {
     ErrorCode.TIMECODE: "an unreadable or impossible timecode",
     ErrorCode.NO_TIMECODE: "a capture file without a timecode column",
     ErrorCode.CORRUPT_FILE: "a file whose contents cannot be parsed",
-    ErrorCode.CORRUPT_METADATA: "ShapeSpace data stored in the .blend is damaged (invalid JSON, wrong type, missing field)",
+    ErrorCode.CORRUPT_METADATA: "ShapeSpace data stored in the .blend is damaged (invalid JSON, wrong type, "
+                                "missing field)",
     ErrorCode.UNSUPPORTED_FILE: "a file type ShapeSpace cannot read",
     ErrorCode.MISSING_FILE: "a file that does not exist (or is not a regular file)",
     ErrorCode.USAGE: "bad command-line usage",

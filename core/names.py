@@ -17,6 +17,7 @@ camelCase, ``eyeBlinkLeft``) so channels can be matched by meaning, and
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 
 #: The 52 ARKit blendshape locations in Apple's camelCase spelling.
 ARKIT_52 = (
@@ -81,7 +82,7 @@ def canonical_name(name: str) -> str:
     return (base[:1].lower() + base[1:] + side) if base else stripped
 
 
-def match_channels(source_names, target_names):
+def match_channels(source_names: Sequence[str], target_names: Sequence[str]) -> dict:
     """Match channels of two rigs by canonical name.
 
     Parameters

@@ -4,6 +4,7 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .result import ShapeSpaceError
 
@@ -12,7 +13,7 @@ __all__ = ["write_pc2", "read_pc2"]
 _HEADER = struct.Struct("<12siiffi")
 
 
-def write_pc2(path: str, frames, start_frame: float = 1.0, sample_rate: float = 1.0) -> None:
+def write_pc2(path: str, frames: ArrayLike, start_frame: float = 1.0, sample_rate: float = 1.0) -> None:
     """Write positions (samples, p, 3) as a PC2 file (little-endian float32)."""
     data = np.asarray(frames, dtype=np.float64)
     if data.ndim != 3 or data.shape[2] != 3:
@@ -25,7 +26,7 @@ def write_pc2(path: str, frames, start_frame: float = 1.0, sample_rate: float = 
         fh.write(data.astype("<f4").tobytes())
 
 
-def read_pc2(path: str):
+def read_pc2(path: str) -> tuple:
     """Read a PC2 file: ``(positions (samples, p, 3), start_frame, sample_rate)``."""
     with open(path, "rb") as fh:
         head = fh.read(_HEADER.size)

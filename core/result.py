@@ -144,7 +144,7 @@ class Result:
         return [i for i in self.issues if i.severity == "warning"]
 
 
-def to_jsonable(obj):
+def to_jsonable(obj: Any) -> Any:
     """Convert dataclasses, numpy values, enums and non-finite floats into plain JSON values.
 
     Non-finite floats become ``None`` (JSON has no NaN); enums their value;

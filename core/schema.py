@@ -75,7 +75,7 @@ def _corrupt(where: str, what: str) -> ShapeSpaceError:
     return ShapeSpaceError(f"damaged ShapeSpace data in {where}: {what}", ErrorCode.CORRUPT_METADATA)
 
 
-def loads(text, schema: Schema, where: str) -> dict:
+def loads(text: str | bytes | None, schema: Schema, where: str) -> dict:
     """Parse, migrate to the current version and check a stored blob.
 
     Parameters

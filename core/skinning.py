@@ -12,9 +12,11 @@ mirroring Blender's ``mat4_to_dquat`` / ``add_weighted_dq_dq`` /
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .result import Issue, Result, ShapeSpaceError
 
@@ -124,7 +126,7 @@ def _as_mats(m, name):
     return m
 
 
-def bone_change_matrices(deformer: ArmatureDeform, pose, mesh_world) -> np.ndarray:
+def bone_change_matrices(deformer: ArmatureDeform, pose: ArrayLike, mesh_world: ArrayLike) -> np.ndarray:
     """Per-bone deformation matrices in the mesh's object space.
 
     Parameters
@@ -145,7 +147,8 @@ def bone_change_matrices(deformer: ArmatureDeform, pose, mesh_world) -> np.ndarr
     return np.linalg.inv(to_arm) @ chan @ to_arm
 
 
-def linear_blend_skinning(coords, weights: SkinWeights, mats, armature_weight=None) -> np.ndarray:
+def linear_blend_skinning(coords: ArrayLike, weights: SkinWeights, mats: ArrayLike,
+                          armature_weight: ArrayLike | None = None) -> np.ndarray:
     """Linear blend skinning with Blender's weight normalisation.
 
     Parameters
@@ -178,7 +181,7 @@ def linear_blend_skinning(coords, weights: SkinWeights, mats, armature_weight=No
     return co + vec * scale[:, None]
 
 
-def matrix_to_quaternion(r) -> np.ndarray:
+def matrix_to_quaternion(r: ArrayLike) -> np.ndarray:
     """Unit quaternions (w, x, y, z) of rotation matrices, shape (..., 3, 3) → (..., 4)."""
     r = np.asarray(r, dtype=np.float64)
     t = np.trace(r, axis1=-2, axis2=-1)
@@ -216,7 +219,7 @@ def _orthonormalize_keep_y(m3):
     return np.stack([x, y, z], axis=-1)
 
 
-def matrix_to_dual_quaternion(basemat, mat):
+def matrix_to_dual_quaternion(basemat: ArrayLike, mat: ArrayLike) -> tuple:
     """Dual quaternions of bone change matrices, with Blender's scale split.
 
     Parameters
@@ -266,8 +269,8 @@ def matrix_to_dual_quaternion(basemat, mat):
     return q, trans, scale, has_scale
 
 
-def dual_quaternion_skinning(coords, weights: SkinWeights, basemat, chan, to_arm,
-                             armature_weight=None) -> np.ndarray:
+def dual_quaternion_skinning(coords: ArrayLike, weights: SkinWeights, basemat: ArrayLike, chan: ArrayLike,
+                             to_arm: ArrayLike, armature_weight: ArrayLike | None = None) -> np.ndarray:
     """Dual-quaternion ("Preserve Volume") skinning as in Blender.
 
     Parameters
@@ -352,7 +355,7 @@ def dual_quaternion_skinning(coords, weights: SkinWeights, basemat, chan, to_arm
     return out @ from_arm[:3, :3].T + from_arm[:3, 3]
 
 
-def deform(coords, rig: SkinningRig, poses) -> np.ndarray:
+def deform(coords: ArrayLike, rig: SkinningRig, poses: Sequence) -> np.ndarray:
     """Apply a stack of Armature modifiers to ``coords``.
 
     Parameters
@@ -388,7 +391,7 @@ def deform(coords, rig: SkinningRig, poses) -> np.ndarray:
     return co
 
 
-def diagnose_weights(weights: SkinWeights, vertex_names=None, tol: float = 1e-3) -> Result:
+def diagnose_weights(weights: SkinWeights, vertex_names: Sequence[str] | None = None, tol: float = 1e-3) -> Result:
     """Report vertices that the skin leaves still or does not normalise.
 
     Blender divides by the weight sum, so unnormalised weights still deform
@@ -413,10 +416,11 @@ def diagnose_weights(weights: SkinWeights, vertex_names=None, tol: float = 1e-3)
         issues.append(Issue("warning", "unnormalised_weights",
                             f"{unnorm.size} vertices have weights that do not sum to 1 "
                             f"(Blender normalises them; first: vertex {int(unnorm[0])}, sum {total[unnorm[0]]:.4g})"))
-    return Result(value=total, status=1 if issues else 0, message=issues[0].message if issues else "weights ok", diagnostics={"unweighted": int(zero.size), "unnormalised": int(unnorm.size)}, issues=issues)
+    return Result(value=total, status=1 if issues else 0, message=issues[0].message if issues else "weights ok",
+                  diagnostics={"unweighted": int(zero.size), "unnormalised": int(unnorm.size)}, issues=issues)
 
 
-def forward_kinematics(rest, parents, basis) -> np.ndarray:
+def forward_kinematics(rest: ArrayLike, parents: Sequence[int], basis: ArrayLike) -> np.ndarray:
     """Posed bone matrices (armature space) from local pose transforms, as Blender computes them.
 
     Parameters

@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
 
 from .errors import ErrorCode
 from .result import ShapeSpaceError
@@ -29,8 +31,8 @@ def shape_text(shape: Sequence) -> str:
     return "(" + ", ".join(dims) + ("," if len(dims) == 1 else "") + ")"
 
 
-def array(x, name: str, ndim: int | Sequence[int] | None = None, shape: Sequence | None = None,
-          finite: bool = True, dtype=np.float64) -> np.ndarray:
+def array(x: ArrayLike, name: str, ndim: int | Sequence[int] | None = None, shape: Sequence | None = None,
+          finite: bool = True, dtype: DTypeLike = np.float64) -> np.ndarray:
     """``x`` as an array, checked.
 
     Parameters
@@ -72,7 +74,7 @@ def array(x, name: str, ndim: int | Sequence[int] | None = None, shape: Sequence
     return arr
 
 
-def finite_scalar(x, name: str) -> float:
+def finite_scalar(x: Any, name: str) -> float:
     """``x`` as a finite float (code ``non_finite`` for NaN/inf, ``not_number`` otherwise)."""
     try:
         value = float(x)
@@ -83,7 +85,7 @@ def finite_scalar(x, name: str) -> float:
     return value
 
 
-def positive(x, name: str) -> float:
+def positive(x: Any, name: str) -> float:
     """``x`` as a finite float > 0 (code ``range``)."""
     value = finite_scalar(x, name)
     if value <= 0:
@@ -91,7 +93,7 @@ def positive(x, name: str) -> float:
     return value
 
 
-def non_negative(x, name: str) -> float:
+def non_negative(x: Any, name: str) -> float:
     """``x`` as a finite float ≥ 0 (code ``range``)."""
     value = finite_scalar(x, name)
     if value < 0:
@@ -99,7 +101,7 @@ def non_negative(x, name: str) -> float:
     return value
 
 
-def in_range(x, name: str, lo: float, hi: float) -> float:
+def in_range(x: Any, name: str, lo: float, hi: float) -> float:
     """``x`` as a finite float in ``[lo, hi]`` (code ``range``)."""
     value = finite_scalar(x, name)
     if not lo <= value <= hi:
@@ -107,7 +109,7 @@ def in_range(x, name: str, lo: float, hi: float) -> float:
     return value
 
 
-def choice(x, name: str, options: Sequence[str], code: ErrorCode = ErrorCode.METHOD) -> str:
+def choice(x: Any, name: str, options: Sequence[str], code: ErrorCode = ErrorCode.METHOD) -> str:
     """``x`` if it is one of ``options`` (message lists them)."""
     if x not in options:
         raise ShapeSpaceError(f"{name} must be one of {', '.join(map(repr, options))}, got {x!r}", code)

@@ -1,18 +1,38 @@
 """Shared poll checks: each returns the object or None after telling the user why (poll message)."""
 
 
-def active_mesh(cls, context):
-    """The active object when it is a mesh; otherwise set the poll message and return None."""
+def active_mesh(cls, context, editable: bool = True):
+    """The active object when it is a mesh ShapeSpace can use; otherwise set the poll message and return None.
+
+    Refused: no mesh; a mesh in Edit Mode (its shape keys and coordinates are stale until Edit Mode is left,
+    and keys ShapeSpace wrote would be overwritten when it is); with ``editable`` (every operator that changes
+    data), an object or mesh linked from a library (the change would be lost on save).
+    """
     ob = context.active_object
     if ob is None or ob.type != "MESH":
         cls.poll_message_set("Select a mesh object")
         return None
+    if ob.mode == "EDIT":
+        cls.poll_message_set(f"'{ob.name}' is in Edit Mode: leave Edit Mode first (its mesh data is not "
+                             "up to date until then)")
+        return None
+    if editable and not editable_data(ob):
+        cls.poll_message_set(f"'{ob.name}' is linked from a library: make it local or a library override "
+                             "first (changes to linked data are lost on save)")
+        return None
     return ob
 
 
-def active_rig(cls, context):
+def editable_data(ob) -> bool:
+    """True when ``ob``, its mesh and its shape keys can be changed and saved (not linked, not a
+    non-editable library override)."""
+    blocks = [ob, ob.data, getattr(ob.data, "shape_keys", None)]
+    return all(b is None or (b.library is None and getattr(b, "is_editable", True)) for b in blocks)
+
+
+def active_rig(cls, context, editable: bool = True):
     """The active mesh when it has shape-key targets; otherwise say why and return None."""
-    ob = active_mesh(cls, context)
+    ob = active_mesh(cls, context, editable)
     if ob is None:
         return None
     if ob.data.shape_keys is None or len(ob.data.shape_keys.key_blocks) < 2:

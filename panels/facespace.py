@@ -1,7 +1,14 @@
+"""Face Space sidebar panel: representations, diagnostics, the face prior and curve repair (thesis 3.7, ch. 6,
+9.3).  Reads only: every button is an operator of :mod:`operators.facespace`."""
 import bpy
 
 from ..bridge import facespace
 from .base import ShapeKeyPanel
+
+
+def _fmt(value, spec: str = ".2f") -> str:
+    """A stored number for display (stored NaN and infinity read back as ``None``)."""
+    return "–" if value is None else format(value, spec)
 
 
 class SHAPESPACE_UL_flagged_frames(bpy.types.UIList):
@@ -35,7 +42,7 @@ class SHAPESPACE_PT_face_space(ShapeKeyPanel, bpy.types.Panel):
         row.operator("shapespace.compression_report", icon="FILE_ARCHIVE")
         comp = analysis.get("compression")
         if comp and comp.get("components") is not None:
-            box.label(text=f"{comp['components']} of {comp['targets']} components ({comp['ratio']:.2f}:1) "
+            box.label(text=f"{comp['components']} of {comp['targets']} components ({_fmt(comp['ratio'])}:1) "
                            f"at {comp['tol']:.3g}")
 
         box = layout.box()
@@ -53,13 +60,13 @@ class SHAPESPACE_PT_face_space(ShapeKeyPanel, bpy.types.Panel):
                 box.label(text=f"{a} ≈ {b} ({c:.2f})", icon="ERROR")
             if coh.get("sparsity"):
                 bs, pc = coh["sparsity"]["blendshape"], coh["sparsity"]["pca"]
-                box.label(text=f"idle samples: blendshape {bs['curve_small_fraction']:.2f}, "
-                               f"PCA {pc['curve_small_fraction']:.2f}")
+                box.label(text=f"idle samples: blendshape {_fmt(bs['curve_small_fraction'])}, "
+                               f"PCA {_fmt(pc['curve_small_fraction'])}")
 
         box = layout.box()
         box.label(text="Face Prior", icon="FORCE_HARMONIC")
         box.operator("shapespace.learn_face_prior", icon="LIGHT")
-        if facespace.PRIOR_PROP in ob.data.shape_keys:
+        if facespace.has_prior(ob):
             try:
                 m = facespace.meter(ob)
                 col = box.column(align=True)

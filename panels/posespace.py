@@ -54,7 +54,8 @@ class SHAPESPACE_PT_correctives(ShapeSpaceSidebar, bpy.types.Panel):
         box = layout.box()
         box.label(text=f"Driven targets: {len(st.targets)}", icon="DRIVER")
         for t in st.targets:
-            box.label(text=f"{t.owner.name if t.owner else '?'}: {t.data_path}" + (f"[{t.index}]" if t.index >= 0 else ""))
+            index = f"[{t.index}]" if t.index >= 0 else ""
+            box.label(text=f"{t.owner.name if t.owner else '?'}: {t.data_path}{index}")
         row = box.row(align=True)
         row.operator("shapespace.psd_add_target", icon="ADD")
         row.operator("shapespace.psd_record_targets", icon="REC")

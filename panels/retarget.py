@@ -22,9 +22,9 @@ class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
         if st.method == "learned":
             row = col.row(align=True)
             row.prop(st, "key_pose_action", text="")
-            sug = row.operator("shapespace.suggest_key_poses", text="", icon="MARKER_HLT")
-            sug.filepath = bpy.path.abspath(st.csv_path) if st.source_kind == "CSV" else ""
-            sug.action = st.action.name if st.source_kind == "ACTION" and st.action else ""
+            op = row.operator("shapespace.suggest_key_poses", text="", icon="MARKER_HLT")
+            op.filepath = bpy.path.abspath(st.csv_path) if st.source_kind == "CSV" else ""
+            op.action = st.action.name if st.source_kind == "ACTION" and st.action else ""
         col.prop(st, "key_tolerance")
         if st.key_tolerance > 0:
             col.prop(st, "key_shape", text="Keys")
@@ -36,17 +36,17 @@ class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
         op.key_pose_action = st.key_pose_action.name if st.key_pose_action else ""
 
         rep = retarget.last_report(ob)
-        if rep:
+        if rep is not None:
             box = layout.box()
             col = box.column(align=True)
-            col.label(text=f"{rep.get('action')}: {rep.get('method')}, {rep.get('frames')} frames", icon="ACTION")
-            if "velocity_error_rms" in rep:
-                col.label(text=f"error: position {rep['position_error_rms']:.3g}, velocity "
-                               f"{rep['velocity_error_rms']:.3g} (of the head size)")
-            if rep.get("clipping_frames"):
-                col.label(text=f"{rep['clipping_frames']} frames beyond the slider ranges", icon="ERROR")
-            if "keys_kept_frac" in rep:
-                col.label(text=f"{100 * rep['keys_kept_frac']:.1f} % of the keys kept")
+            col.label(text=f"{rep.action}: {rep.method}, {rep.frames} frames", icon="ACTION")
+            if rep.velocity_error_rms is not None and rep.position_error_rms is not None:
+                col.label(text=f"error: position {rep.position_error_rms:.3g}, velocity "
+                               f"{rep.velocity_error_rms:.3g} (of the head size)")
+            if rep.clipping_frames:
+                col.label(text=f"{rep.clipping_frames} frames beyond the slider ranges", icon="ERROR")
+            if rep.keys_kept_frac is not None:
+                col.label(text=f"{100 * rep.keys_kept_frac:.1f} % of the keys kept")
             box.operator("shapespace.discard_retarget", icon="LOOP_BACK")
 
         box = layout.box()
@@ -55,7 +55,8 @@ class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
             row = box.row(align=True)
             row.label(text=f"{src} → {entry.get('target')}  ×{entry.get('gain', 1.0):g} "
                            f"{entry.get('offset', 0.0):+g}")
-            row.operator("shapespace.remove_mapping", text="", icon="X").source = src
+            op = row.operator("shapespace.remove_mapping", text="", icon="X")
+            op.source = src
         box.operator("shapespace.set_mapping", icon="LINKED")
 
         box = layout.box()

@@ -6,6 +6,9 @@ they are part of the file format and never change (docs/ARCHITECTURE.md lists
 every stored field).
 """
 import bpy
+from bpy.app.handlers import persistent
+
+from ..bridge import storage
 
 from .facespace import SHAPESPACE_PG_face, SHAPESPACE_PG_flagged_frame
 from .manipulation import SHAPESPACE_PG_pin, SHAPESPACE_PG_settings
@@ -19,9 +22,16 @@ classes = (SHAPESPACE_PG_pin, SHAPESPACE_PG_settings, SHAPESPACE_PG_reader, SHAP
            SHAPESPACE_PG_flagged_frame, SHAPESPACE_PG_face)
 
 
+@persistent
+def _upgrade_before_save(_filepath, *_):
+    """Files saved by this version hold only current-version blobs (older ones are migrated on save)."""
+    storage.upgrade_file(bpy.data)
+
+
 def register():
     for cls in classes:
         bpy.utils.register_class(cls)
+    bpy.app.handlers.save_pre.append(_upgrade_before_save)
     bpy.types.Object.shapespace = bpy.props.PointerProperty(type=SHAPESPACE_PG_settings)
     bpy.types.Object.shapespace_psd = bpy.props.PointerProperty(type=SHAPESPACE_PG_psd)
     bpy.types.Object.shapespace_retarget = bpy.props.PointerProperty(type=SHAPESPACE_PG_retarget)
@@ -29,6 +39,8 @@ def register():
 
 
 def unregister():
+    if _upgrade_before_save in bpy.app.handlers.save_pre:
+        bpy.app.handlers.save_pre.remove(_upgrade_before_save)
     del bpy.types.Object.shapespace_face
     del bpy.types.Object.shapespace_retarget
     del bpy.types.Object.shapespace_psd

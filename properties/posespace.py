@@ -1,4 +1,8 @@
-"""Stored per object: pose-space readers, examples and driven targets (``Object.shapespace_psd``)."""
+"""Stored per object: pose-space readers, examples and driven targets (``Object.shapespace_psd``).
+
+An example's ``pose``, ``pseudo_pose`` and ``target_values`` are versioned JSON strings, read and written only
+through ``bridge.posespace.stored`` (schemas there; 0.1.0 files held bare JSON lists and still load).
+"""
 import bpy
 
 

@@ -7,8 +7,6 @@ import os
 import sys
 import tempfile
 
-import pytest
-
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 USER_DIR = tempfile.mkdtemp(prefix="shapespace-blender-user-")
 os.environ["BLENDER_USER_RESOURCES"] = USER_DIR

@@ -27,7 +27,7 @@ def synthetic_model(n, p=3000, seed=0):
 
 
 def drag_problem(model, k, seed):
-    from shapespace.core.manipulation.solve import Pin, pin_positions
+    from shapespace.core.manipulation import Pin, pin_positions
     rng = np.random.default_rng(seed)
     w_true = np.where(rng.random(model.n_targets) < 0.15, rng.uniform(0, 1, model.n_targets), 0.0)
     pins = [Pin.at_vertex(int(i)) for i in rng.choice(model.n_vertices, k, replace=False)]
@@ -37,7 +37,7 @@ def drag_problem(model, k, seed):
 
 def qp_matrices(model, pins, targets, w0, alpha=0.1, mu=0.001):
     """Eq. 4.5 as ½xᵀPx + qᵀx (for the peers), built independently of the solver's internals."""
-    from shapespace.core.manipulation.solve import NORMALISED_DIAGONAL, pin_matrix, pin_rest_positions
+    from shapespace.core.manipulation import NORMALISED_DIAGONAL, pin_matrix, pin_rest_positions
     unit = model.scale / NORMALISED_DIAGONAL
     R = pin_matrix(model, pins) / unit
     m = (targets - pin_rest_positions(model, pins)).reshape(-1) / unit
@@ -90,7 +90,9 @@ def peers(P, q, lo, hi, R, m, w0, alpha, mu, reps):
 
 def solve_speed(quick):
     from shapespace.bridge import assets, shapekeys
-    from shapespace.core.manipulation.solve import solve_drag
+    import copy
+
+    from shapespace.core.manipulation import DragSession, solve_drag
     import bpy
 
     reps = 3 if quick else 15
@@ -113,12 +115,13 @@ def solve_speed(quick):
             # interactive: the same drag reached through 10 mouse moves, each warm-started
             path = [pins_t for pins_t in np.linspace(0.1, 1.0, 10)]
             rest = pin_rest(model, pins)
-            start = solve_drag(model, pins, rest, w0)
+            started = DragSession()
+            solve_drag(model, pins, rest, w0, session=started)
 
             def drag_sequence():
-                last = start
+                session = copy.copy(started)
                 for t in path:
-                    last = solve_drag(model, pins, (1 - t) * rest + t * targets, w0, warm=last)
+                    last = solve_drag(model, pins, (1 - t) * rest + t * targets, w0, session=session)
                 return last
             warm_ms, _ = timed(drag_sequence, reps)
             warm_ms /= len(path)
@@ -142,7 +145,7 @@ def solve_speed(quick):
 
 
 def pin_rest(model, pins):
-    from shapespace.core.manipulation.solve import pin_positions
+    from shapespace.core.manipulation import pin_positions
     return pin_positions(model, pins, np.zeros(model.n_targets))
 
 
@@ -160,8 +163,8 @@ def update_overhead(quick):
 
 def _update_overhead(quick):
     import bpy
-    from shapespace.bridge import assets, drag, meshes, shapekeys
-    from shapespace.core.manipulation.solve import Pin, pin_positions
+    from shapespace.bridge import assets, manipulation, meshes, shapekeys
+    from shapespace.core.manipulation import DragSession, Pin, pin_positions
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
     ob = bpy.data.objects["Mesh_2"]
     ob.data.shape_keys.animation_data.action = None
@@ -170,7 +173,7 @@ def _update_overhead(quick):
     rng = np.random.default_rng(3)
     pins = [Pin.at_vertex(int(i)) for i in rng.choice(model.n_vertices, 8, replace=False)]
     for p_ in pins:
-        drag.add_pin(ob, p_, pin_positions(model, [p_], model.values)[0])
+        manipulation.add_pin(ob, p_, pin_positions(model, [p_], model.values)[0])
     depsgraph = bpy.context.evaluated_depsgraph_get()
     steps = 20 if quick else 100
     goals = [rng.uniform(0, 0.8, model.n_targets) * (rng.random(model.n_targets) < 0.2) for _ in range(steps)]
@@ -181,13 +184,13 @@ def _update_overhead(quick):
         meshes.evaluated_positions(ob, depsgraph)
     blender_ms = (time.perf_counter() - t) / steps * 1e3
     # full update: move pin 0's target, solve (warm), write, re-evaluate
-    last = None
+    session = DragSession()
     zeros = np.zeros(model.n_targets)
     mouse_targets = [tuple(pin_positions(model, pins[:1], w)[0]) for w in goals]  # where the mouse goes
     t = time.perf_counter()
     for target in mouse_targets:
         ob.shapespace.pins[0].target = target
-        last = drag.solve_pins(ob, model=model, w0=zeros, warm=last)
+        manipulation.solve_pins(ob, model=model, w0=zeros, session=session)
         meshes.evaluated_positions(ob, depsgraph)
     full_ms = (time.perf_counter() - t) / steps * 1e3
     return {"update_blender_eval_ms": blender_ms, "update_full_ms": full_ms,
@@ -197,7 +200,7 @@ def _update_overhead(quick):
 # ---------------------------------------------------------------------------- artist effort
 def simulate_artist(model, w_target, tol, prior=None, cap=25):
     """Drags until every vertex is within ``tol`` (model units) of the target expression."""
-    from shapespace.core.manipulation.solve import Pin, solve_drag
+    from shapespace.core.manipulation import Pin, solve_drag
     goal = model.evaluate(w_target)
     w = np.zeros(model.n_targets)
     pins, targets = [], []
@@ -232,7 +235,7 @@ def llf_weights(names):
 def artist_effort(quick):
     import bpy
     from shapespace.bridge import actions, assets, shapekeys
-    from shapespace.core.manipulation.solve import NORMALISED_DIAGONAL, train_prior
+    from shapespace.core.manipulation import NORMALISED_DIAGONAL, train_prior
 
     datasets = {}
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))

@@ -7,10 +7,10 @@ A gap of G frames is cut out of a real curve and filled by
   handles and ``FCurve.evaluate`` is called at the gap frames.  The BVH importer keys LINEAR
   interpolation; ``blender`` switches the keys to BEZIER first (Blender's default for keys an
   animator inserts), ``blender_imported`` keeps the curve as imported;
-- ``ours_single``: ``core.facespace.stats.inpaint_curve`` on that channel alone;
+- ``ours_single``: ``core.facespace.inpaint_curve`` on that channel alone;
 - ``ours_multi``: superresolution — the channel plus related channels that stay known through the
   gap (per-channel mask), so the other channels predict the missing one;
-- ``linear`` / ``cubic``: ``core.facespace.stats.linear_fill`` / ``cubic_fill`` references.
+- ``linear`` / ``cubic``: ``core.facespace.linear_fill`` / ``cubic_fill`` references.
 
 Errors are the RMS over the gap's frames, averaged over the held-out gaps (deterministic positions;
 40 per knee, 20 on the face, 6 each with ``--quick``).  ``..._wins_frac_...`` is the fraction of gaps
@@ -90,7 +90,7 @@ def _fills(X, s, G, pool=None):
     """Our fills of channel 0 of ``X`` (T, c) over [s, s + G); also timing and the known-sample check.
     ``ours_auto`` is what the Inpaint Gap operator does: channel 0 plus the curves of ``pool`` (T, C)
     that :func:`context_channels` picks (all curves of the action are candidates)."""
-    from shapespace.core.facespace import stats as facestats
+    from shapespace.core import facespace as facestats
     T = X.shape[0]
     known = np.ones(T, dtype=bool)
     known[s:s + G] = False
@@ -253,7 +253,7 @@ def representations():
     of every pair of ten expressive captured frames (norm at the midpoint relative to the endpoints')."""
     import bpy
     from shapespace.bridge import actions, assets, facespace, retarget, shapekeys
-    from shapespace.core.facespace import forms as fs, stats as facestats
+    from shapespace.core import facespace as fs
     from shapespace.core.retarget.cloning import copy_weights
     out = {}
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
@@ -278,7 +278,7 @@ def representations():
         for form in ("blendshape", "pca"):
             out[f"idle_fraction_{form}_{name}"] = sp[form]["curve_small_fraction"]
             out[f"hoyer_rms_{form}_{name}"] = sp[form]["hoyer_rms"]
-    g = facestats.fit_face_gaussian(W)
+    g = fs.fit_face_gaussian(W)
     out["prior_dimension_facecap"] = g.dimension
     norms = g.face_norm(W)
     out["prior_mean_face_norm"] = float(g.face_norm(W.mean(axis=0)))
@@ -290,8 +290,8 @@ def representations():
         for b in range(a + 1, 10):
             w0, w1 = W[picks[a]], W[picks[b]]
             ends = 0.5 * (norms[picks[a]] + norms[picks[b]])
-            ratios["shell"].append(float(g.face_norm(facestats.shell_interpolate(g, w0, w1, [0.5]))[0]) / ends)
-            ratios["linear"].append(float(g.face_norm(facestats.linear_interpolate(w0, w1, [0.5]))[0]) / ends)
+            ratios["shell"].append(float(g.face_norm(fs.shell_interpolate(g, w0, w1, [0.5]))[0]) / ends)
+            ratios["linear"].append(float(g.face_norm(fs.linear_interpolate(w0, w1, [0.5]))[0]) / ends)
     for k, v in ratios.items():
         out[f"midpoint_norm_over_ends_{k}"] = float(np.mean(v))
     return out

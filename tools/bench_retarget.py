@@ -42,7 +42,7 @@ def _explicit(B, b0, S, sigma, lam, first, last):
 
 
 def speed(quick):
-    from shapespace.core.retarget.cloning import spacetime
+    from shapespace.core.retarget import spacetime
     reps = 2 if quick else 5
     out = {}
     B, b0, S, W = _problem(500, 52, 3000)
@@ -159,7 +159,7 @@ def key_reduction(quick):
     (Graph Editor, 'Allowed Change'), each curve's Decimate margin bisected to the largest one whose
     real max error (Blender's own evaluation) stays ≤ 0.01 — the most generous setting for Decimate."""
     import bpy
-    from shapespace.bridge import actions, assets, retarget
+    from shapespace.bridge import actions, retarget
     tol = 0.01
     ob, key, capture = _facecap_reduced()
     rep = retarget.retarget(ob, capture, "spacetime", action_name="dense")
@@ -213,7 +213,7 @@ def landmark_cases():
     real FBHead problem (slider ranges [0, 1], dense noisy correspondence)."""
     import bpy
     from shapespace.bridge import assets, retarget
-    from shapespace.core.retarget import cloning
+    from shapespace.core.retarget import performance
     out = {}
     assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"), replace=False)
@@ -222,7 +222,7 @@ def landmark_cases():
     scene.frame_start, scene.frame_end = 1, 268
     src = bpy.data.objects["Mesh_2"]
     timed = {}
-    original = cloning.spacetime
+    original = performance.spacetime
 
     def timing_spacetime(*args, **kwargs):       # the retarget's own solve, best of 3 with and without bounds
         free = {k: v for k, v in kwargs.items() if k not in ("lo", "hi")}
@@ -236,11 +236,11 @@ def landmark_cases():
         ob = bpy.data.objects[target]
         out[f"landmarks_{case}"] = len(retarget.landmarks_from_shapes(src, ob))
         for method in ("perframe", "spacetime"):
-            retarget.spacetime = timing_spacetime if case == "facecap_fbhead_landmarks" else original
+            performance.spacetime = timing_spacetime if case == "facecap_fbhead_landmarks" else original
             try:
                 rep = retarget.retarget_dense(ob, src, method)
             finally:
-                retarget.spacetime = original
+                performance.spacetime = original
             out[f"velocity_err_{method}_{case}"] = rep["velocity_error_rms"]
             out[f"position_err_{method}_{case}"] = rep["position_error_rms"]
             out[f"clipping_frames_{case}"] = rep["clipping_frames"]

@@ -2,13 +2,16 @@
 
     python tools/build.py [--out dist]
 
+Runs itself in ``.venv/bpy50`` (tools/env.py) unless this Python already has ``bpy``.
+
 1. Downloads the scipy wheels listed in ``blender_manifest.toml`` into
-   ``./wheels`` (pip, for CPython 3.11 on each platform) unless present.
+   ``./wheels`` (pip, for each wheel's CPython version and platform) unless present.
 2. Runs Blender's extension builder (``blender_ext.py build
    --split-platforms``, shipped with Blender and the ``bpy`` module), which
    validates the manifest and writes one zip per platform holding only that
-   platform's wheel.
-3. Names them ``dist/shapespace-<version>-<platform>.zip``.
+   platform's wheels (one per Python version: Blender installs the one matching its Python).
+3. Names them ``dist/shapespace-<version>-<platform>.zip`` and checks each holds exactly the
+   manifest's wheels for its platform.
 """
 from __future__ import annotations
 
@@ -21,8 +24,19 @@ import shutil
 import subprocess
 import sys
 import tomllib
+import zipfile
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import env  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+WHEEL_NAME = re.compile(r"(?P<dist>[^-]+)-(?P<ver>[^-]+)-(?P<py>cp\d+)-(?P<abi>[^-]+)-(?P<plat>.+)\.whl$")
+BLENDER_PLATFORM = {  # Blender platform → (start, end) of its wheels' platform tags
+    "linux-x64": ("manylinux", "_x86_64"),
+    "windows-x64": ("win", "_amd64"),
+    "macos-arm64": ("macosx", "_arm64"),
+    "macos-x64": ("macosx", "_x86_64"),
+}
 PLATFORM_TAG = {  # wheel platform tag → pip --platform
     "manylinux_2_17_x86_64.manylinux2014_x86_64": "manylinux_2_17_x86_64",
     "win_amd64": "win_amd64",
@@ -43,7 +57,7 @@ def fetch_wheels(wheels) -> None:
         if os.path.isfile(path):
             continue
         name = os.path.basename(path)
-        m = re.match(r"(?P<dist>[^-]+)-(?P<ver>[^-]+)-(?P<py>cp\d+)-(?P<abi>[^-]+)-(?P<plat>.+)\.whl$", name)
+        m = WHEEL_NAME.match(name)
         if not m:
             raise SystemExit(f"build: cannot parse wheel name {name}")
         plat = PLATFORM_TAG.get(m["plat"], m["plat"].split(".")[0])
@@ -88,10 +102,27 @@ def build(out_dir: str) -> list:
     got = {os.path.basename(p)[:-4].split("-", 2)[-1] for p in made}
     if got != expected:
         raise SystemExit(f"build: expected zips for {sorted(expected)}, got {sorted(got)}")
+    for path in made:
+        check_wheels(path, info.get("wheels", []))
     return made
 
 
+def check_wheels(zip_path: str, wheels) -> None:
+    """The zip for one platform must hold exactly the manifest's wheels for that platform."""
+    plat = os.path.basename(zip_path)[:-4].split("-", 2)[-1]
+    if plat not in BLENDER_PLATFORM:
+        raise SystemExit(f"build: no wheel platform tag known for {plat}")
+    start, end = BLENDER_PLATFORM[plat]
+    want = sorted(name for name in map(os.path.basename, wheels)
+                  if any(t.startswith(start) and t.endswith(end) for t in WHEEL_NAME.match(name)["plat"].split(".")))
+    with zipfile.ZipFile(zip_path) as z:
+        got = sorted(os.path.basename(n) for n in z.namelist() if n.endswith(".whl"))
+    if got != want:
+        raise SystemExit(f"build: {os.path.basename(zip_path)} holds wheels {got}, expected {want}")
+
+
 def main(argv=None) -> int:
+    env.reexec_in("bpy50", os.path.abspath(__file__), sys.argv[1:] if argv is None else argv)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=os.path.join(ROOT, "dist"))
     args = ap.parse_args(argv)

@@ -180,15 +180,14 @@ def _corrective_demo(bpy, np, out_dir, size):
     fixed_png = _render(bpy, os.path.join(out_dir, "elbow_corrected.png"))
     bpy.ops.wm.save_as_mainfile(filepath=os.path.join(out_dir, "correctives.blend"), check_existing=False)
     # pose-space confidence: the uncertainty heat map at a bend no example covers
-    from shapespace.bridge import facespace
     _bend(bpy, np, arm, 0.4)
-    confidence = facespace.confidence(ob, heat_map=True)
+    confidence = posespace.confidence(ob, heat_map=True)
     scene = bpy.context.scene
     scene.display.shading.color_type = "VERTEX"
     heat_png = _render(bpy, os.path.join(out_dir, "elbow_confidence.png"))
     scene.display.shading.color_type = "SINGLE"
     _bend(bpy, np, arm, held_out)
-    confidence_held_out = facespace.confidence(ob)["variance"]
+    confidence_held_out = posespace.confidence(ob)["variance"]
     return {"examples": names, "held_out_bend_rad": held_out,
             "confidence_variance_far_bend": confidence["variance"], "confidence_variance_held_out":
             confidence_held_out,
@@ -381,7 +380,7 @@ def _run(bpy, np, out_dir, size):
                     "rendered_frame": peak},
         "model_vs_blender_max_rel_error": max(errors),
         "direct_manipulation": drag_report,
-        "inventory": inventory.describe_file(),
+        "inventory": inventory.describe_file().to_json(),
         "outputs": {"blend": blend_path, "neutral_png": neutral_png, "frame_png": frame_png},
     }
     report["pose_space_correctives"] = _corrective_demo(bpy, np, out_dir, size)   # loads another file
@@ -409,7 +408,8 @@ def main(argv) -> int:
           f"{pc['max_error_rel_corrected']:.4f} of the body size")
     rt = report["retargeting"]
     print(f"demo: retargeted the Live Link Face take onto facecap ({rt['llf_on_facecap']['frames']} frames) and "
-          f"the Face Cap capture onto FBHead ({rt['facecap_on_fbhead']['frames']} frames); wrote {args.out}/demo.blend, "
+          f"the Face Cap capture onto FBHead ({rt['facecap_on_fbhead']['frames']} frames); "
+          f"wrote {args.out}/demo.blend, "
           f"correctives.blend, retargeted.blend, report.json and renders")
     fsd = report["face_space"]
     print(f"demo: face space — {fsd['compression']['components']} of {fsd['compression']['targets']} PCA components "

@@ -4,24 +4,54 @@ import gpu
 import numpy as np
 from gpu_extras.batch import batch_for_shader
 
-from ..bridge import compat, drag
+from ..bridge import compat, manipulation, meshes
 
 PIN_COLOR = (1.0, 0.55, 0.0, 1.0)
 STILL_COLOR = (0.2, 0.6, 1.0, 1.0)
 TARGET_COLOR = (1.0, 1.0, 1.0, 1.0)
 
-_handles = []
+
+class DrawHandlers:
+    """The draw handlers this add-on has added to the 3D Viewport, so they can all be removed again.
+
+    Blender returns an opaque handle from ``SpaceView3D.draw_handler_add``;
+    the add-on must hand the same handle back to ``draw_handler_remove`` on
+    unregister, so the handles are the one piece of state the overlay keeps
+    between ``register()`` and ``unregister()``.  A single module-level
+    instance, :data:`HANDLERS`, holds them (registering twice adds a second
+    handler; :meth:`remove_all` removes every one, newest first).
+    """
+
+    def __init__(self, region_type: str = "WINDOW", draw_type: str = "POST_VIEW"):
+        self.region_type = region_type
+        self.draw_type = draw_type
+        self._handles = []
+
+    def add(self, callback) -> None:
+        """Register ``callback()`` to draw in every 3D Viewport."""
+        self._handles.append(bpy.types.SpaceView3D.draw_handler_add(callback, (), self.region_type, self.draw_type))
+
+    def remove_all(self) -> None:
+        """Remove every handler added through :meth:`add`."""
+        while self._handles:
+            bpy.types.SpaceView3D.draw_handler_remove(self._handles.pop(), self.region_type)
+
+    def __len__(self) -> int:
+        return len(self._handles)
+
+
+#: The overlay's viewport draw handlers (registered by :func:`register`, removed by :func:`unregister`).
+HANDLERS = DrawHandlers()
 
 
 def pin_world_points(obj, depsgraph):
     """World-space pin positions, target positions (both on the deformed surface) and stationary flags."""
-    pins, targets, still = drag.read_pins(obj)
+    pins, targets, still = manipulation.read_pins(obj)
     if not pins:
         return np.zeros((0, 3)), np.zeros((0, 3)), still
-    drag.check_pins(obj)
-    current = drag.deformed_pin_positions(obj, depsgraph)
-    goal = drag.shape_to_deformed_targets(obj, depsgraph, pins, targets, current)
-    from ..bridge import meshes
+    manipulation.check_pins(obj)
+    current = manipulation.deformed_pin_positions(obj, depsgraph)
+    goal = manipulation.shape_to_deformed_targets(obj, depsgraph, pins, targets, current)
     return meshes.to_world(obj, current), meshes.to_world(obj, goal), still
 
 
@@ -64,9 +94,8 @@ def _draw_callback():
 
 
 def register():
-    _handles.append(bpy.types.SpaceView3D.draw_handler_add(_draw_callback, (), "WINDOW", "POST_VIEW"))
+    HANDLERS.add(_draw_callback)
 
 
 def unregister():
-    while _handles:
-        bpy.types.SpaceView3D.draw_handler_remove(_handles.pop(), "WINDOW")
+    HANDLERS.remove_all()

@@ -1,42 +1,128 @@
 """Live preview of pose-space correctives while posing and scrubbing (a depsgraph / frame handler).
 
-Caches only numbers keyed by object name and the examples' revision, never
-Blender datablocks, so undo cannot leave stale references behind.
+Training a deformer is far slower than evaluating it, so the handler keeps the
+trained models in :data:`CACHE`, a :class:`PreviewCache`: numbers only (core
+models, example names, the last pose read), keyed by object name and checked
+against the examples' revision and method, never Blender datablocks — so undo
+or loading a file cannot leave stale references behind.  The cache is emptied
+after undo, redo and file loads (a revision number can repeat across them) and
+when the add-on is unregistered.
 """
+from __future__ import annotations
+
+from dataclasses import dataclass
+
 import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from ..bridge import facespace, posespace
+from ..bridge import posespace
+from ..core.posespace import GPConfidence, PoseSpaceDeformer, ScalarDriver
 from ..core.result import ShapeSpaceError
 
-_cache = {}      # object name -> [revision, method, deformer, names, last pose, target driver, GP model]
-_busy = []       # re-entrancy guard: writing key values triggers another depsgraph update
+
+@dataclass
+class TrainedPreview:
+    """What the live preview of one mesh needs between updates (numbers only).
+
+    Attributes
+    ----------
+    revision : int
+        The examples' revision it was trained at (``shapespace_psd.revision``).
+    method : str
+        The method it was trained with (``shapespace_psd.method``).
+    deformer : PoseSpaceDeformer
+    names : list of str
+        Example key names, in the deformer's order.
+    driver : ScalarDriver or None
+        The driven targets' interpolant.
+    confidence : GPConfidence
+        For the panel's live variance.
+    last_pose : ndarray or None, shape (d,)
+        The pose last written (nothing is written while it does not change).
+    """
+
+    revision: int
+    method: str
+    deformer: PoseSpaceDeformer
+    names: list
+    driver: ScalarDriver | None
+    confidence: GPConfidence
+    last_pose: np.ndarray | None = None
+
+    def same_pose(self, pose: np.ndarray) -> bool:
+        return (self.last_pose is not None and self.last_pose.shape == pose.shape
+                and bool(np.allclose(self.last_pose, pose, atol=1e-9)))
+
+
+class PreviewCache:
+    """Trained live-preview models keyed by object name (see the module docstring).
+
+    ``busy`` guards against re-entrance: writing key values from the handler triggers another
+    depsgraph update.
+    """
+
+    def __init__(self):
+        self._entries: dict[str, TrainedPreview] = {}
+        self.busy = False
+
+    def get(self, name: str, revision: int, method: str) -> TrainedPreview | None:
+        """The entry of object ``name`` if it was trained at this revision and method, else None."""
+        entry = self._entries.get(name)
+        if entry is None or entry.revision != revision or entry.method != method:
+            return None
+        return entry
+
+    def put(self, name: str, entry: TrainedPreview) -> None:
+        self._entries[name] = entry
+
+    def invalidate(self, name: str) -> None:
+        """Forget object ``name``'s models (retrained on its next update)."""
+        self._entries.pop(name, None)
+
+    def clear(self) -> None:
+        """Forget every model."""
+        self._entries.clear()
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._entries
+
+
+#: The live preview's cache (module-level on purpose: handlers are plain functions).
+CACHE = PreviewCache()
+
+
+def _train(obj) -> TrainedPreview:
+    st = obj.shapespace_psd
+    deformer, names = posespace.trained_deformer(obj)
+    return TrainedPreview(st.revision, st.method, deformer, names, posespace.target_driver(obj),
+                          posespace.confidence_model(deformer))
 
 
 def refresh(obj) -> bool:
     """Update ``obj``'s correctives if its pose changed; True when it wrote new values."""
     st = obj.shapespace_psd
-    entry = _cache.get(obj.name)
-    if entry is None or entry[0] != st.revision or entry[1] != st.method:
-        deformer, names = posespace.trained_deformer(obj)
-        entry = [st.revision, st.method, deformer, names, None, posespace.target_driver(obj),
-                 facespace.confidence_model(deformer)]
-        _cache[obj.name] = entry
+    entry = CACHE.get(obj.name, st.revision, st.method)
+    if entry is None:
+        entry = _train(obj)
+        CACHE.put(obj.name, entry)
     pose = posespace.read_pose(obj)
-    if entry[4] is not None and entry[4].shape == pose.shape and np.allclose(entry[4], pose, atol=1e-9):
+    if entry.same_pose(pose):
         return False
-    posespace.preview(obj, entry[2], entry[3], entry[5])
-    obj.shapespace_face.confidence = float(entry[6].variance(pose))    # the panel's live confidence
-    entry[4] = pose
+    posespace.preview(obj, entry.deformer, entry.names, entry.driver)
+    posespace.show_variance(obj, float(entry.confidence.variance(pose)))    # the panel's live confidence
+    entry.last_pose = pose
     return True
 
 
 @persistent
 def _on_update(scene, depsgraph=None):
-    if _busy:
+    if CACHE.busy:
         return
-    _busy.append(True)
+    CACHE.busy = True
     try:
         for obj in scene.objects:
             if obj.type == "MESH" and obj.shapespace_psd.live_preview and len(obj.shapespace_psd.examples):
@@ -45,16 +131,29 @@ def _on_update(scene, depsgraph=None):
                 except ShapeSpaceError:
                     continue  # the panel shows the problem; playback must not stop
     finally:
-        _busy.pop()
+        CACHE.busy = False
+
+
+@persistent
+def _forget(*_args):
+    CACHE.clear()
+
+
+_UPDATE_HANDLERS = ("depsgraph_update_post", "frame_change_post")
+_RESET_HANDLERS = ("undo_post", "redo_post", "load_post")
 
 
 def register():
-    bpy.app.handlers.depsgraph_update_post.append(_on_update)
-    bpy.app.handlers.frame_change_post.append(_on_update)
+    for name in _UPDATE_HANDLERS:
+        getattr(bpy.app.handlers, name).append(_on_update)
+    for name in _RESET_HANDLERS:
+        getattr(bpy.app.handlers, name).append(_forget)
 
 
 def unregister():
-    for handlers in (bpy.app.handlers.depsgraph_update_post, bpy.app.handlers.frame_change_post):
-        while _on_update in handlers:
-            handlers.remove(_on_update)
-    _cache.clear()
+    for names, fn in ((_UPDATE_HANDLERS, _on_update), (_RESET_HANDLERS, _forget)):
+        for name in names:
+            handlers = getattr(bpy.app.handlers, name)
+            while fn in handlers:
+                handlers.remove(fn)
+    CACHE.clear()

@@ -1,4 +1,20 @@
-"""Pin-and-drag direct manipulation (thesis ch. 4)."""
-from .solve import (NORMALISED_DIAGONAL, Pin, WeightPrior, DragResult, pin_matrix, pin_rest_positions, pin_positions, train_prior, solve_drag, solve_drag_reference, drag_objective)
+"""Pin-and-drag direct manipulation of blendshape sliders (thesis ch. 4).
 
-__all__ = ['NORMALISED_DIAGONAL', 'Pin', 'WeightPrior', 'DragResult', 'pin_matrix', 'pin_rest_positions', 'pin_positions', 'train_prior', 'solve_drag', 'solve_drag_reference', 'drag_objective']
+- :mod:`.pins` — :class:`Pin` (a surface point), the pins' rows of the delta matrix and their positions;
+- :mod:`.prior` — the learned prior of thesis 4.3 (:class:`WeightPrior`, :func:`train_prior`, Eq. 4.8/4.9 terms);
+- :mod:`.solve` — :func:`solve_drag` (Eq. 4.5, 4.8, 4.9; Gauss–Newton for in-betweens and combinations),
+  :func:`drag_objective` and the independent :func:`solve_drag_reference`;
+- :mod:`.session` — :class:`DragSession`, the warm start one interactive drag carries between mouse moves.
+
+``NORMALISED_DIAGONAL`` (the size every solve measures positions at) is re-exported from
+:mod:`core.blendshape`.
+"""
+from ..blendshape import NORMALISED_DIAGONAL
+from .pins import Pin, PinRows, pin_matrix, pin_positions, pin_rest_positions
+from .prior import WeightPrior, train_prior
+from .session import DragSession
+from .solve import DragResult, drag_objective, solve_drag, solve_drag_reference
+
+__all__ = ["NORMALISED_DIAGONAL", "Pin", "PinRows", "WeightPrior", "DragResult", "DragSession", "pin_matrix",
+           "pin_rest_positions", "pin_positions", "train_prior", "solve_drag", "solve_drag_reference",
+           "drag_objective"]

@@ -15,26 +15,62 @@ exact for affine maps.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from ..result import ShapeSpaceError
+from .. import validate
+from ..errors import ErrorCode
+from ..result import Result, ShapeSpaceError, Status
 
 __all__ = ["InversionResult", "vertex_jacobians", "invert_deformation"]
 
-
-@dataclass
-class InversionResult:
-    corrective: np.ndarray     # (p, 3) rest-space corrective δ
-    residual: float            # max |deform(rest + δ) − sculpt|
-    iterations: int
-    status: int
-    message: str
+#: A vertex-wise deformer: (p, 3) positions before it → (p, 3) positions after it.
+Deformer = Callable[[np.ndarray], np.ndarray]
 
 
-def vertex_jacobians(deform, coords, h: float) -> np.ndarray:
-    """Per-vertex 3 × 3 Jacobians of a vertex-wise deformer by central differences, (p, 3, 3)."""
+@dataclass(kw_only=True)
+class InversionResult(Result):
+    """Outcome of :func:`invert_deformation`.
+
+    ``value`` (alias :attr:`corrective`) is the rest-space corrective δ, shape (p, 3).  Status ``OK``
+    when the largest residual reached the tolerance, ``NOT_CONVERGED`` when Newton's method stopped at
+    its iteration limit or stalled (δ is then the best iterate).
+
+    Attributes
+    ----------
+    residual : float
+        max |deform(rest + δ) − sculpt| over all vertices and coordinates.
+    """
+
+    residual: float = 0.0
+
+    @property
+    def corrective(self) -> np.ndarray:
+        """The rest-space corrective δ, shape (p, 3) (the result's ``value``)."""
+        return self.value
+
+
+def vertex_jacobians(deform: Deformer, coords: ArrayLike, h: float) -> np.ndarray:
+    """Per-vertex 3 × 3 Jacobians of a vertex-wise deformer by central differences (thesis 7.2.1).
+
+    ``J_v[:, i] = (deform(x + h e_i) − deform(x − h e_i))_v / 2h`` — exact for affine and quadratic maps.
+
+    Parameters
+    ----------
+    deform : callable
+        ``(p, 3) → (p, 3)``, each output vertex depending only on its own input vertex.
+    coords : array_like, shape (p, 3)
+        Where to differentiate.
+    h : float
+        Step.
+
+    Returns
+    -------
+    ndarray, shape (p, 3, 3)
+    """
     coords = np.asarray(coords, dtype=np.float64)
     J = np.empty(coords.shape + (3,))
     for i in range(3):
@@ -44,28 +80,54 @@ def vertex_jacobians(deform, coords, h: float) -> np.ndarray:
     return J
 
 
-def invert_deformation(deform, rest, sculpt, tol: float = None, max_iter: int = 20) -> InversionResult:
-    """Rest-space corrective δ with ``deform(rest + δ) ≈ sculpt``.
+def _newton_step(deform, rest, delta, res, h):
+    """The Newton step J_v⁻¹ (sculpt − deform(rest + δ)) of every vertex, (p, 3)."""
+    J = vertex_jacobians(deform, rest + delta, h)
+    det = np.linalg.det(J)
+    bad = np.abs(det) <= 1e-12 * max(float(np.abs(J).max()), 1e-300) ** 3
+    if bad.any():
+        raise ShapeSpaceError(f"{int(bad.sum())} vertices are collapsed by the deformation at this pose "
+                              f"(first: {int(np.flatnonzero(bad)[0])}); they cannot be inverted", ErrorCode.SINGULAR)
+    try:
+        return np.linalg.solve(J, res[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        raise ShapeSpaceError("the deformation collapses some vertices at this pose; they cannot be "
+                              "inverted", ErrorCode.SINGULAR) from None
+
+
+def invert_deformation(deform: Deformer, rest: ArrayLike, sculpt: ArrayLike, tol: float | None = None,
+                       max_iter: int = 20) -> InversionResult:
+    """Rest-space corrective δ with ``deform(rest + δ) ≈ sculpt`` (thesis 7.2.1).
+
+    Newton's method on the block-diagonal system, ``δ ← δ + t J_v⁻¹ (sculpt − deform(rest + δ))``,
+    with step halving (t = 1, ½, …) whenever a full step does not reduce the largest residual.
 
     Parameters
     ----------
     deform : callable
         ``(p, 3) → (p, 3)``, vertex-wise (each output depends only on its own
         input vertex), e.g. ``lambda x: core.skinning.deform(x, rig, poses)``.
-    rest : array_like (p, 3)
+    rest : array_like, shape (p, 3)
         The mesh before the deformer at this pose (basis plus any active keys).
-    sculpt : array_like (p, 3)
+    sculpt : array_like, shape (p, 3)
         The wanted posed positions (same space as ``deform``'s output).
     tol : float, optional
         Stop when the largest residual is below this (default 1e-9 × size).
+    max_iter : int
+        Newton iterations at most.
+
+    Returns
+    -------
+    InversionResult
+        ``corrective`` (p, 3), ``residual``, ``iterations``; status ``OK`` or ``NOT_CONVERGED``.
+
+    Raises
+    ------
+    ShapeSpaceError
+        Bad shapes or non-finite positions; vertices the deformation collapses (code ``singular``).
     """
-    rest = np.asarray(rest, dtype=np.float64)
-    sculpt = np.asarray(sculpt, dtype=np.float64)
-    if rest.shape != sculpt.shape or rest.ndim != 2 or rest.shape[1] != 3:
-        raise ShapeSpaceError(f"rest and sculpt must both have shape (p, 3); got {rest.shape} and {sculpt.shape}",
-                              "shape")
-    if not (np.isfinite(rest).all() and np.isfinite(sculpt).all()):
-        raise ShapeSpaceError("rest or sculpt positions contain NaN or infinite values", "non_finite")
+    rest = validate.array(rest, "rest", shape=(None, 3))
+    sculpt = validate.array(sculpt, "sculpt", shape=rest.shape)
     size = float(np.linalg.norm(np.ptp(rest, axis=0))) or 1.0
     tol = 1e-9 * size if tol is None else tol
     h = 1e-3 * size
@@ -74,18 +136,8 @@ def invert_deformation(deform, rest, sculpt, tol: float = None, max_iter: int = 
     err = float(np.abs(res).max())
     for it in range(1, max_iter + 1):
         if err <= tol:
-            return InversionResult(delta, err, it - 1, 0, "converged")
-        J = vertex_jacobians(deform, rest + delta, h)
-        det = np.linalg.det(J)
-        bad = np.abs(det) <= 1e-12 * max(float(np.abs(J).max()), 1e-300) ** 3
-        if bad.any():
-            raise ShapeSpaceError(f"{int(bad.sum())} vertices are collapsed by the deformation at this pose "
-                                  f"(first: {int(np.flatnonzero(bad)[0])}); they cannot be inverted", "singular")
-        try:
-            step = np.linalg.solve(J, res[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            raise ShapeSpaceError("the deformation collapses some vertices at this pose; they cannot be "
-                                  "inverted", "singular") from None
+            return InversionResult(delta, residual=err, iterations=it - 1, status=Status.OK, message="converged")
+        step = _newton_step(deform, rest, delta, res, h)
         t = 1.0
         while True:
             cand = delta + t * step
@@ -95,7 +147,10 @@ def invert_deformation(deform, rest, sculpt, tol: float = None, max_iter: int = 
                 break
             t *= 0.5
         if err_c >= err:
-            return InversionResult(delta, err, it, 1, "stalled: the deformation cannot be inverted further")
+            return InversionResult(delta, residual=err, iterations=it, status=Status.NOT_CONVERGED,
+                                   message="stalled: the deformation cannot be inverted further")
         delta, res, err = cand, res_c, err_c
-    status = 0 if err <= tol else 1
-    return InversionResult(delta, err, max_iter, status, "converged" if status == 0 else "iteration limit reached")
+    if err <= tol:
+        return InversionResult(delta, residual=err, iterations=max_iter, status=Status.OK, message="converged")
+    return InversionResult(delta, residual=err, iterations=max_iter, status=Status.NOT_CONVERGED,
+                           message="iteration limit reached")

@@ -17,14 +17,19 @@ Every reader has a ``scale`` (per-dimension weighting of the pose space).
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from .. import validate
+from ..errors import ErrorCode
 from ..result import ShapeSpaceError
 
 __all__ = ["PoseReader", "READER_DIMS", "quaternion_distance", "quaternion_to_matrix", "swing_twist",
-           "reader_features", "pose_features", "feature_groups", "mirror_name", "mirror_features", "mirror_pose"]
+           "reader_features", "pose_features", "feature_groups"]
 
 READER_DIMS = {"rotation": 9, "swing": 3, "twist": 2, "location": 3, "property": 1, "shape_key": 1}
 
@@ -50,37 +55,62 @@ class PoseReader:
     def __post_init__(self):
         if self.kind not in READER_DIMS:
             raise ShapeSpaceError(f"unknown pose reader {self.kind!r}; choose from {', '.join(READER_DIMS)}",
-                                  "reader")
+                                  ErrorCode.READER)
         if not self.scale > 0:
-            raise ShapeSpaceError(f"reader scale must be positive, got {self.scale}", "range")
+            raise ShapeSpaceError(f"reader scale must be positive, got {self.scale}", ErrorCode.RANGE)
 
     @property
     def dims(self) -> int:
+        """Number of features this reader contributes (:data:`READER_DIMS`)."""
         return READER_DIMS[self.kind]
 
     @property
     def is_bone(self) -> bool:
+        """True for the readers of a bone's transform (rotation, swing, twist, location)."""
         return self.kind in ("rotation", "swing", "twist", "location")
 
 
-def _unit_quats(q):
-    q = np.asarray(q, dtype=np.float64)
-    if q.shape[-1] != 4:
-        raise ShapeSpaceError(f"quaternions must have last dimension 4 (w, x, y, z), got {q.shape}", "shape")
+def _unit_quats(q) -> np.ndarray:
+    """Quaternions (..., 4) normalised; zero or non-finite ones are refused (code ``non_finite``)."""
+    q = validate.array(q, "quaternions", finite=False)
+    if q.ndim < 1 or q.shape[-1] != 4:
+        raise ShapeSpaceError(f"quaternions must have last dimension 4 (w, x, y, z), got {q.shape}",
+                              ErrorCode.SHAPE)
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if np.any(n < 1e-12) or not np.isfinite(q).all():
-        raise ShapeSpaceError("quaternions must be finite and non-zero", "non_finite")
+        raise ShapeSpaceError("quaternions must be finite and non-zero", ErrorCode.NON_FINITE)
     return q / n
 
 
-def quaternion_distance(q, p) -> np.ndarray:
-    """Rotation angle between unit quaternions (w, x, y, z), treating q and −q as the same: ``2·acos|q·p|``."""
+def quaternion_distance(q: ArrayLike, p: ArrayLike) -> np.ndarray:
+    """Rotation angle between unit quaternions, treating q and −q as the same: ``2·acos|q·p|``.
+
+    Parameters
+    ----------
+    q, p : array_like, shape (..., 4)
+        Quaternions (w, x, y, z), normalised here; broadcast against each other.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        Angles in [0, π].
+    """
     dot = np.abs(np.sum(_unit_quats(q) * _unit_quats(p), axis=-1))
     return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
 
 
-def quaternion_to_matrix(q) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of quaternions (..., 4) in (w, x, y, z) order."""
+def quaternion_to_matrix(q: ArrayLike) -> np.ndarray:
+    """Rotation matrices of quaternions.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+        (w, x, y, z), normalised here.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+    """
     w, x, y, z = np.moveaxis(_unit_quats(q), -1, 0)
     return np.stack([
         np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
@@ -89,8 +119,15 @@ def quaternion_to_matrix(q) -> np.ndarray:
     ], -2)
 
 
-def swing_twist(q, axis=(0.0, 1.0, 0.0)):
-    """Split rotations into swing · twist about ``axis`` (a bone's Y by default).
+def swing_twist(q: ArrayLike, axis: ArrayLike = (0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Split rotations into swing · twist about ``axis`` (a bone's Y by default; thesis 7.3).
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 4)
+        Quaternions (w, x, y, z).
+    axis : array_like, shape (3,)
+        Twist axis (normalised here).
 
     Returns
     -------
@@ -119,11 +156,20 @@ def swing_twist(q, axis=(0.0, 1.0, 0.0)):
     return swing, angle
 
 
-def reader_features(reader: PoseReader, value) -> np.ndarray:
-    """Features of one reader from its raw value(s), shape (..., reader.dims).
+def reader_features(reader: PoseReader, value: ArrayLike) -> np.ndarray:
+    """Features of one reader from its raw value(s) (thesis 7.3, 8.1).
 
-    ``value`` is a quaternion (..., 4) for rotation/swing/twist, a vector
-    (..., 3) for location and a scalar (...) for property/shape_key.
+    Parameters
+    ----------
+    reader : PoseReader
+    value : array_like
+        A quaternion (..., 4) for rotation/swing/twist, a vector (..., 3)
+        for location and a scalar (...) for property/shape_key.
+
+    Returns
+    -------
+    ndarray, shape (..., reader.dims)
+        Already multiplied by ``reader.scale``.
     """
     kind = reader.kind
     if kind in ("rotation", "swing", "twist"):
@@ -139,97 +185,39 @@ def reader_features(reader: PoseReader, value) -> np.ndarray:
     elif kind == "location":
         f = np.asarray(value, dtype=np.float64)
         if f.shape[-1] != 3:
-            raise ShapeSpaceError(f"a location reader needs 3 values, got shape {f.shape}", "shape")
+            raise ShapeSpaceError(f"a location reader needs 3 values, got shape {f.shape}", ErrorCode.SHAPE)
     else:
         f = np.asarray(value, dtype=np.float64)[..., None]
     if not np.isfinite(f).all():
-        raise ShapeSpaceError(f"pose value of {reader.kind} {reader.source!r} is not finite", "non_finite")
+        raise ShapeSpaceError(f"pose value of {reader.kind} {reader.source!r} is not finite", ErrorCode.NON_FINITE)
     return f * reader.scale
 
 
-def pose_features(readers, values) -> np.ndarray:
-    """Concatenated features of all readers, shape (..., Σ dims).
+def pose_features(readers: Sequence[PoseReader], values: Sequence[Any]) -> np.ndarray:
+    """The pose-space location: concatenated features of all readers (thesis 8.1).
 
     Parameters
     ----------
     readers : sequence of PoseReader
     values : sequence
         One raw value per reader (see :func:`reader_features`).
+
+    Returns
+    -------
+    ndarray, shape (..., Σ dims)
     """
     if len(readers) != len(values):
-        raise ShapeSpaceError(f"{len(values)} values for {len(readers)} pose readers", "shape")
+        raise ShapeSpaceError(f"{len(values)} values for {len(readers)} pose readers", ErrorCode.SHAPE)
     if not readers:
-        raise ShapeSpaceError("a pose space needs at least one reader", "no_readers")
+        raise ShapeSpaceError("a pose space needs at least one reader", ErrorCode.NO_READERS)
     return np.concatenate([reader_features(r, v) for r, v in zip(readers, values)], axis=-1)
 
 
-def feature_groups(readers) -> dict:
+def feature_groups(readers: Sequence[PoseReader]) -> dict[str, np.ndarray]:
     """Feature columns per source (bone, property, key): ``{source: index array}`` (for weighted PSD)."""
     out, start = {}, 0
     for r in readers:
         cols = np.arange(start, start + r.dims)
         out[r.source] = np.concatenate([out[r.source], cols]) if r.source in out else cols
         start += r.dims
-    return out
-
-
-_SIDES = (("Left", "Right"), ("left", "right"), (".L", ".R"), ("_L", "_R"), (".l", ".r"), ("_l", "_r"),
-          ("L_", "R_"), ("l_", "r_"))
-
-
-def mirror_name(name: str) -> str:
-    """The left↔right counterpart of a bone/key name (``hand.L`` ↔ ``hand.R``, ``LeftArm`` ↔ ``RightArm``,
-    ``hand.L.001`` ↔ ``hand.R.001``)."""
-    import re
-    m = re.match(r"^(.*?)(\.\d{3})$", name)
-    if m:
-        return mirror_name(m.group(1)) + m.group(2)
-    for a, b in _SIDES:
-        for x, y in ((a, b), (b, a)):
-            if name.endswith(x):
-                return name[: -len(x)] + y
-            if name.startswith(x):
-                return y + name[len(x):]
-    for x, y in (("Left", "Right"), ("Right", "Left")):
-        if x in name:
-            return name.replace(x, y, 1)
-    return name
-
-
-def mirror_features(reader: PoseReader, feats) -> np.ndarray:
-    """Features of the mirrored pose (Blender's flipped pose: local quaternion (w, x, −y, −z), location −x)."""
-    f = np.asarray(feats, dtype=np.float64) / reader.scale
-    D = np.diag([1.0, -1.0, -1.0])
-    if reader.kind == "rotation":
-        out = (D @ f.reshape(3, 3) @ D).ravel()
-    elif reader.kind == "swing":
-        out = -(D @ f)
-    elif reader.kind == "twist":
-        out = np.array([f[0], -f[1]])
-    elif reader.kind == "location":
-        out = f * np.array([-1.0, 1.0, 1.0])
-    else:
-        out = f
-    return out * reader.scale
-
-
-def mirror_pose(readers, pose):
-    """Mirror a pose vector: each reader's features flipped and moved to its counterpart reader.
-
-    Raises
-    ------
-    ShapeSpaceError
-        When a reader's counterpart is not in the pose space.
-    """
-    readers = list(readers)
-    pose = np.asarray(pose, dtype=np.float64)
-    index = {(r.kind, r.source): i for i, r in enumerate(readers)}
-    starts = np.concatenate([[0], np.cumsum([r.dims for r in readers])])
-    out = np.empty_like(pose)
-    for i, r in enumerate(readers):
-        j = index.get((r.kind, mirror_name(r.source)))
-        if j is None:
-            raise ShapeSpaceError(f"the pose space has no {r.kind} reader for {mirror_name(r.source)!r} "
-                                  f"(the mirror of {r.source!r})", "no_mirror")
-        out[starts[j]:starts[j + 1]] = mirror_features(r, pose[starts[i]:starts[i + 1]])
     return out

@@ -1,5 +1,41 @@
-"""Retargeting: capture readers, expression cloning, space-time cloning, landmarks (thesis 3.5, ch. 5)."""
-from .capture import (WeightStream, parse_timecode, read_live_link_csv, resample)
-from .cloning import (copy_weights, cloning_matrix, key_poses, fit_frames, spacetime, SpacetimeResult, reduce_keys, reduce_keys_bezier, curve_slopes, hermite, procrustes, landmark_warp, landmark_layout, check_landmarks, peak_landmarks, closest_points)
+"""Retargeting: performances from captures, actions or meshes onto a shape-key rig (thesis 3.5, ch. 5).
 
-__all__ = ['WeightStream', 'parse_timecode', 'read_live_link_csv', 'resample', 'copy_weights', 'cloning_matrix', 'key_poses', 'fit_frames', 'spacetime', 'SpacetimeResult', 'reduce_keys', 'reduce_keys_bezier', 'curve_slopes', 'hermite', 'procrustes', 'landmark_warp', 'landmark_layout', 'check_landmarks', 'peak_landmarks', 'closest_points']
+- :mod:`.capture` — Live Link Face CSV reading and resampling;
+- :mod:`.cloning` — copy with gain/offset, learned cloning matrix, key poses (3.5.3);
+- :mod:`.perframe` — per-frame bounded fits;
+- :mod:`.spacetime_solver` — space-time cloning with slider bounds (ch. 5);
+- :mod:`.landmarks` — Procrustes, landmark checks and warps, closest points (3.5.4);
+- :mod:`.transfer` — dense performances onto the target's vertices;
+- :mod:`.performance` — a whole performance through one method, with its errors;
+- :mod:`.metrics` — position / velocity error, clipping, slider scales;
+- :mod:`.report` — the per-source report.
+
+Key reduction (F-curve maths) lives in the foundation module :mod:`core.animation`.
+"""
+from .capture import WeightStream, parse_timecode, read_live_link_csv, resample
+from .cloning import (LearnedCloning, cloning_matrix, copy_weights, key_frames_in_span, key_poses,
+                      learned_cloning, moving_channels, split_mapping, suggest_key_frames)
+from .landmarks import check_landmarks, closest_points, landmark_layout, landmark_warp, peak_landmarks, procrustes
+from .metrics import clipping_frames, position_error_rms, slider_scales, velocity_error_rms
+from .perframe import fit_frames
+from .performance import (GEOMETRIC_METHODS, METHODS, PerformanceFit, normalised_basis, retarget_positions,
+                          retarget_weights)
+from .report import RetargetReport
+from .spacetime_solver import GreenTables, SpacetimeResult, SpacetimeSystem, spacetime
+from .transfer import moving_vertices, stabilise, transfer_motion
+
+__all__ = [
+    # capture
+    "WeightStream", "parse_timecode", "read_live_link_csv", "resample",
+    # cloning (3.5.3)
+    "copy_weights", "split_mapping", "cloning_matrix", "key_poses", "moving_channels", "suggest_key_frames",
+    "key_frames_in_span", "LearnedCloning", "learned_cloning",
+    # per-frame and space-time fits (ch. 5)
+    "fit_frames", "spacetime", "SpacetimeResult", "SpacetimeSystem", "GreenTables",
+    # landmarks and dense transfer (3.5.4)
+    "procrustes", "landmark_layout", "check_landmarks", "landmark_warp", "peak_landmarks", "closest_points",
+    "stabilise", "transfer_motion", "moving_vertices",
+    # whole performances, metrics, report
+    "METHODS", "GEOMETRIC_METHODS", "PerformanceFit", "normalised_basis", "retarget_weights", "retarget_positions",
+    "position_error_rms", "velocity_error_rms", "clipping_frames", "slider_scales", "RetargetReport",
+]

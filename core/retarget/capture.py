@@ -16,7 +16,11 @@ import csv
 import io
 from dataclasses import dataclass, field
 
+import os
+from collections.abc import Sequence
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..names import ARKIT_52, canonical_name
 from ..result import Issue, ShapeSpaceError
@@ -64,7 +68,8 @@ def parse_timecode(text: str, fps: float = LLF_TIMECODE_FPS) -> float:
     return h * 3600.0 + m * 60.0 + s + frames / fps
 
 
-def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS) -> WeightStream:
+def read_live_link_csv(source: str | os.PathLike, required: Sequence[str] = ARKIT_52,
+                       fps: float = LLF_TIMECODE_FPS) -> WeightStream:
     """Read a Live Link Face CSV (path or text) into a :class:`WeightStream`.
 
     Validation (each a clear error or a recorded issue):
@@ -77,6 +82,20 @@ def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS)
     - timecode gaps (> 2.5 frame periods) → issue; reversed or repeated
       timecodes → rows sorted, duplicates dropped (issue);
     - fewer than 3 frames → error (nothing to retarget).
+
+    Parameters
+    ----------
+    source : str or os.PathLike
+        A file path, or the CSV text itself.
+    required : sequence of str
+        The channels wanted (matched by canonical name).
+    fps : float
+        Timecode frame rate.
+
+    Returns
+    -------
+    WeightStream
+        ``times`` (f,) from 0, ``weights`` (f, n) for the n channels found.
     """
     text = _read_text(source)
     numbered = [(i, r) for i, r in enumerate(csv.reader(io.StringIO(text)), start=1) if any(c.strip() for c in r)]
@@ -88,6 +107,27 @@ def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS)
     if "Timecode" not in header:
         raise ShapeSpaceError("the CSV has no Timecode column: not a Live Link Face recording", "no_timecode")
     t_col = header.index("Timecode")
+    cols, names, issues = _channel_columns(header, t_col, required)
+    t, w = _read_rows(rows, line_of, header, t_col, cols, fps)
+    order = np.argsort(t, kind="stable")
+    if np.any(np.diff(t) < 0):
+        issues.append(Issue("warning", "reversed_timecode", "timecodes were out of order; rows were sorted"))
+    t, w = t[order], w[order]
+    keep = np.concatenate([[True], np.diff(t) > 1e-9])
+    if not keep.all():
+        issues.append(Issue("warning", "repeated_timecode", f"dropped {int((~keep).sum())} rows with a repeated "
+                            "timecode"))
+        t, w = t[keep], w[keep]
+    if t.size < 3:
+        raise ShapeSpaceError(f"the recording has {t.size} frames; at least 3 are needed", "too_short")
+    issues += _fill_and_check(t, w, names)
+    start = rows[1 + int(order[0])][t_col] if len(rows) > 1 else ""
+    return WeightStream(names, t - t[0], w, issues, start)
+
+
+def _channel_columns(header: list, t_col: int, required: Sequence[str]) -> tuple:
+    """Columns of the wanted channels (first match per canonical name), their names, and the issues of
+    missing and extra columns."""
     wanted = {canonical_name(n): n for n in required}
     cols, names, issues = [], [], []
     seen = set()
@@ -110,6 +150,11 @@ def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS)
     if extra:
         issues.append(Issue("info", "extra_columns", f"ignored {len(extra)} non-blendshape columns "
                             f"({', '.join(extra[:4])}{' …' if len(extra) > 4 else ''})", tuple(extra)))
+    return cols, names, issues
+
+
+def _read_rows(rows: list, line_of: list, header: list, t_col: int, cols: list, fps: float) -> tuple:
+    """Seconds (f,) and values (f, n) of the data rows, in file order (empty cells → NaN)."""
     times, values = [], []
     for k, r in enumerate(rows[1:], start=1):
         i = line_of[k]
@@ -125,19 +170,12 @@ def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS)
                 raise ShapeSpaceError(f"line {i}, column {header[j]!r}: {cell!r} is not a number", "not_number") \
                     from None
         values.append(vals)
-    t = np.array(times)
-    w = np.array(values, dtype=np.float64).reshape(len(times), len(cols))
-    order = np.argsort(t, kind="stable")
-    if np.any(np.diff(t) < 0):
-        issues.append(Issue("warning", "reversed_timecode", "timecodes were out of order; rows were sorted"))
-    t, w = t[order], w[order]
-    keep = np.concatenate([[True], np.diff(t) > 1e-9])
-    if not keep.all():
-        issues.append(Issue("warning", "repeated_timecode", f"dropped {int((~keep).sum())} rows with a repeated "
-                            "timecode"))
-        t, w = t[keep], w[keep]
-    if t.size < 3:
-        raise ShapeSpaceError(f"the recording has {t.size} frames; at least 3 are needed", "too_short")
+    return np.array(times), np.array(values, dtype=np.float64).reshape(len(times), len(cols))
+
+
+def _fill_and_check(t: np.ndarray, w: np.ndarray, names: list) -> list:
+    """Fill NaN cells in ``w`` (in place) from the neighbouring frames; issues for the fills and timecode gaps."""
+    issues = []
     bad = ~np.isfinite(w)
     if bad.any():
         for j in np.flatnonzero(bad.any(axis=0)):
@@ -152,12 +190,10 @@ def read_live_link_csv(source, required=ARKIT_52, fps: float = LLF_TIMECODE_FPS)
     if gaps.size:
         issues.append(Issue("warning", "timecode_gap", f"{gaps.size} gaps in the timecode (largest "
                             f"{np.diff(t).max():.3f} s); values are interpolated across them"))
-    start = rows[1 + int(order[0])][t_col] if len(rows) > 1 else ""
-    return WeightStream(names, t - t[0], w, issues, start)
+    return issues
 
 
-def _read_text(source) -> str:
-    import os
+def _read_text(source: str | os.PathLike) -> str:
     if isinstance(source, os.PathLike):
         source = os.fspath(source)
     if isinstance(source, str) and "\n" not in source and len(source) < 4096:
@@ -171,11 +207,27 @@ def _read_text(source) -> str:
     return str(source)
 
 
-def resample(times, weights, fps: float, start_frame: float = 1.0, fps_base: float = 1.0):
+def resample(times: ArrayLike, weights: ArrayLike, fps: float, start_frame: float = 1.0,
+             fps_base: float = 1.0) -> tuple:
     """Resample a stream onto scene frames ``start_frame, start_frame + 1, …`` at ``fps / fps_base``.
 
     Linear interpolation in time; the last frame is the last one inside the
-    recording.  Returns ``(frames (g,), weights (g, n))``.
+    recording.
+
+    Parameters
+    ----------
+    times : ndarray (f,)
+        Increasing sample times in seconds.
+    weights : ndarray (f, n)
+    fps, fps_base : float
+        Scene rate ``fps / fps_base`` frames per second.
+    start_frame : float
+        Scene frame of the first sample.
+
+    Returns
+    -------
+    frames : ndarray (g,)
+    weights : ndarray (g, n)
     """
     t = np.asarray(times, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)

@@ -20,11 +20,7 @@ class SHAPESPACE_OT_compression_report(bpy.types.Operator):
         return active_rig(cls, context) is not None and animated_object(cls, context) is not None
 
     def execute(self, context):
-        ob = context.active_object
-        scale = attempt(self, lambda: facespace.linear_model(ob).scale)
-        if scale is FAILED:
-            return {"CANCELLED"}
-        rep = attempt(self, facespace.compression, ob, None, self.tolerance * scale)
+        rep = attempt(self, facespace.compression_relative, context.active_object, self.tolerance)
         if rep is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"{rep['components']} of {rep['targets']} components keep {rep['frames']} frames "

@@ -31,20 +31,15 @@ is left untouched)"""
 
     @classmethod
     def poll(cls, context):
-        ob = active_mesh(cls, context)
+        ob = active_mesh(cls, context, editable=False)
         if ob is not None and (ob.data.shape_keys is None or len(ob.data.shape_keys.key_blocks) < 2):
             cls.poll_message_set("The mesh has no shape keys")
             return False
         return ob is not None
 
     def execute(self, context):
-        ob = context.active_object
-        if self.form == "WHOLE_FACE":
-            new = attempt(self, facespace.to_whole_face_object, ob, self.convex)
-        elif self.form == "DELTA":
-            new = attempt(self, facespace.to_delta_object, ob)
-        else:
-            new = attempt(self, facespace.to_pca_object_relative, ob, self.from_animation, self.tolerance)
+        new = attempt(self, facespace.convert_rig, context.active_object, self.form, self.convex,
+                      self.from_animation, self.tolerance)
         if new is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"{new.name}: {len(new.data.shape_keys.key_blocks) - 1} keys")

@@ -26,15 +26,10 @@ strength) or linearly (drifts toward the average face) (thesis 6.5)"""
         return prior_rig(cls, context) is not None
 
     def execute(self, context):
-        ob = context.active_object
-        a, b = self.frame_start, self.frame_end
-        if a < 0 or b < 0:
-            keys = attempt(self, facespace.bracketing_keys, ob, context.scene.frame_current)
-            if keys is FAILED:
-                return {"CANCELLED"}
-            a, b = keys if (a < 0 and b < 0) else (a if a >= 0 else keys[0], b if b >= 0 else keys[1])
-        n = attempt(self, facespace.fill_between, ob, a, b, self.mode)
-        if n is FAILED:
+        rep = attempt(self, facespace.fill_around, context.active_object, context.scene.frame_current,
+                      self.frame_start, self.frame_end, self.mode)
+        if rep is FAILED:
             return {"CANCELLED"}
-        self.report({"INFO"}, f"{n} frames between {a} and {b} ({self.mode.lower()})")
+        self.report({"INFO"}, f"{rep['frames']} frames between {rep['start']} and {rep['end']} "
+                              f"({self.mode.lower()})")
         return {"FINISHED"}

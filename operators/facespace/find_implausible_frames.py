@@ -21,14 +21,8 @@ or too close to the average face)"""
         return prior_rig(cls, context) is not None
 
     def execute(self, context):
-        ob = context.active_object
-        found = attempt(self, facespace.implausible_frames, ob, None, self.alpha)
+        found = attempt(self, facespace.flag_implausible_frames, context.active_object, None, self.alpha)
         if found is FAILED:
             return {"CANCELLED"}
-        items = ob.shapespace_face.implausible
-        items.clear()
-        for frame, reason in found:
-            item = items.add()
-            item.frame, item.reason = frame, reason
         self.report({"INFO"}, f"{len(found)} implausible frame(s)")
         return {"FINISHED"}

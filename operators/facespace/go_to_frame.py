@@ -1,5 +1,7 @@
 import bpy
 
+from ...bridge import facespace
+
 
 class SHAPESPACE_OT_go_to_frame(bpy.types.Operator):
     """Jump to this frame"""
@@ -18,5 +20,5 @@ class SHAPESPACE_OT_go_to_frame(bpy.types.Operator):
         return True
 
     def execute(self, context):
-        context.scene.frame_set(self.frame)
+        facespace.set_frame(context.scene, self.frame)
         return {"FINISHED"}

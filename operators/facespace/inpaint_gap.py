@@ -27,9 +27,6 @@ inpainting, thesis 9.3): known frames stay exact, the gap gets one key per frame
         return animated_object(cls, context) is not None
 
     def execute(self, context):
-        if self.frame_end < self.frame_start:
-            self.report({"ERROR"}, f"the gap ends ({self.frame_end}) before it starts ({self.frame_start})")
-            return {"CANCELLED"}
         rep = attempt(self, facespace.inpaint_gap, context.active_object, self.data_path, self.index,
                       self.frame_start, self.frame_end, self.use_other_channels)
         if rep is FAILED:

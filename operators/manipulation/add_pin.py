@@ -1,7 +1,6 @@
 import bpy
 
-from ...bridge import drag, shapekeys
-from ...core.manipulation.solve import Pin, pin_positions
+from ...bridge import manipulation, shapekeys
 from ...core.result import ShapeSpaceError
 from ..polls import active_rig
 
@@ -26,12 +25,11 @@ class SHAPESPACE_OT_add_pin(bpy.types.Operator):
 
     def execute(self, context):
         ob = context.active_object
-        count = 3 if self.weights[2] != 0.0 else (2 if self.weights[1] != 0.0 else 1)
+        pin = manipulation.stored_pin(self.vertices, self.weights)
+        target = self.target if self.use_target else None
         try:
-            pin = Pin(tuple(self.vertices[:count]), tuple(self.weights[:count]))
             model = shapekeys.read_blendshape_model(ob)
-            target = self.target if self.use_target else pin_positions(model, [pin], model.values)[0]
-            index = drag.add_pin(ob, pin, target, self.stationary)
+            index = manipulation.add_pin(ob, pin, target, self.stationary, model=model)
         except ShapeSpaceError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -1,5 +1,6 @@
 import bpy
 
+from ...bridge import manipulation
 from ..polls import mesh_with_pins
 
 
@@ -15,6 +16,5 @@ class SHAPESPACE_OT_clear_pins(bpy.types.Operator):
         return mesh_with_pins(cls, context) is not None
 
     def execute(self, context):
-        context.active_object.shapespace.pins.clear()
-        context.active_object.shapespace.active_pin = 0
+        manipulation.clear_pins(context.active_object)
         return {"FINISHED"}

@@ -1,5 +1,7 @@
 import bpy
 
+from ...bridge import manipulation
+from ...core.result import ShapeSpaceError
 from ..polls import mesh_with_pins
 
 
@@ -17,11 +19,9 @@ class SHAPESPACE_OT_remove_pin(bpy.types.Operator):
         return mesh_with_pins(cls, context) is not None
 
     def execute(self, context):
-        st = context.active_object.shapespace
-        index = st.active_pin if self.index < 0 else self.index
-        if not 0 <= index < len(st.pins):
-            self.report({"ERROR"}, f"there is no pin {index}")
+        try:
+            manipulation.remove_pin(context.active_object, self.index)
+        except ShapeSpaceError as exc:
+            self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        st.pins.remove(index)
-        st.active_pin = min(st.active_pin, len(st.pins) - 1)
         return {"FINISHED"}

@@ -1,7 +1,7 @@
 import bpy
 
-from ...bridge import drag
-from ...core.result import ShapeSpaceError
+from ...bridge import manipulation
+from ...core.result import ShapeSpaceError, Status
 from ..polls import pinned_rig
 
 
@@ -24,20 +24,16 @@ The scriptable form of a viewport drag"""
 
     def execute(self, context):
         ob = context.active_object
-        st = ob.shapespace
-        if self.pin >= 0:
-            if self.pin >= len(st.pins):
-                self.report({"ERROR"}, f"there is no pin {self.pin}")
-                return {"CANCELLED"}
-            st.pins[self.pin].target = self.target
         try:
-            before = drag.current_sliders(ob)
-            result = drag.solve_pins(ob)
+            if self.pin >= 0:
+                manipulation.set_pin_target(ob, self.pin, self.target)
+            before = manipulation.current_sliders(ob)
+            result = manipulation.solve_pins(ob)
             if self.key:
-                drag.key_changed(ob, before, result.weights, context.scene.frame_current)
+                manipulation.key_changed(ob, before, result.weights, context.scene.frame_current)
         except ShapeSpaceError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        level = {"WARNING"} if result.status else {"INFO"}
+        level = {"INFO"} if result.status == Status.OK else {"WARNING"}
         self.report(level, f"{result.message}; largest pin error {result.residuals.max():.4g}")
         return {"FINISHED"}

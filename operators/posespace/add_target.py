@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import posespace
-from ...core.result import ShapeSpaceError
 from ..polls import psd_mesh
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_psd_add_target(bpy.types.Operator):
@@ -23,21 +23,10 @@ or a property of the mesh; record its value at each example with Record Targets"
         return psd_mesh(cls, context) is not None
 
     def execute(self, context):
-        ob = context.active_object
-        st = ob.shapespace_psd
-        owner = posespace.armature_of(ob) if self.on_armature else ob
-        if owner is None:
-            self.report({"ERROR"}, "the mesh has no armature")
+        added = attempt(self, posespace.add_target, context.active_object, self.data_path, self.index,
+                        self.on_armature)
+        if added is FAILED:
             return {"CANCELLED"}
-        t = st.targets.add()
-        t.owner, t.data_path, t.index = owner, self.data_path, self.index
-        try:
-            value = posespace.read_targets(ob)[-1]
-        except (ShapeSpaceError, IndexError, TypeError) as exc:
-            st.targets.remove(len(st.targets) - 1)
-            self.report({"ERROR"}, str(exc) if isinstance(exc, ShapeSpaceError) else
-                        f"{self.data_path!r} index {self.index} is not a number on {owner.name!r}")
-            return {"CANCELLED"}
-        st.revision += 1
-        self.report({"INFO"}, f"Driving {owner.name}.{self.data_path} (now {value:g}); record it at each example")
+        owner, value = added
+        self.report({"INFO"}, f"Driving {owner}.{self.data_path} (now {value:g}); record it at each example")
         return {"FINISHED"}

@@ -1,6 +1,7 @@
 import bpy
 
 from ...bridge import posespace
+from ...core.result import Status
 from ..polls import psd_mesh
 from ..reporting import FAILED, attempt, report_issues
 
@@ -29,13 +30,13 @@ class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
     def execute(self, context):
         ob = context.active_object
         st = ob.shapespace_psd
-        ex = st.examples[st.active_example]
-        result = attempt(self, posespace.apply_example, ob, ex.name)
+        name = st.examples[st.active_example].name
+        result = attempt(self, posespace.apply_example, ob, name)
         if result is FAILED:
             return {"CANCELLED"}
-        if self.remove_copy and ex.sculpt is not None:
-            bpy.data.objects.remove(ex.sculpt)
+        if self.remove_copy:
+            posespace.remove_sculpt_copy(ob, name)
         report_issues(self, posespace.flag_examples(ob))
-        level = {"INFO"} if result.status == 0 else {"WARNING"}
-        self.report(level, f"{ex.name}: {result.message} (largest error {result.residual:.3g})")
+        level = {"INFO"} if result.status == Status.OK else {"WARNING"}
+        self.report(level, f"{name}: {result.message} (largest error {result.residual:.3g})")
         return {"FINISHED"}

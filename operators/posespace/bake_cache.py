@@ -1,5 +1,3 @@
-import os
-
 import bpy
 
 from ...bridge import posespace
@@ -33,14 +31,8 @@ before the Armature modifier (every method, weighted PSD included; also for expo
         if self.frame_end < self.frame_start:
             self.report({"ERROR"}, "the frame range is empty (end before start)")
             return {"CANCELLED"}
-        path = self.filepath
-        if not path:
-            if not bpy.data.filepath:
-                self.report({"ERROR"}, "save the file first or give a PC2 file path")
-                return {"CANCELLED"}
-            path = os.path.join(os.path.dirname(bpy.data.filepath), f"{ob.name}_correctives.pc2")
-        path = bpy.path.abspath(path)
         try:
+            path = posespace.cache_path(ob, self.filepath)
             posespace.bake_point_cache(ob, context.scene, self.frame_start, self.frame_end, path)
         except (ShapeSpaceError, OSError) as exc:
             self.report({"ERROR"}, str(exc))

@@ -1,6 +1,6 @@
 import bpy
 
-from ...bridge import facespace
+from ...bridge import posespace
 from ..polls import psd_mesh
 from ..reporting import FAILED, attempt
 
@@ -21,10 +21,8 @@ interpolation (0 at an example, 1 far from all), optionally as a vertex-colour h
         return psd_mesh(cls, context, need_example=True) is not None
 
     def execute(self, context):
-        ob = context.active_object
-        rep = attempt(self, facespace.confidence, ob, self.heat_map)
+        rep = attempt(self, posespace.confidence, context.active_object, self.heat_map)
         if rep is FAILED:
             return {"CANCELLED"}
-        ob.shapespace_face.confidence = rep["variance"]
         self.report({"INFO"}, f"pose-space variance {rep['variance']:.3f} over {rep['examples']} examples")
         return {"FINISHED"}

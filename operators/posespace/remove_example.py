@@ -1,6 +1,8 @@
 import bpy
 
+from ...bridge import posespace
 from ..polls import psd_mesh
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_psd_remove_example(bpy.types.Operator):
@@ -17,15 +19,8 @@ class SHAPESPACE_OT_psd_remove_example(bpy.types.Operator):
     def execute(self, context):
         ob = context.active_object
         st = ob.shapespace_psd
-        ex = st.examples[st.active_example]
-        name = ex.name
-        if ex.sculpt is not None:
-            bpy.data.objects.remove(ex.sculpt)
-        key = ob.data.shape_keys
-        if key is not None and name in key.key_blocks:
-            ob.shape_key_remove(key.key_blocks[name])
-        st.examples.remove(st.active_example)
-        st.active_example = max(0, min(st.active_example, len(st.examples) - 1))
-        st.revision += 1
+        name = attempt(self, posespace.remove_example, ob, st.examples[st.active_example].name)
+        if name is FAILED:
+            return {"CANCELLED"}
         self.report({"INFO"}, f"Removed example {name}")
         return {"FINISHED"}

@@ -15,7 +15,7 @@ class SHAPESPACE_OT_discard_retarget(bpy.types.Operator):
     @classmethod
     def poll(cls, context):
         ob = active_rig(cls, context)
-        if ob is not None and retarget.LAST_PROP not in ob.data.shape_keys:
+        if ob is not None and not retarget.has_result(ob):
             cls.poll_message_set("Nothing retargeted onto this rig yet")
             return False
         return ob is not None

@@ -51,8 +51,8 @@ action"""
                           key_pose_action=self.key_pose_action or None)
         if rep is FAILED:
             return {"CANCELLED"}
-        for msg in rep["issues"]:
+        for msg in rep.issues:
             self.report({"WARNING"}, msg)
-        self.report({"INFO"}, f"{rep['action']}: {rep['frames']} frames, position error "
-                              f"{rep['position_error_rms']:.2g} of the size")
+        self.report({"INFO"}, f"{rep.action}: {rep.frames} frames, position error "
+                              f"{rep.position_error_rms:.2g} of the size")
         return {"FINISHED"}

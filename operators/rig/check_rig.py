@@ -14,7 +14,7 @@ class SHAPESPACE_OT_check_rig(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return active_mesh(cls, context) is not None
+        return active_mesh(cls, context, editable=False) is not None
 
     def execute(self, context):
         found = inventory.check_object(context.active_object)

@@ -24,7 +24,7 @@ class SHAPESPACE_OT_key_sliders(bpy.types.Operator):
         if problems:
             self.report({"ERROR"}, problems[0].message)
             return {"CANCELLED"}
-        names = actions.slider_names(ob)
+        names = shapekeys.slider_names(ob)
         count = actions.key_sliders(ob, names, context.scene.frame_current, self.only_changed)
         self.report({"INFO"}, f"Keyed {count} sliders at frame {context.scene.frame_current}")
         return {"FINISHED"}

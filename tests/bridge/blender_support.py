@@ -37,7 +37,8 @@ def blend_fingerprint() -> str:
         if ob.type == "MESH":
             me = ob.data
             co = np.empty(len(me.vertices) * 3, np.float32)
-            me.vertices.foreach_get("co", co)
+            if co.size:
+                me.vertices.foreach_get("co", co)
             h.update(co.tobytes())
             for v in me.vertices:
                 for g in v.groups:
@@ -46,8 +47,10 @@ def blend_fingerprint() -> str:
                 for kb in me.shape_keys.key_blocks:
                     h.update(kb.name.encode())
                     h.update(np.array([kb.value, kb.slider_min, kb.slider_max, kb.mute], np.float64).tobytes())
-                    kco = np.empty(len(kb.data) * 3, np.float32)
-                    kb.data.foreach_get("co", kco)
+                    # len(kb.data) is unreliable on a 0-vertex mesh (Blender reports garbage there)
+                    kco = np.empty(len(me.vertices) * 3 if len(kb.data) == len(me.vertices) else 0, np.float32)
+                    if kco.size:
+                        kb.data.foreach_get("co", kco)
                     h.update(kco.tobytes())
     h.update(",".join(sorted(a.name for a in bpy.data.actions)).encode())
     return h.hexdigest()

@@ -1,6 +1,5 @@
 """Keyframes on both action APIs, sampling at fractional frames, and transforms."""
 import numpy as np
-import pytest
 
 from support import shared
 from blender_support import bpy, evaluated, import_file, rel_error
@@ -87,7 +86,7 @@ def test_key_sliders_operator_keys_every_slider(registered):
     import_file(shared("llf_fbhead", "Live_Link_Face.blend"))
     ob = bpy.data.objects["FBHead"]
     bpy.context.view_layer.objects.active = ob
-    names = actions.slider_names(ob)
+    names = shapekeys.slider_names(ob)
     rng = np.random.default_rng(0)
     vals = rng.uniform(0, 1, len(names))
     shapekeys.write_slider_values(ob, names, vals)
@@ -122,9 +121,9 @@ def test_world_local_roundtrip_under_scaled_parents_matches_blender_apply():
 
 def test_arkit_names_match_across_shared_conventions():
     import_file(shared("llf_fbhead", "Live_Link_Face.blend"))
-    llf = actions.slider_names(bpy.data.objects["FBHead"])
+    llf = shapekeys.slider_names(bpy.data.objects["FBHead"])
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    fc_names = actions.slider_names(_facecap())
+    fc_names = shapekeys.slider_names(_facecap())
     mapping, unmatched_src, unmatched_tgt = ss_names.match_channels(llf, fc_names)
     assert len(mapping) == 51 and not unmatched_src
     assert mapping["EyeBlinkLeft"] == "eyeBlink_L" and mapping["JawOpen"] == "jawOpen"

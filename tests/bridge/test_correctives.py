@@ -185,7 +185,7 @@ def test_example_at_rest_pose_needs_readers(registered):
     assert blend_fingerprint() == before
     ob.shapespace_psd.readers.add().source = arm.pose.bones[2].name
     assert bpy.ops.shapespace.psd_add_example() == {"FINISHED"}     # explicit readers: rest pose is fine
-    assert json.loads(ob.shapespace_psd.examples[0].pose) == pytest.approx([0.0] * 9)
+    assert json.loads(ob.shapespace_psd.examples[0].pose)["values"] == pytest.approx([0.0] * 9)
 
 
 @pytest.mark.parametrize("method", ["WPSD", "SBE"])
@@ -284,7 +284,7 @@ def test_mirror_and_move_example(registered):
     # the mirrored example sits where the flipped pose reads
     _pose(arm, "LeftArm", (1, 0, 0, 0))
     _pose(arm, "RightArm", (0.9, 0.2, -0.3, -0.25))
-    got = np.array(json.loads(st.examples[1].pose))
+    got = np.array(json.loads(st.examples[1].pose)["values"])
     np.testing.assert_allclose(got, posespace.read_pose(ob), atol=1e-6)
     # moving example 1 to another pose makes its sculpt appear there instead (pseudo-example)
     _pose(arm, "RightArm", (0.95, -0.1, 0.2, 0.2))
@@ -391,3 +391,27 @@ def test_property_shape_key_swing_and_twist_readers(registered):
     swing_part = posespace.read_pose(ob)[2:5]
     np.testing.assert_allclose(swing_part, 0.0, atol=1e-6)
     assert abs(swing_twist(twist_only)[1] - 0.8) < 1e-9
+
+
+def test_example_blobs_are_versioned_and_0_1_0_bare_lists_still_load(registered):
+    """Example poses / target values are stored as versioned JSON; 0.1.0 wrote bare lists."""
+    ob, arm = _cesium()
+    st = ob.shapespace_psd
+    bone = arm.pose.bones[5].name
+    _pose(arm, bone, (0.9, 0.3, 0.2, 0.1))
+    assert bpy.ops.shapespace.psd_add_example(sculpt_copy=False) == {"FINISHED"}
+    ex = st.examples[0]
+    stored = json.loads(ex.pose)
+    assert stored["schema_version"] == 1 and len(stored["values"]) == 9
+    assert json.loads(ex.target_values) == {"schema_version": 1, "values": []}
+    want = posespace.read_pose(ob)
+    ex.pose = json.dumps(stored["values"])            # as ShapeSpace 0.1.0 saved it
+    ex.target_values = "[]"
+    assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
+    np.testing.assert_allclose(posespace.example_pose(ex), want, atol=1e-6)
+    ex.pose = '{"values": [0.1, "x"]'                  # damaged: the error names the example
+    with pytest.raises(RuntimeError, match="damaged ShapeSpace data.*PSD_01"):
+        bpy.ops.shapespace.psd_update()
+    ex.pose = json.dumps({"schema_version": 1, "values": [0.1, "x"]})
+    with pytest.raises(RuntimeError, match="PSD_01.*numbers"):
+        bpy.ops.shapespace.psd_update()

@@ -6,8 +6,8 @@ import pytest
 
 from support import ASSETS, shared
 from blender_support import blend_fingerprint, bpy, evaluated, import_file, rel_error
-from shapespace.bridge import actions, drag, meshes, shapekeys, skin
-from shapespace.core.manipulation.solve import Pin, pin_positions, solve_drag_reference
+from shapespace.bridge import actions, manipulation, meshes, shapekeys, skin
+from shapespace.core.manipulation import Pin, pin_positions, solve_drag_reference
 
 FACECAP = os.path.join(ASSETS, "facecap", "facecap_decoded.glb")
 
@@ -17,7 +17,7 @@ def _facecap(keep_anim=False):
     ob = bpy.data.objects["Mesh_2"]
     if not keep_anim:
         ob.data.shape_keys.animation_data.action = None
-        names = actions.slider_names(ob)
+        names = shapekeys.slider_names(ob)
         shapekeys.write_slider_values(ob, names, np.zeros(len(names)))
     bpy.context.view_layer.objects.active = ob
     return ob
@@ -52,24 +52,24 @@ def test_surface_pin_from_a_ray_lies_on_blenders_surface(registered):
     world = meshes.to_world(ob, evaluated(ob))
     centre = world.mean(axis=0)
     origin = centre + np.array([0.0, -1.0, 0.0]) * np.ptp(world, axis=0).max() * 3
-    hit = drag.surface_pin(ob, depsgraph, origin, centre - origin)
+    hit = manipulation.surface_pin(ob, depsgraph, origin, centre - origin)
     assert hit is not None
     pin, hit_world = hit
     assert len(pin.vertices) == 3 and abs(sum(pin.weights) - 1) < 1e-9
     on_surface = meshes.to_world(ob, pin_positions(model, [pin], model.values))[0]
     assert np.linalg.norm(on_surface - hit_world) < 1e-5 * np.ptp(world, axis=0).max()
-    miss = drag.surface_pin(ob, depsgraph, origin, origin - centre)
+    miss = manipulation.surface_pin(ob, depsgraph, origin, origin - centre)
     assert miss is None
 
 
 def test_pins_persist_through_save_and_reload(registered, tmp_path):
-    ob = _facecap()
+    _facecap()
     bpy.ops.shapespace.add_pin(vertices=(10, 11, 12), weights=(0.2, 0.3, 0.5), stationary=True)
     path = str(tmp_path / "pins.blend")
     bpy.ops.wm.save_as_mainfile(filepath=path)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.open_mainfile(filepath=path)
-    pins, targets, still = drag.read_pins(bpy.data.objects["Mesh_2"])
+    pins, targets, still = manipulation.read_pins(bpy.data.objects["Mesh_2"])
     assert pins == [Pin((10, 11, 12), (pytest.approx(0.2), pytest.approx(0.3), pytest.approx(0.5)))] or (
         pins[0].vertices == (10, 11, 12) and np.allclose(pins[0].weights, (0.2, 0.3, 0.5)))
     assert still.tolist() == [True] and np.isfinite(targets).all()
@@ -151,13 +151,13 @@ def test_drag_on_a_skinned_posed_head_with_scaled_parent(registered):
     shapekeys.write_slider_values(ob, ["jawOpen"], [0.5])
     goal_world = meshes.to_world(ob, evaluated(ob)[v][None])[0]
     shapekeys.write_slider_values(ob, ["jawOpen"], [0.0])
-    drag.add_pin(ob, pin, pin_positions(model, [pin], np.zeros(model.n_targets))[0])
+    manipulation.add_pin(ob, pin, pin_positions(model, [pin], np.zeros(model.n_targets))[0])
     model = shapekeys.read_blendshape_model(ob)
     local = meshes.to_local(ob, goal_world[None])[0]
-    target = drag.deformed_to_shape_space(ob, depsgraph, pin, model, model.values, local)
+    target = manipulation.deformed_to_shape_space(ob, depsgraph, pin, model, model.values, local)
     ob.shapespace.pins[0].target = target
     ob.shapespace.alpha, ob.shapespace.mu = 1e-5, 1e-7
-    result = drag.solve_pins(ob)
+    result = manipulation.solve_pins(ob)
     assert result.residuals.max() < 1e-4 * model.scale, result.message
     got_world = meshes.to_world(ob, evaluated(ob)[v][None])[0]
     size = np.ptp(meshes.to_world(ob, evaluated(ob)), axis=0).max()
@@ -166,11 +166,11 @@ def test_drag_on_a_skinned_posed_head_with_scaled_parent(registered):
 
 def test_auto_key_keys_only_changed_sliders(registered):
     ob = _facecap()
-    before = drag.current_sliders(ob)
+    before = manipulation.current_sliders(ob)
     after = before[1].copy()
     after[[3, 7]] = 0.4
     shapekeys.write_slider_values(ob, before[0], after)
-    assert drag.key_changed(ob, before, after, 12) == 2
+    assert manipulation.key_changed(ob, before, after, 12) == 2
     assert set(actions.shape_key_curves(ob)) == {before[0][3], before[0][7]}
 
 
@@ -196,8 +196,8 @@ def test_overlay_draws_pins_offscreen(registered):
     ob = _facecap()
     model = shapekeys.read_blendshape_model(ob)
     v = _jaw_vertex(model)
-    drag.add_pin(ob, Pin.at_vertex(v), model.neutral[v] + model.deltas[model.index("jawOpen"), v])
-    drag.add_pin(ob, Pin.at_vertex(0), model.neutral[0], stationary=True)
+    manipulation.add_pin(ob, Pin.at_vertex(v), model.neutral[v] + model.deltas[model.index("jawOpen"), v])
+    manipulation.add_pin(ob, Pin.at_vertex(0), model.neutral[0], stationary=True)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     current, goal, still = overlay.pin_world_points(ob, depsgraph)
     pts = np.concatenate([current, goal])

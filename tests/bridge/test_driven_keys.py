@@ -4,8 +4,8 @@ import pytest
 
 from support import ASSETS
 from blender_support import blend_fingerprint, bpy, evaluated, import_file, rel_error
-from shapespace.bridge import actions, driven, shapekeys
-from shapespace.core.manipulation.solve import Pin, pin_positions, solve_drag
+from shapespace.bridge import driven, shapekeys
+from shapespace.core.manipulation import Pin, pin_positions, solve_drag
 from shapespace.core.result import ShapeSpaceError
 import os
 
@@ -45,7 +45,7 @@ def test_inbetweens_and_combinations_match_blender_and_play_without_python(regis
         assert fc.driver.is_simple_expression, fc.driver.expression  # no Python at playback
     model = shapekeys.read_blendshape_model(ob)
     assert model.n_targets == 52 and len(model.inbetweens) == 2 and len(model.combinations) == 1
-    assert ib not in actions.slider_names(ob) and combo not in actions.slider_names(ob)
+    assert ib not in shapekeys.slider_names(ob) and combo not in shapekeys.slider_names(ob)
     # the sculpt is reproduced exactly at the combination's corner
     w = np.zeros(52)
     w[[model.index("mouthSmile_L"), model.index("eyeBlink_L")]] = 1.0

@@ -9,7 +9,7 @@ import pytest
 
 from support import ASSETS
 from blender_support import blend_fingerprint, bpy, evaluated, import_file, rel_error
-from shapespace.bridge import actions, facespace, shapekeys
+from shapespace.bridge import actions, facespace, posespace, shapekeys
 
 FACECAP = os.path.join(ASSETS, "facecap", "facecap_decoded.glb")
 
@@ -152,7 +152,7 @@ def test_analyse_rig_image_pairs_empty_and_sparsity(registered, tmp_path):
 # --------------------------------------------------------------------------- face prior (ch. 6)
 def test_prior_meter_agrees_with_a_numpy_gaussian_and_flags_the_mean_face(registered):
     ob = _facecap()
-    model = shapekeys.read_blendshape_model(ob)
+    shapekeys.read_blendshape_model(ob)
     assert bpy.ops.shapespace.learn_face_prior() == {"FINISHED"}
     g, names = facespace.prior(ob)
     # independent: Blender's own F-Curve evaluation at every frame, numpy covariance with the same ridge
@@ -301,7 +301,7 @@ def test_pose_space_confidence_is_zero_at_examples_and_grows_between(registered)
     assert bpy.ops.shapespace.psd_confidence(heat_map=True) == {"FINISHED"}
     between = ob.shapespace_face.confidence
     assert at_example < 1e-6 < between < 1.0
-    attr = ob.data.color_attributes[facespace.CONFIDENCE_ATTRIBUTE]
+    attr = ob.data.color_attributes[posespace.CONFIDENCE_ATTRIBUTE]
     assert len(attr.data) == len(ob.data.vertices)
 
 

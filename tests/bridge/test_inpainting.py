@@ -4,7 +4,7 @@ import numpy as np
 from support import shared
 from blender_support import bpy, import_file
 from shapespace.bridge import actions
-from shapespace.core.facespace import stats as facestats
+from shapespace.core import facespace as facestats
 
 GAP = 20
 

@@ -256,7 +256,7 @@ def test_key_reduction_beats_blender_decimate_at_equal_error():
 
 
 def test_bezier_keys_evaluate_as_the_core_hermite():
-    from shapespace.core.retarget.cloning import hermite, reduce_keys_bezier
+    from shapespace.core.animation import hermite, reduce_keys_bezier
     import_file(BLEND)
     ob = bpy.data.objects["FBHead"]
     key = ob.data.shape_keys
@@ -284,7 +284,6 @@ def _unchanged(ob):
 def test_bad_landmarks_are_refused_and_change_nothing(case):
     src, scene = _facecap_scene()
     dst, order = _copy_rig(src, reverse=True)
-    inv = np.argsort(order)
     model = shapekeys.read_blendshape_model(dst)
     moved = np.linalg.norm(model.deltas, axis=2).max(axis=0) > 1e-6 * model.scale
     if case == "collinear":     # landmarks along one straight edge chain: pick vertices on a line

@@ -1,5 +1,5 @@
-"""core.retarget.cloning: expression cloning, per-frame fits, space-time cloning (thesis ch. 5), key reduction,
-Procrustes and landmark warps (thesis 3.5).
+"""core.retarget (cloning, perframe, spacetime_solver, landmarks) and core.animation's key reduction: expression
+cloning, per-frame fits, space-time cloning (thesis ch. 5), key reduction, Procrustes and landmark warps (thesis 3.5).
 
 Every reference is built here independently of the code under test:
 
@@ -23,9 +23,9 @@ from scipy.optimize import lsq_linear
 from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
-from core.retarget.cloning import (closest_points, cloning_matrix, copy_weights, fit_frames, key_poses, landmark_layout,
-                          landmark_warp, peak_landmarks,
-                          curve_slopes, hermite, procrustes, reduce_keys, reduce_keys_bezier, spacetime)
+from core.animation import curve_slopes, hermite, reduce_keys, reduce_keys_bezier
+from core.retarget import (closest_points, cloning_matrix, copy_weights, fit_frames, key_poses, landmark_layout,
+                           landmark_warp, peak_landmarks, procrustes, spacetime)
 from core.result import ShapeSpaceError
 
 
@@ -487,10 +487,10 @@ def test_spacetime_bounded_every_newton_step_matches_quadprog(route, monkeypatch
     # A mid-size problem (F=60, n=5) where many entries clip: the three ways of computing the reduced
     # Newton step — capacitance (small active sets), banded Cholesky (large ones), preconditioned CG
     # (huge problems) — each reach quadprog's exact active-set optimum of the explicit Kronecker QP.
-    import core.retarget.cloning as cloning
+    import core.retarget.spacetime_solver as solver
     max_exact_active = 1000 if route == "capacitance" else 0
     if route == "cg":
-        monkeypatch.setattr(cloning, "BANDED_FLOP_LIMIT", 0.0)
+        monkeypatch.setattr(solver, "BANDED_FLOP_LIMIT", 0.0)
     rng, B, neutral, frames, sigma, _ = st_problem(7, 60, 5, 15, noise=0.05, amp=2.5)
     lam, n, F = 1e-3, 5, 60
     lo, hi = np.full(n, -0.2), np.full(n, 0.6)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from core.facespace import forms as fs
+from core import facespace as fs
 from core.blendshape import BlendshapeModel, Combination
 from core.result import ShapeSpaceError
 
@@ -351,7 +351,7 @@ def test_sparsity_with_given_basis_and_dense_weights():
 
 
 def test_animation_pca_matches_pca_of_the_formed_frames():
-    from core.facespace.forms import animation_pca
+    from core.facespace.pca import animation_pca
     rng = np.random.default_rng(21)
     p, n, f = 40, 6, 30
     model = BlendshapeModel(rng.normal(size=(p, 3)), rng.normal(size=(n, p, 3)), [f"t{i}" for i in range(n)])

@@ -4,7 +4,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from core.posespace.inversion import InversionResult, invert_deformation, vertex_jacobians
-from core.result import ShapeSpaceError
+from core.result import ShapeSpaceError, Status
 from core.skinning import ArmatureDeform, SkinningRig, SkinWeights, deform
 
 
@@ -250,7 +250,7 @@ def test_unreachable_sculpt_is_reported_not_converged():
     sculpt = np.sin(rest)
     sculpt[1] = [2.0, 2.0, 2.0]                     # outside the range of sin
     res = invert_deformation(np.sin, rest, sculpt, max_iter=8)
-    assert res.status == 1
+    assert res.status == Status.NOT_CONVERGED
     assert res.residual >= 1.0 - 1e-12            # |sin - 2| >= 1 everywhere
     assert np.abs(np.sin(rest + res.corrective) - sculpt).max() == pytest.approx(res.residual, rel=1e-12)
 
@@ -265,7 +265,7 @@ def test_saturating_deformer_does_not_leak_linalg_error(saturating):
         res = invert_deformation(saturating, rest, sculpt, max_iter=8)
     except ShapeSpaceError:
         return
-    assert res.status == 1
+    assert res.status == Status.NOT_CONVERGED
 
 
 # ------------------------------------------------------------------ collapse and bad input

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core.posespace.readers import (READER_DIMS, PoseReader, feature_groups, mirror_features, mirror_name, mirror_pose,
-                            pose_features, quaternion_distance, quaternion_to_matrix, reader_features,
-                            swing_twist)
+from core.posespace.mirror import mirror_features, mirror_name, mirror_pose
+from core.posespace.readers import (READER_DIMS, PoseReader, feature_groups, pose_features, quaternion_distance,
+                                   quaternion_to_matrix, reader_features, swing_twist)
 from core.result import ShapeSpaceError
 
 Y = np.array([0.0, 1.0, 0.0])
@@ -506,3 +506,42 @@ def test_mirror_pose_without_counterpart():
     with pytest.raises(ShapeSpaceError) as e:
         mirror_pose(readers, pose)
     assert e.value.code == "no_mirror"
+
+
+# ------------------------------------------------------------------ mirrored correctives
+def symmetric_mesh(rng, half=40):
+    """A point set symmetric across x = 0 (plus points on the plane), in shuffled order."""
+    left = rng.uniform(0.1, 1.0, size=(half, 3))
+    mid = np.column_stack([np.zeros(5), rng.uniform(-1, 1, size=(5, 2))])
+    co = np.vstack([left, left * [-1.0, 1.0, 1.0], mid])
+    return co[rng.permutation(len(co))]
+
+
+def test_mirror_partners_pair_each_vertex_with_its_reflection():
+    from core.posespace.mirror import mirror_displacements, mirror_partners
+    rng = np.random.default_rng(40)
+    co = symmetric_mesh(rng)
+    partner = mirror_partners(co)
+    assert sorted(partner) == list(range(len(co)))                       # a permutation
+    np.testing.assert_allclose(co[partner], co * [-1.0, 1.0, 1.0], atol=1e-12)
+    np.testing.assert_array_equal(partner[partner], np.arange(len(co)))  # an involution
+    delta = rng.normal(size=co.shape)
+    mirrored = mirror_displacements(delta, partner)
+    for v in range(len(co)):
+        np.testing.assert_allclose(mirrored[v], delta[partner[v]] * [-1.0, 1.0, 1.0], atol=0)
+    np.testing.assert_allclose(mirror_displacements(mirrored, partner), delta, atol=0)   # twice: back
+
+
+def test_mirror_partners_refuse_an_asymmetric_mesh_within_tolerance():
+    from core.posespace.mirror import mirror_displacements, mirror_partners
+    rng = np.random.default_rng(41)
+    co = symmetric_mesh(rng)
+    off = int(np.flatnonzero(co[:, 0] > 0.05)[0])
+    co[off] += [0.0, 0.01, 0.0]                      # nearly symmetric: one vertex off by ~0.3 % of the size
+    with pytest.raises(ShapeSpaceError, match="not symmetric") as e:
+        mirror_partners(co)
+    assert e.value.code == "not_symmetric"
+    assert mirror_partners(co, tolerance=0.01).shape == (len(co),)
+    with pytest.raises(ShapeSpaceError) as e:
+        mirror_displacements(np.zeros((4, 3)), np.arange(3))
+    assert e.value.code == "shape"

@@ -8,7 +8,7 @@ import pytest
 from scipy.interpolate import RBFInterpolator
 from scipy.spatial.distance import cdist
 
-from core.posespace.psd import PoseSpaceDeformer, example_issues, train_driver, train_psd
+from core.posespace import PoseSpaceDeformer, example_issues, train_driver, train_psd
 from core.result import ShapeSpaceError
 
 
@@ -574,3 +574,32 @@ def test_wpsd_stabiliser_leaves_well_conditioned_vertices_exact_and_tames_the_re
     np.testing.assert_array_equal(tamed.folded[~wild], exact.folded[~wild])
     assert np.all(np.abs(tamed.folded).max(axis=(1, 2)) <= AMPLIFICATION_LIMIT * scale + 1e-12) or wild.any()
     assert tamed.diagnostics["ridged_vertices"] == int(wild.sum())
+
+
+# ------------------------------------------------------------------ ShapeSpace's own choices
+def test_skin_group_inputs_map_bones_to_pose_space_sources():
+    from core.posespace import PoseReader, skin_group_inputs
+    readers = [PoseReader("rotation", "arm"), PoseReader("twist", "fore"), PoseReader("swing", "arm"),
+               PoseReader("property", "exertion")]
+    bone_names = ["root", "arm", "fore", "hand"]
+    bone_index = np.array([[1, 2, -1], [0, 3, -1], [2, 1, 0]])
+    bone_weights = np.array([[0.7, 0.3, 0.0], [0.5, 0.5, 0.0], [0.2, 0.6, 0.2]])
+    out = skin_group_inputs(readers, bone_names, bone_index, bone_weights)
+    # sources in first-seen order: arm (rotation 0-8, swing 11-13), fore (twist 9-10), exertion (14)
+    assert [c.tolist() for c in out["group_columns"]] == [list(range(9)) + [11, 12, 13], [9, 10], [14]]
+    np.testing.assert_array_equal(out["vertex_groups"], [[0, 1, -1], [-1, -1, -1], [1, 0, -1]])
+    np.testing.assert_array_equal(out["vertex_weights"], [[0.7, 0.3, 0.0], [0.0, 0.0, 0.0], [0.2, 0.6, 0.0]])
+
+
+def test_train_target_driver_is_a_gaussian_of_the_default_width(rng):
+    from core.posespace import train_target_driver
+    for K, degree in ((1, -1), (2, -1), (4, 0), (6, 1)):   # linear part once K ≥ d + 2 (random poses)
+        X, V = rng.normal(size=(K, 3)), rng.normal(size=(K, 2))
+        drv = train_target_driver(X, V, ["a", "b"])
+        d = cdist(X, X)
+        eps = 1.0 / np.median(d[d > 0]) if K > 1 else 1.0
+        ref = RBFInterpolator(X, V, kernel="gaussian", epsilon=eps, degree=degree)
+        x = rng.normal(size=3)
+        out = drv(x)
+        np.testing.assert_allclose([out["a"], out["b"]], ref(x[None])[0], rtol=0, atol=1e-9)
+        assert drv.interpolant.kernel == "gaussian" and drv.interpolant.epsilon == pytest.approx(eps)

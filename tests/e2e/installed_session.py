@@ -5,6 +5,7 @@ enable it, run an operator and the CLI handler.  Prints one JSON line with what 
 The environment must already point BLENDER_USER_RESOURCES at a temporary folder.
 """
 import contextlib
+import importlib.util
 import io
 import json
 import os
@@ -13,7 +14,10 @@ import sys
 zip_path, asset = sys.argv[1], sys.argv[2]
 import bpy  # noqa: E402
 
-seen = {"user_resources": bpy.utils.user_resource("EXTENSIONS")}
+seen = {"user_resources": bpy.utils.user_resource("EXTENSIONS"), "python": "%d.%d" % sys.version_info[:2],
+        "blender": bpy.app.version_string,
+        # before the install: can this Python import scipy without the extension's wheel?
+        "venv_has_scipy": importlib.util.find_spec("scipy") is not None}
 result = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default", enable_on_install=True)
 seen["install"] = sorted(result)
 seen["addons"] = [a.module for a in bpy.context.preferences.addons if "shapespace" in a.module]
@@ -25,6 +29,11 @@ site = os.path.join(bpy.utils.user_resource("EXTENSIONS"), ".local", "lib",
                     f"python{sys.version_info[0]}.{sys.version_info[1]}", "site-packages")
 seen["wheel_dirs"] = sorted(d for d in os.listdir(site) if d.startswith("scipy")) if os.path.isdir(site) else []
 seen["site_on_path"] = any(os.path.realpath(p) == os.path.realpath(site) for p in sys.path)
+seen["site"] = os.path.realpath(site)
+# which of the bundled wheels Blender installed: the compiled modules name their CPython (cpython-313)
+lib = os.path.join(site, "scipy", "_lib")
+seen["scipy_abis"] = sorted({n.split(".")[1].split("-")[1] for n in os.listdir(lib) if n.endswith(".so")}
+                            if os.path.isdir(lib) else [])
 
 bpy.ops.import_scene.gltf(filepath=asset)
 head = bpy.data.objects["Mesh_2"]
@@ -44,6 +53,9 @@ seen["retarget"] = sorted(bpy.ops.shapespace.retarget(action=capture.name, metho
 seen["analyse_rig"] = sorted(bpy.ops.shapespace.analyse_rig())
 seen["learn_face_prior"] = sorted(bpy.ops.shapespace.learn_face_prior())
 seen["prior_stored"] = "shapespace_face_prior" in head.data.shape_keys
+
+scipy = sys.modules.get("scipy")
+seen["scipy_file"] = os.path.realpath(scipy.__file__) if scipy is not None else None
 
 buf = io.StringIO()
 with contextlib.redirect_stdout(buf):

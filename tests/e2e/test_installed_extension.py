@@ -4,7 +4,6 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 import zipfile
 
 import pytest
@@ -12,6 +11,10 @@ import pytest
 from support import ASSETS, ROOT
 
 pytest.importorskip("bpy")
+
+# Set by tools/run_tests.py for the run on a venv without SciPy: there the extension must work on
+# the SciPy wheel it bundles, and this asserts that the venv really has no SciPy of its own.
+BUNDLED_SCIPY_ONLY = os.environ.get("SHAPESPACE_E2E_BUNDLED_SCIPY") == "1"
 
 
 @pytest.fixture(scope="session")
@@ -23,18 +26,21 @@ def built_zips(tmp_path_factory):
     return {p.name.split("-", 2)[-1][:-4]: p for p in out.glob("*.zip")}
 
 
-def test_four_platform_zips_each_with_its_own_wheel(built_zips):
+def test_four_platform_zips_each_with_its_own_wheels(built_zips):
     assert set(built_zips) == {"linux-x64", "windows-x64", "macos-arm64", "macos-x64"}
     tags = {"linux-x64": "manylinux", "windows-x64": "win_amd64", "macos-arm64": "arm64",
             "macos-x64": "macosx_10_13_x86_64"}
     for plat, path in built_zips.items():
         with zipfile.ZipFile(path) as z:
             names = z.namelist()
-            wheels = [n for n in names if n.endswith(".whl")]
-            assert len(wheels) == 1 and tags[plat] in wheels[0] and "scipy" in wheels[0]
+            wheels = sorted(n for n in names if n.endswith(".whl"))
+            # one SciPy wheel per Blender Python: 3.11 (Blender 4.2-5.0) and 3.13 (Blender 5.1+)
+            assert [w.split("-")[2] for w in wheels] == ["cp311", "cp313"], wheels
+            assert all(tags[plat] in w and "scipy" in w for w in wheels), wheels
             manifest = z.read("blender_manifest.toml").decode()
             assert f'platforms = ["{plat}"]' in manifest
-            assert "__init__.py" in names and "core/blendshape.py" in names
+            assert "__init__.py" in names and "core/blendshape.py" in names and "LICENSE" in names
+            assert 'website = "' in manifest and "maintainer = " in manifest and "@" in manifest
             assert not any(n.startswith(("tests/", "tools/", "assets/", ".ci/")) for n in names)
 
 
@@ -55,6 +61,12 @@ def test_install_enable_run_operator_and_cli(built_zips, tmp_path):
     assert seen["module_file"].startswith(str(user))          # the installed copy, not the repo
     assert seen["cli_registered"]
     assert "scipy" in seen["wheel_dirs"] and seen["site_on_path"]
+    assert seen["scipy_abis"] == [seen["python"].replace(".", "")], seen["scipy_abis"]  # the wheel for this Python
+    assert seen["scipy_file"], "the operators ran without importing scipy"
+    if BUNDLED_SCIPY_ONLY:
+        assert not seen["venv_has_scipy"], "this run needs a Python without its own SciPy"
+    if not seen["venv_has_scipy"]:  # so the SciPy that ran is the bundled wheel for this Python
+        assert seen["scipy_file"].startswith(seen["site"] + os.sep), (seen["scipy_file"], seen["site"])
     assert seen["check_rig"] == ["FINISHED"] and seen["key_sliders"] == ["FINISHED"]
     assert seen["add_pin"] == ["FINISHED"] and seen["solve_pins"] == ["FINISHED"]
     assert seen["retarget"] == ["FINISHED"] and seen["analyse_rig"] == ["FINISHED"]

@@ -2,7 +2,7 @@
 
 References are built here from the raw arrays (neutral, deltas, barycentric pins) and solved with
 OSQP, scipy (lsq_linear / L-BFGS-B), numpy linear algebra or analytic answers; they never go through
-core.manipulation.solve's own matrix builders.
+core.manipulation's own matrix builders.
 """
 import numpy as np
 import osqp
@@ -10,11 +10,11 @@ import pytest
 import scipy.sparse as sp
 from scipy.optimize import minimize
 
-import core.manipulation.solve as direct
+import core.manipulation as direct
 from core.blendshape import BlendshapeModel, Combination, InBetween
-from core.manipulation.solve import (DragResult, Pin, WeightPrior, drag_objective, pin_matrix, pin_positions,
-                         pin_rest_positions, solve_drag, solve_drag_reference, train_prior)
-from core.result import ShapeSpaceError
+from core.manipulation import (DragResult, DragSession, Pin, WeightPrior, drag_objective, pin_matrix,
+                               pin_positions, pin_rest_positions, solve_drag, solve_drag_reference, train_prior)
+from core.result import ShapeSpaceError, Status
 
 
 # =========================================================================== independent helpers
@@ -172,7 +172,7 @@ def test_solve_drag_matches_reference_and_osqp(k, localized, seed):
     np.testing.assert_allclose(drag_objective(model, pins, targets, res.weights, w0), f, rtol=1e-12)
     pos = ref_bary(ref_eval(model.neutral, model.deltas, res.weights, 0, 1), pins)
     np.testing.assert_allclose(res.residuals, np.linalg.norm(pos - targets, axis=1), rtol=1e-9, atol=1e-12 * size)
-    assert isinstance(res, DragResult) and res.status in (0, 1)
+    assert isinstance(res, DragResult) and res.status in (Status.OK, Status.WARNING)
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -280,6 +280,31 @@ def test_small_alpha_matches_reference(alpha):
     assert np.abs(res.weights - w_star).max() <= np.abs(w_ref - w_star).max() + 1e-6
 
 
+# =========================================================================== one drag, one session
+def test_drag_session_warm_starts_reach_the_cold_optimum():
+    """Mouse moves solved through one DragSession (warm sliders, dual and pin rows) give the cold solves' optimum."""
+    model, pins, targets, _ = _reachable_linear(1)
+    n = model.n_targets
+    rest = ref_rest(model.neutral, pins)
+    session = DragSession()
+    for t in np.linspace(0.1, 1.0, 6):
+        goal = (1 - t) * rest + t * targets
+        warm = solve_drag(model, pins, goal, w0=np.zeros(n), session=session)
+        cold = solve_drag(model, pins, goal, w0=np.zeros(n))
+        prob = Eq45(model.neutral, model.deltas, pins, goal, np.zeros(n), 0.1, 0.001, np.zeros(n), np.ones(n))
+        assert rel_gap(prob.f(warm.weights), prob.f(cold.weights)) <= 1e-9
+        np.testing.assert_allclose(session.weights, warm.weights)
+    assert session.dual is not None and session.dual.shape == (3 * len(pins),)
+    assert set(warm.diagnostics) == set(cold.diagnostics)     # nothing of the session rides in the result
+    rows = session.rows
+    solve_drag(model, pins, targets, w0=np.zeros(n), session=session)
+    assert session.rows is rows                               # same model and pins: rows reused
+    fewer = solve_drag(model, pins[:-1], targets[:-1], w0=np.zeros(n), session=session)
+    assert session.rows is not rows and session.rows.R.shape == (3 * (len(pins) - 1), n)
+    ref = solve_drag(model, pins[:-1], targets[:-1], w0=np.zeros(n))
+    np.testing.assert_allclose(fewer.weights, ref.weights, atol=1e-9)
+
+
 # =========================================================================== slider ranges, mute, masks
 def _wide_range_case():
     rng = np.random.default_rng(8)
@@ -369,7 +394,7 @@ def test_pin_on_unmoved_point_warns():
     pins = [Pin.at_vertex(17)] + random_pins(rng, p, 2)
     targets = ref_rest(model.neutral, pins) + 0.05 * bbox_diagonal(model.neutral)
     res = solve_drag(model, pins, targets, w0=np.zeros(n))
-    assert res.status == 1
+    assert res.status == Status.WARNING
     assert "no shape key moves" in res.message
     assert np.all(np.isfinite(res.weights))
     prob = Eq45(model.neutral, deltas, pins, targets, np.zeros(n), 0.1, 0.001, np.zeros(n), np.ones(n))
@@ -389,7 +414,7 @@ def test_two_pins_same_point_met_halfway():
     t_other = ref_rest(model.neutral, other)
     w0 = np.full(n, 0.2)
     res = solve_drag(model, [tri, tri] + other, np.vstack([t1, t2, t_other]), w0=w0)
-    assert res.status == 1 and "share a point" in res.message
+    assert res.status == Status.WARNING and "share a point" in res.message
     # ‖r − t1‖² + ‖r − t2‖² = 2‖r − (t1+t2)/2‖² + const: same optimum as both pins at the midpoint …
     mid = 0.5 * (t1 + t2)
     both_mid = solve_drag_reference(model, [tri, tri] + other, np.vstack([mid, mid, t_other]), w0=w0)
@@ -418,7 +443,7 @@ def test_absurd_target_gives_bounded_weights():
     res = solve_drag(model, pins, targets, w0=np.zeros(n))
     assert np.all(np.isfinite(res.weights))
     assert np.all(res.weights >= 0) and np.all(res.weights <= 1)
-    assert res.status == 1 and "cannot reach" in res.message
+    assert res.status == Status.WARNING and "cannot reach" in res.message
     prob = Eq45(model.neutral, model.deltas, pins, targets, np.zeros(n), 0.1, 0.001, np.zeros(n), np.ones(n))
     w_ref = solve_drag_reference(model, pins, targets, w0=np.zeros(n))
     assert rel_gap(prob.f(res.weights), prob.f(w_ref)) <= 1e-9
@@ -871,11 +896,13 @@ def test_driven_slopes_match_finite_differences():
     model, ib, cb = nonlinear_model(4)
     rng = np.random.default_rng(4)
     h = 1e-6
+
+    def vals(x):
+        return np.array([tent(x[0], (0, .5, 1)), tent(x[2], (0, .5, 1)), x[1] * x[3], x[2] * x[4] * x[5]])
+
     for _ in range(10):
         w = rng.uniform(0.02, 0.98, 6)
         w[[0, 2]] = np.where(np.abs(w[[0, 2]] - 0.5) < 0.02, 0.3, w[[0, 2]])      # away from the knot
-        vals = lambda x: np.array([tent(x[0], (0, .5, 1)), tent(x[2], (0, .5, 1)),
-                                   x[1] * x[3], x[2] * x[4] * x[5]])
         fd = np.column_stack([(vals(w + h * e) - vals(w - h * e)) / (2 * h) for e in np.eye(6)])
         np.testing.assert_allclose(model.driven_slopes(w), fd, atol=1e-8)
         np.testing.assert_allclose(model.driven_values(w), vals(w), atol=1e-14)

@@ -1,37 +1,65 @@
-"""Pins on a mesh, prior training from actions, and applying drag solves to the sliders."""
+"""Direct manipulation in Blender: pins stored on a mesh, prior training from actions, drag solves to sliders.
+
+Pins live in ``Object.shapespace.pins`` (:class:`SHAPESPACE_PG_pin`: three
+vertex indices, three barycentric weights padded with zeros, a target in
+shape-key space and a stationary flag).  Every write of pins, pin targets and
+the active pin goes through the verbs here (:func:`add_pin`,
+:func:`remove_pin`, :func:`clear_pins`, :func:`set_pin_target`,
+:func:`set_active_pin`, :func:`undo_drag`); :func:`solve_pins` runs the core
+solve (:func:`core.manipulation.solve_drag`) and writes the sliders.  An
+interactive drag passes one :class:`core.manipulation.DragSession` to every
+:func:`solve_pins` of the drag.
+"""
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
 import bpy
 from mathutils.bvhtree import BVHTree
 
-from ..core.manipulation.solve import Pin, pin_positions, solve_drag, train_prior
+from ..core.blendshape import BlendshapeModel
+from ..core.errors import ErrorCode
+from ..core.manipulation import DragResult, DragSession, Pin, WeightPrior, pin_positions, solve_drag, train_prior
 from ..core.result import ShapeSpaceError
 from . import actions, meshes, shapekeys
 from .arrays import read_float
 
 
 def settings(obj):
+    """The object's pin-and-drag settings (``Object.shapespace``)."""
     return obj.shapespace
+
+
+def stored_pin(vertices: Sequence[int], weights: Sequence[float]) -> Pin:
+    """The :class:`Pin` of stored (or operator) fields: 3 vertices and 3 weights, unused trailing weights 0."""
+    count = 3 if weights[2] != 0.0 else (2 if weights[1] != 0.0 else 1)
+    return Pin(tuple(vertices[:count]), tuple(weights[:count]))
 
 
 def read_pins(obj):
     """Pins and their targets (shape-key space), ``(list of Pin, (k, 3) array, stationary (k,))``."""
     pins, targets, still = [], [], []
     for item in settings(obj).pins:
-        count = 3 if item.weights[2] != 0.0 else (2 if item.weights[1] != 0.0 else 1)
-        pins.append(Pin(tuple(item.vertices[:count]), tuple(item.weights[:count])))
+        pins.append(stored_pin(item.vertices, item.weights))
         targets.append(tuple(item.target))
         still.append(item.stationary)
     return pins, np.array(targets, dtype=np.float64).reshape(-1, 3), np.array(still, dtype=bool)
 
 
-def add_pin(obj, pin: Pin, target, stationary: bool = False) -> int:
-    """Store a pin on the object; return its index."""
+def add_pin(obj, pin: Pin, target=None, stationary: bool = False, model: BlendshapeModel | None = None) -> int:
+    """Store a pin on the object, make it the active pin and return its index.
+
+    ``target`` (3,) in shape-key space; ``None`` pins the point where it is now
+    (at the current sliders of ``model``, read from ``obj`` when not given).
+    """
+    if target is None:
+        model = model or shapekeys.read_blendshape_model(obj)
+        target = pin_positions(model, [pin], model.values)[0]
     p = len(obj.data.vertices)
     if any(v < 0 or v >= p for v in pin.vertices):
-        raise ShapeSpaceError(f"pin vertex out of range 0..{p - 1}", "pin")
+        raise ShapeSpaceError(f"pin vertex out of range 0..{p - 1}", ErrorCode.PIN)
     item = settings(obj).pins.add()
     v = list(pin.vertices) + [pin.vertices[0]] * (3 - len(pin.vertices))
     w = list(pin.weights) + [0.0] * (3 - len(pin.weights))
@@ -42,13 +70,64 @@ def add_pin(obj, pin: Pin, target, stationary: bool = False) -> int:
     return settings(obj).active_pin
 
 
+def _pin_index(obj, index: int) -> int:
+    if not 0 <= index < len(settings(obj).pins):
+        raise ShapeSpaceError(f"there is no pin {index}", ErrorCode.RANGE)
+    return index
+
+
+def remove_pin(obj, index: int = -1) -> int:
+    """Remove pin ``index`` (``-1``: the active pin); return the index removed."""
+    st = settings(obj)
+    index = _pin_index(obj, st.active_pin if index < 0 else index)
+    st.pins.remove(index)
+    st.active_pin = min(st.active_pin, len(st.pins) - 1)
+    return index
+
+
+def clear_pins(obj) -> None:
+    """Remove every pin of the object."""
+    settings(obj).pins.clear()
+    settings(obj).active_pin = 0
+
+
+def set_pin_target(obj, index: int, target) -> None:
+    """Move pin ``index``'s target (3,), shape-key space."""
+    settings(obj).pins[_pin_index(obj, index)].target = tuple(float(x) for x in target)
+
+
+def set_active_pin(obj, index: int) -> None:
+    """Make pin ``index`` the active one (the list's selection)."""
+    settings(obj).active_pin = _pin_index(obj, index)
+
+
+def pin_target(obj, index: int) -> tuple:
+    """Pin ``index``'s target, shape-key space."""
+    return tuple(settings(obj).pins[_pin_index(obj, index)].target)
+
+
+def undo_drag(obj, before, index: int, created: bool, start_target) -> None:
+    """Put back what a cancelled drag changed.
+
+    ``before`` is ``(names, values)`` of the sliders when the drag started; the
+    pin the drag created is removed, the pin it moved gets ``start_target`` back.
+    """
+    shapekeys.write_slider_values(obj, *before)
+    st = settings(obj)
+    if created:
+        st.pins.remove(index)
+        st.active_pin = max(0, len(st.pins) - 1)
+    else:
+        st.pins[index].target = start_target
+
+
 def check_pins(obj) -> None:
     """Raise if stored pins refer to vertices the mesh no longer has."""
     p = len(obj.data.vertices)
     for j, item in enumerate(settings(obj).pins):
         if max(item.vertices) >= p:
             raise ShapeSpaceError(
-                f"pin {j} refers to vertex {max(item.vertices)} but the mesh has {p}: clear the pins", "pin")
+                f"pin {j} refers to vertex {max(item.vertices)} but the mesh has {p}: clear the pins", ErrorCode.PIN)
 
 
 def surface_pin(obj, depsgraph, origin_world, direction_world):
@@ -61,7 +140,7 @@ def surface_pin(obj, depsgraph, origin_world, direction_world):
     try:
         if len(mesh.vertices) != len(obj.data.vertices):
             raise ShapeSpaceError("modifiers change this mesh's topology: pins need deform-only modifiers",
-                                  "topology_modifiers")
+                                  ErrorCode.TOPOLOGY_MODIFIERS)
         inv = np.linalg.inv(meshes.world_matrix(obj))
         o = inv[:3, :3] @ np.asarray(origin_world, float) + inv[:3, 3]
         d = inv[:3, :3] @ np.asarray(direction_world, float)
@@ -94,6 +173,14 @@ def _barycentric(point, tri):
     w = (d00 * d21 - d01 * d20) / den
     bary = np.clip(np.array([1.0 - v - w, v, w]), 0.0, 1.0)
     return bary / bary.sum()
+
+
+def move_pin(obj, depsgraph, index: int, model: BlendshapeModel, weights, deformed_target) -> np.ndarray:
+    """Set pin ``index``'s target from a point on the deformed surface (object space); return it in shape space."""
+    pins, _, _ = read_pins(obj)
+    target = deformed_to_shape_space(obj, depsgraph, pins[_pin_index(obj, index)], model, weights, deformed_target)
+    set_pin_target(obj, index, target)
+    return target
 
 
 def deformed_to_shape_space(obj, depsgraph, pin: Pin, model, weights, deformed_target):
@@ -131,29 +218,31 @@ def deformed_pin_positions(obj, depsgraph) -> np.ndarray:
     return np.array([sum(b * co[v] for v, b in zip(p.vertices, p.weights)) for p in pins])
 
 
-def prior_from_settings(obj, model):
+def prior_from_settings(obj, model: BlendshapeModel) -> WeightPrior | None:
     """Train the learned prior from the panel's action and frame range (None in other modes)."""
     st = settings(obj)
     if st.mode != "LEARNED":
         return None
     if st.prior_action is None:
-        raise ShapeSpaceError("learned mode needs a prior action: pick one in the panel", "no_prior")
+        raise ShapeSpaceError("learned mode needs a prior action: pick one in the panel", ErrorCode.NO_PRIOR)
     curves = actions.shape_key_curves(obj, st.prior_action)
     known = [n for n in model.names if n in curves]
     if not known:
         raise ShapeSpaceError(f"action {st.prior_action.name!r} animates none of {obj.name!r}'s shape keys",
-                              "prior_constant")
+                              ErrorCode.PRIOR_CONSTANT)
     if st.prior_end < st.prior_start:
-        raise ShapeSpaceError("the prior's frame range is empty (end before start)", "prior_frames")
+        raise ShapeSpaceError("the prior's frame range is empty (end before start)", ErrorCode.PRIOR_FRAMES)
     frames = np.arange(st.prior_start, st.prior_end + 1, dtype=np.float64)
     weights = actions.sample_shape_keys(obj, model.names, frames, action=st.prior_action)
     return train_prior(weights, model.names)
 
 
-def solve_pins(obj, x0=None, model=None, prior=None, w0=None, warm=None):
-    """Solve for the sliders from the stored pins and write them; return the DragResult.
+def solve_pins(obj, x0=None, model: BlendshapeModel | None = None, prior: WeightPrior | None = None, w0=None,
+               session: DragSession | None = None) -> DragResult:
+    """Solve for the sliders from the stored pins and the panel's settings, write them; return the DragResult.
 
-    ``warm`` is the previous mouse-move's result (its weights, duals and pin rows are reused).
+    ``session`` is the interactive drag this solve belongs to (its pin rows,
+    previous sliders and duals warm-start the solve); ``None`` for a one-off solve.
     """
     model = model or shapekeys.read_blendshape_model(obj)
     check_pins(obj)
@@ -164,14 +253,14 @@ def solve_pins(obj, x0=None, model=None, prior=None, w0=None, warm=None):
     w0 = model.values if w0 is None else w0
     result = solve_drag(model, pins, targets, w0, alpha=st.alpha, mu=st.mu, prior=prior,
                         prior_form="pca" if st.prior_form == "PCA" else "covariance", snap=st.snap, x0=x0,
-                        warm=warm)
+                        session=session)
     shapekeys.write_slider_values(obj, model.names, result.weights)
     return result
 
 
 def current_sliders(obj):
     """``(names, values)`` of the free sliders."""
-    names = actions.slider_names(obj)
+    names = shapekeys.slider_names(obj)
     return names, shapekeys.read_slider_values(obj, names)
 
 

@@ -1,0 +1,85 @@
+"""What the pose-space capability stores on a mesh, and the names of what it creates.
+
+Each example (``SHAPESPACE_PG_example``) keeps three JSON strings, read and
+written through :mod:`bridge.storage` with a versioned schema:
+
+- ``pose`` — where in pose space it was sculpted (the feature vector);
+- ``pseudo_pose`` — where it is interpolated when moved (Shape-by-Example
+  pseudo-example), empty otherwise;
+- ``target_values`` — the driven targets' values recorded at it.
+
+Version 1 stores ``{"schema_version": 1, "values": [...]}``; files saved by
+ShapeSpace 0.1.0 hold bare JSON lists and still load.  Damage raises
+``ShapeSpaceError`` (code ``corrupt_metadata``) naming the example.
+"""
+from __future__ import annotations
+
+import numbers
+
+from ...core.errors import ErrorCode
+from ...core.result import ShapeSpaceError
+from ...core.schema import Schema
+from .. import storage
+from .pose import settings
+
+#: Suffix of the posed copy an example is sculpted on.
+SCULPT_SUFFIX = "_sculpt"
+#: The shape key holding weighted PSD's per-vertex result (the example keys stay at 0).
+WPSD_KEY = "ShapeSpace_WPSD"
+
+POSE_SCHEMA = Schema("pose-space example pose", 1, fields={"values": "list"}, list_blob=True)
+PSEUDO_POSE_SCHEMA = Schema("pose-space pseudo-example pose", 1, fields={"values": "list"}, list_blob=True)
+TARGET_VALUES_SCHEMA = Schema("driven target values of an example", 1, fields={"values": "list"}, list_blob=True)
+
+
+def find_example(obj, name: str):
+    """The example called ``name`` (code ``missing_example`` when there is none)."""
+    ex = settings(obj).examples.get(name)
+    if ex is None:
+        raise ShapeSpaceError(f"there is no example {name!r}", ErrorCode.MISSING_EXAMPLE)
+    return ex
+
+
+def _read_values(ex, attr: str, schema: Schema) -> list:
+    values = storage.read_string_blob(ex, attr, schema)["values"]
+    if not all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in values):
+        raise ShapeSpaceError(f"damaged ShapeSpace data in {storage.where(ex, attr)}: "
+                              "field 'values' must hold numbers only", ErrorCode.CORRUPT_METADATA)
+    return [float(v) for v in values]
+
+
+def _write_values(ex, attr: str, schema: Schema, values) -> None:
+    storage.write_string_blob(ex, attr, schema, {"values": [float(v) for v in values]})
+
+
+def example_pose(ex) -> list:
+    """Where the example was sculpted (empty when never recorded)."""
+    return _read_values(ex, "pose", POSE_SCHEMA)
+
+
+def set_example_pose(ex, pose) -> None:
+    _write_values(ex, "pose", POSE_SCHEMA, pose)
+
+
+def pseudo_pose(ex) -> list:
+    """Where a moved example is interpolated; empty when it was not moved."""
+    return _read_values(ex, "pseudo_pose", PSEUDO_POSE_SCHEMA)
+
+
+def set_pseudo_pose(ex, pose) -> None:
+    """Move the example to ``pose``; an empty ``pose`` puts it back where it was sculpted."""
+    _write_values(ex, "pseudo_pose", PSEUDO_POSE_SCHEMA, pose)
+
+
+def interpolation_pose(ex) -> list:
+    """Where the example is interpolated: its pseudo pose when moved, else its own pose."""
+    return pseudo_pose(ex) or example_pose(ex)
+
+
+def target_values(ex) -> list:
+    """The driven targets' values recorded at the example (empty when never recorded)."""
+    return _read_values(ex, "target_values", TARGET_VALUES_SCHEMA)
+
+
+def set_target_values(ex, values) -> None:
+    _write_values(ex, "target_values", TARGET_VALUES_SCHEMA, values)

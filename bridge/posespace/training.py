@@ -1,0 +1,60 @@
+"""Training a mesh's pose-space deformer from its examples, and flagging bad examples (thesis ch. 8)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ...core.errors import ErrorCode
+from ...core.posespace.examples import example_issues
+from ...core.posespace.psd import skin_group_inputs, train_psd
+from ...core.result import ShapeSpaceError
+from .. import skin
+from .examples import example_correctives
+from .pose import readers, settings
+from .stored import interpolation_pose
+
+
+def trained_deformer(obj) -> tuple:
+    """Train the object's pose-space deformer from its examples (muted examples left out).
+
+    Returns ``(PoseSpaceDeformer, example names)`` in the deformer's example order.
+    """
+    st = settings(obj)
+    key = obj.data.shape_keys
+    active = [ex for ex in st.examples if not ex.mute]
+    if not active:
+        raise ShapeSpaceError("no (unmuted) examples to interpolate", ErrorCode.NO_EXAMPLES)
+    missing = [ex.name for ex in active if key is None or ex.name not in key.key_blocks]
+    if missing:
+        raise ShapeSpaceError(f"the corrective keys {', '.join(missing)} were deleted", ErrorCode.MISSING_KEY)
+    rs = readers(obj)
+    n_features = sum(r.dims for r in rs)
+    poses = []
+    for ex in active:
+        pose = interpolation_pose(ex)
+        if len(pose) != n_features:
+            raise ShapeSpaceError(f"example {ex.name!r} was recorded with a different pose space; record it "
+                                  "again", ErrorCode.STALE_EXAMPLE)
+        poses.append(pose)
+    D = example_correctives(obj, active)
+    method = st.method.lower()
+    kwargs = {}
+    if method == "wpsd":
+        d = skin.read_skinning(obj).deformers[0]
+        kwargs = skin_group_inputs(rs, d.bone_names, d.weights.bone_index, d.weights.weight)
+    return train_psd(np.array(poses), D, method, **kwargs), [ex.name for ex in active]
+
+
+def flag_examples(obj) -> list:
+    """Recompute duplicate/conflict/outlier flags on the examples; returns the core issues."""
+    st = settings(obj)
+    exs = list(st.examples)
+    if not exs or obj.data.shape_keys is None:
+        return []
+    poses = [interpolation_pose(ex) for ex in exs]
+    if len({len(p) for p in poses}) != 1:
+        return []
+    D = example_correctives(obj, exs, missing_as_zero=True)
+    issues = example_issues(np.array(poses), D, [ex.name for ex in exs])
+    for ex in exs:
+        ex.flags = ", ".join(sorted({i.code.replace("_", " ") for i in issues if ex.name in i.items}))
+    return issues

@@ -1,0 +1,107 @@
+"""What ``shapespace info`` reports about a file: typed, JSON-ready dataclasses (no Blender here).
+
+The bridge (:mod:`bridge.inventory`) fills these from ``bpy.data``; the command line prints
+``FileInventory.to_json()``.  Field names are the JSON keys, so the report format is defined here once.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .errors import ErrorCode
+from .result import Issue, Report, ShapeSpaceError
+
+__all__ = ["IssueInfo", "ShapeKeyMeshInfo", "ArmatureModifierInfo", "SkinnedMeshInfo", "ArmatureInfo",
+           "ActionInfo", "SceneInfo", "FileInventory"]
+
+
+@dataclass
+class IssueInfo:
+    """One finding (severity ``error``/``warning``/``info``, stable code, one-line message)."""
+
+    severity: str
+    code: str
+    message: str
+
+    @classmethod
+    def of(cls, issue: Issue) -> IssueInfo:
+        return cls(issue.severity, str(issue.code), issue.message)
+
+
+@dataclass
+class ShapeKeyMeshInfo:
+    """A mesh with shape keys: size, rank, ARKit coverage and problems (``None`` where unreadable)."""
+
+    object: str
+    vertices: int
+    shape_keys: int | None = None
+    reference_key: str | None = None
+    names: list = field(default_factory=list)
+    rank: int | None = None
+    arkit_channels: int | None = None
+    bbox_diagonal_local: float | None = None
+    animated_by: str | None = None
+    issues: list = field(default_factory=list)
+
+
+@dataclass
+class ArmatureModifierInfo:
+    name: str
+    armature: str
+    preserve_volume: bool
+
+
+@dataclass
+class SkinnedMeshInfo:
+    """A mesh deformed by Armature modifiers, with its skinning problems."""
+
+    object: str
+    vertices: int
+    modifiers: list = field(default_factory=list)
+    issues: list = field(default_factory=list)
+
+
+@dataclass
+class ArmatureInfo:
+    object: str
+    bones: int
+    deform_bones: int
+    action: str | None
+
+
+@dataclass
+class ActionInfo:
+    """An action: frame range, what it animates, and whether any key sits between frames."""
+
+    name: str
+    frame_range: list
+    fcurves: int
+    shape_key_curves: int
+    bone_curves: int
+    slots: list
+    fractional_keys: bool
+
+
+@dataclass
+class SceneInfo:
+    name: str
+    fps: float
+    frame_start: int
+    frame_end: int
+
+
+@dataclass
+class FileInventory(Report):
+    """Everything ``shapespace info`` reports about one file."""
+
+    file: str | None
+    blender: str
+    scene: SceneInfo
+    shape_key_meshes: list = field(default_factory=list)
+    skinned_meshes: list = field(default_factory=list)
+    armatures: list = field(default_factory=list)
+    actions: list = field(default_factory=list)
+
+    def require_rigs(self) -> None:
+        """Refuse a file with nothing ShapeSpace can work on."""
+        if not (self.shape_key_meshes or self.skinned_meshes or self.armatures):
+            raise ShapeSpaceError("no meshes with shape keys, armatures or skinned meshes found", ErrorCode.NO_RIGS)
