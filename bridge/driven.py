@@ -191,7 +191,10 @@ def prune(key) -> dict:
     removed is a plain slider again.  The stored metadata only supplies the exact in-between weights
     (the driver expression holds them to the last bit as well).
     """
-    stored = metadata(key)
+    try:
+        stored = metadata(key)
+    except ShapeSpaceError:          # damaged metadata: the drivers alone say it all (Check Rig names the damage)
+        stored = {"inbetweens": {}, "combinations": {}}
     data = {"inbetweens": {}, "combinations": {}}
     if key is None or key.animation_data is None:
         return data

@@ -8,7 +8,7 @@ from ..core.inventory import (ActionInfo, ArmatureInfo, ArmatureModifierInfo, Fi
                               ShapeKeyMeshInfo, SkinnedMeshInfo)
 from ..core.names import ARKIT_52, canonical_name
 from ..core.skinning import diagnose_weights
-from . import actions, shapekeys, skin
+from . import actions, shapekeys, skin, storage
 
 
 def bone_shape_objects() -> set:
@@ -102,9 +102,11 @@ def check_object(obj) -> list:
     found = []
     has_keys = obj.data.shape_keys is not None
     has_skin = bool(skin.armature_modifiers(obj))
+    found += storage.damaged_blobs(obj)
     if has_keys or not has_skin:
-        found += shapekeys.check_shape_keys(obj)
-        if not any(i.severity == "error" for i in found):
+        structural = shapekeys.check_shape_keys(obj)
+        found += structural
+        if not any(i.severity == "error" for i in structural):
             found += diagnose_model(shapekeys.read_blendshape_model(obj, finite=False)).issues
     if has_skin:
         problems = skin.check_skinning(obj)

@@ -6,10 +6,20 @@ reduction in :mod:`core.animation`.  Sources are Live Link Face CSV files,
 actions and animated meshes; every result is a new action on the target's Key,
 with its :class:`~core.retarget.RetargetReport` kept on the Key (for the panel
 and *Discard Result*) next to the channel-mapping overrides.
+
+Nothing is lost: everything is validated and computed (keys included, checked
+finite) before the first write, and a failure while writing removes the new
+action and gives the rig back what it played.  Every result action has a fake
+user (a batch of results all survive saving), and the action a result displaces
+gets one too (whether it had one is remembered; *Discard Result* restores it).
+*Discard Result* only ever restores: it refuses when the rig no longer plays the
+result or when the action to restore is gone.
 """
 from __future__ import annotations
 
+import math
 import os
+import pathlib
 
 import bpy
 import numpy as np
@@ -22,14 +32,15 @@ from ..core.retarget import (GEOMETRIC_METHODS, METHODS, LearnedCloning, Retarge
                              key_frames_in_span, learned_cloning, peak_landmarks, read_live_link_csv, resample,
                              retarget_positions, retarget_weights, split_mapping, stabilise, suggest_key_frames,
                              transfer_motion)
+from ..core.retarget.performance import check_dense_budget, check_finite_weights
 from ..core.schema import Schema
-from ..core.validate import choice
+from ..core.validate import choice, non_negative, positive
 from . import actions, shapekeys, storage
 
-__all__ = ["METHODS", "KEY_SHAPES", "read_source", "channel_mapping", "suggest_key_poses", "retarget",
-           "retarget_dense", "reduce_action_keys", "last_report", "has_result", "discard_last", "stored_mapping",
-           "set_mapping", "remove_mapping", "landmark_pairs", "mesh_sequence", "dense_source_positions",
-           "add_landmark", "landmarks_from_shapes", "selected_vertex"]
+__all__ = ["METHODS", "KEY_SHAPES", "read_source", "channel_mapping", "resolve_mapping", "suggest_key_poses",
+           "retarget", "retarget_dense", "reduce_action_keys", "last_report", "has_result", "discard_last",
+           "stored_mapping", "set_mapping", "remove_mapping", "landmark_pairs", "mesh_sequence",
+           "dense_source_positions", "add_landmark", "landmarks_from_shapes", "selected_vertex"]
 
 KEY_POSE_MARKER = "key pose"
 KEY_SHAPES = ("BEZIER", "LINEAR")
@@ -40,16 +51,20 @@ NONLINEAR_MESSAGE = ("the target has in-between or combination shapes, so its fa
 MAPPING_PROP = "shapespace_mapping"
 MAPPING_SCHEMA = Schema("retarget channel mapping", 1, values="object")
 
+#: Largest magnitude of a mapping override's gain or offset.
+MAX_MAPPING_VALUE = 100.0
+
 #: Key custom property: the last retarget's report (the keys of :data:`REPORT_KEYS` that apply).
 LAST_PROP = "shapespace_last_retarget"
 REPORT_KEYS = ("source", "method", "frames", "mapped_channels", "position_error_rms", "velocity_error_rms",
-               "clipping_frames", "keys_kept_frac", "converged", "action", "previous_action")
+               "clipping_frames", "keys_kept_frac", "converged", "action", "previous_action", "previous_fake_user")
 LAST_SCHEMA = Schema(
     "last retarget result", 1,
     fields={"source": "string", "method": "string", "frames": "int", "position_error_rms": "number?",
             "velocity_error_rms": "number?", "clipping_frames": "int", "action": "string",
             "previous_action": "string"},
-    optional={"mapped_channels": "int", "keys_kept_frac": "number?", "converged": "bool"})
+    optional={"mapped_channels": "int", "keys_kept_frac": "number?", "converged": "bool",
+              "previous_fake_user": "bool"})
 
 LANDMARK_PREFIX = "lm_"
 STABLE_GROUP = "stable"
@@ -59,15 +74,12 @@ STABLE_GROUP = "stable"
 def read_source(path_or_action, scene) -> tuple:
     """A source as ``(names, scene frames, weights, issues)``: a Live Link Face CSV path or an action (name).
 
-    CSV timecode (60 fps) is resampled to the scene's frame rate starting at the scene's start frame.
+    CSV timecode (60 fps) is resampled to the scene's frame rate starting at the scene's start frame; a take
+    (or action) of fewer than 3 scene frames, and NaN or infinite samples, are refused.  Errors about a CSV
+    start with its path.
     """
     if isinstance(path_or_action, str) and path_or_action.lower().endswith(".csv"):
-        if not os.path.isfile(path_or_action):
-            raise ShapeSpaceError(f"file not found: {path_or_action}", "missing_file")
-        stream = read_live_link_csv(path_or_action)
-        frames, w = resample(stream.times, stream.weights, scene.render.fps, scene.frame_start,
-                             scene.render.fps_base)
-        return stream.names, frames, w, stream.issues
+        return _read_csv_source(path_or_action, scene)
     action = bpy.data.actions.get(path_or_action) if isinstance(path_or_action, str) else path_or_action
     if action is None:
         raise ShapeSpaceError(f"no CSV file or action named {path_or_action!r}", "missing_source")
@@ -85,28 +97,73 @@ def read_source(path_or_action, scene) -> tuple:
                               "too_short")
     names = sorted(curves)
     w = np.stack([actions.sample_curve(curves[n], frames) for n in names], axis=1)
+    bad = ~np.isfinite(w)
+    if bad.any():
+        f, j = (int(i) for i in np.argwhere(bad)[0])
+        raise ShapeSpaceError(f"action {action.name!r}: the curve of {names[j]!r} is NaN or infinite at frame "
+                              f"{frames[f]:g}", ErrorCode.NON_FINITE)
     return names, frames, w, []
 
 
+def _read_csv_source(path: str, scene) -> tuple:
+    """A Live Link Face CSV resampled to the scene's frames (errors name the file)."""
+    if not os.path.lexists(path):
+        raise ShapeSpaceError(f"file not found: {path}", ErrorCode.MISSING_FILE)
+    stream = read_live_link_csv(pathlib.Path(path))
+    rate = scene.render.fps / scene.render.fps_base
+    try:
+        frames, w = resample(stream.times, stream.weights, scene.render.fps, scene.frame_start,
+                             scene.render.fps_base)
+    except ShapeSpaceError as exc:
+        raise ShapeSpaceError(f"{path}: {exc}", exc.code) from None
+    if frames.size < 3:
+        raise ShapeSpaceError(f"{path}: the take lasts {stream.times[-1]:.3f} s, {frames.size} frame(s) at "
+                              f"{rate:g} fps; at least 3 are needed", ErrorCode.TOO_SHORT)
+    return stream.names, frames, w, stream.issues
+
+
 def channel_mapping(obj, source_names, target_names) -> list:
-    """``[(source index, target index, gain, offset)]``: stored overrides first, then name matching."""
+    """``[(source index, target index, gain, offset)]``: stored overrides first, then name matching
+    (:func:`resolve_mapping` without its warnings)."""
+    return resolve_mapping(obj, source_names, target_names)[0]
+
+
+def resolve_mapping(obj, source_names, target_names) -> tuple:
+    """The channel mapping and its warnings: ``([(source index, target index, gain, offset)], [str])``.
+
+    Stored overrides win over name matching.  An override whose target key no longer exists (stale) is
+    reported by name, and its channel is matched by name when that is possible; an override with a NaN or
+    infinite gain or offset is refused naming the channel.
+    """
     stored = stored_mapping(obj)
     auto, _, _ = match_channels(source_names, target_names)
-    claimed = {e.get("target") for name, e in stored.items() if name in source_names}   # overrides win
-    out = []
-    for i, s in enumerate(source_names):
-        if s in stored:
-            entry = stored[s]
-            if entry.get("target") in target_names:
-                out.append((i, target_names.index(entry["target"]), float(entry.get("gain", 1.0)),
-                            float(entry.get("offset", 0.0))))
+    live, stale = {}, {}
+    for name, entry in stored.items():
+        if name not in source_names:
             continue
-        if s in auto and auto[s] not in claimed:
-            out.append((i, target_names.index(auto[s]), 1.0, 0.0))
+        gain, offset = float(entry.get("gain", 1.0)), float(entry.get("offset", 0.0))
+        if not all(math.isfinite(v) and abs(v) <= MAX_MAPPING_VALUE for v in (gain, offset)):
+            raise ShapeSpaceError(f"the channel mapping of {name!r} has a non-finite or out-of-range gain or offset "
+                                  f"({gain:g}, {offset:g}): fix it with Set Channel Mapping", ErrorCode.NON_FINITE)
+        (live if entry.get("target") in target_names else stale)[name] = (entry.get("target"), gain, offset)
+    claimed = {target for target, _, _ in live.values()}           # overrides win
+    out, warnings = [], []
+    for i, s in enumerate(source_names):
+        if s in live:
+            target, gain, offset = live[s]
+            out.append((i, target_names.index(target), gain, offset))
+            continue
+        by_name = auto.get(s) if auto.get(s) not in claimed else None
+        if s in stale:
+            what = (f"{s} was matched by name to {by_name}" if by_name is not None
+                    else f"{s} is not retargeted (fix or remove the override)")
+            warnings.append(f"the channel mapping {s} → {stale[s][0]} names no shape key of {obj.name!r}: {what}")
+        if by_name is not None:
+            out.append((i, target_names.index(by_name), 1.0, 0.0))
     if not out:
         raise ShapeSpaceError("the source and the target share no channels (check the names or the mapping)",
                               "no_mapping")
-    return out
+    return out, warnings
 
 
 def suggest_key_poses(source, scene, count: int = None) -> np.ndarray:
@@ -140,8 +197,12 @@ def _learned(obj, model, frames, src, key_pose_action) -> LearnedCloning:
 # ------------------------------------------------------------------ retarget
 def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e-7, key_tolerance: float = 0.0,
              action_name: str = None, key_shape: str = "BEZIER", key_pose_action=None) -> RetargetReport:
-    """Retarget ``source`` (CSV path or action) onto ``obj``'s sliders and write a new action."""
+    """Retarget ``source`` (CSV path or action) onto ``obj``'s sliders and write a new action.
+
+    Everything is validated and computed before the first write; on any failure the file is as before.
+    """
     choice(method, "method", METHODS)
+    lam, key_tolerance = _settings(lam, key_tolerance, key_shape)
     scene = scene or bpy.context.scene
     model = shapekeys.read_blendshape_model(obj)
     if not model.is_linear and method in GEOMETRIC_METHODS:
@@ -155,9 +216,12 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
         report.key_poses, report.learned_fit_rms = learned.key_poses, learned.fit_rms
         report.mapped_channels = learned.mapped_channels
     else:
-        pairs, gain, offset = split_mapping(channel_mapping(obj, names, model.names), model.n_targets)
+        mapping, warnings = resolve_mapping(obj, names, model.names)
+        report.issues += warnings
+        pairs, gain, offset = split_mapping(mapping, model.n_targets)
         raw = copy_weights(src, pairs, model.n_targets, gain, offset)             # unbounded ideal
         report.mapped_channels = len(pairs)
+    check_finite_weights(raw, model.names, "the mapped source")
     fit = retarget_weights(model, raw, method, lam)
     report.record(fit)
     return _write_result(obj, model.names, frames, fit.weights, action_name or f"{obj.name}_{method}",
@@ -169,6 +233,7 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
     """Retarget an animated mesh (any deformation) onto ``obj``'s sliders by geometric fitting."""
     if method not in GEOMETRIC_METHODS:
         raise ShapeSpaceError("a mesh performance needs a geometric method: perframe or spacetime", "method")
+    lam, key_tolerance = _settings(lam, key_tolerance, key_shape)
     scene = scene or bpy.context.scene
     model = shapekeys.read_blendshape_model(obj)
     if not model.is_linear:
@@ -176,6 +241,7 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
     frames = np.arange(scene.frame_start, scene.frame_end + 1, dtype=np.float64)
     if frames.size < 3:
         raise ShapeSpaceError(f"the scene range has {frames.size} frames; at least 3 are needed", "too_short")
+    check_dense_budget(frames.size, max(len(source_obj.data.vertices), model.n_vertices), "a mesh performance")
     fit = retarget_positions(model, dense_source_positions(source_obj, model, obj, scene, frames), method, lam)
     report = RetargetReport(source=source_obj.name, method=method, frames=int(frames.size), issues=[])
     report.record(fit)
@@ -183,40 +249,99 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
                          key_tolerance, key_shape, report)
 
 
+def _settings(lam, key_tolerance, key_shape) -> tuple:
+    """The retarget settings checked before any work: λ > 0 and the key tolerance ≥ 0, finite; the key shape."""
+    choice(key_shape, "key shape", KEY_SHAPES, ErrorCode.KEY_SHAPE)
+    return positive(lam, "lam"), non_negative(key_tolerance, "key tolerance")
+
+
+def _plan_curves(names, frames, W, key_tolerance: float, key_shape: str) -> tuple:
+    """Every curve to write, computed and checked before anything is written:
+    ``([(data path, frames, values, slopes or None)], fraction of the keys kept)``."""
+    plan, kept = [], 0
+    for j, name in enumerate(names):
+        path = actions.shape_key_path(name)
+        if key_tolerance <= 0:
+            plan.append((path, frames, W[:, j], None))
+        elif key_shape == "BEZIER":
+            idx, key_values, slopes = reduce_keys_bezier(frames, W[:, j], key_tolerance)
+            plan.append((path, frames[idx], key_values, slopes))
+        else:
+            idx = reduce_keys(frames, W[:, j], key_tolerance)
+            plan.append((path, frames[idx], W[idx, j], None))
+        kept += len(plan[-1][1])
+        if not all(np.isfinite(a).all() for a in plan[-1][1:] if a is not None):
+            raise ShapeSpaceError(f"the keys of {name!r} came out NaN or infinite; nothing was written",
+                                  ErrorCode.NON_FINITE)
+    return plan, kept / max(len(frames) * len(names), 1)
+
+
+def _write_plan(key, plan) -> None:
+    for path, x, y, slopes in plan:
+        if slopes is None:
+            actions.write_curve(key, path, x, y)
+        else:
+            actions.write_bezier_curve(key, path, x, y, slopes)
+
+
 def _write_result(obj, names, frames, W, action_name, key_tolerance, key_shape, report) -> RetargetReport:
     """Key ``W`` (f, n) into a new action on ``obj`` — every frame, or the fewest keys within
-    ``key_tolerance`` — and remember the report and the action it replaces (for Discard Result)."""
+    ``key_tolerance`` — and remember the report and the action it replaces (for Discard Result).
+
+    All keys are computed and checked first; a failure while writing removes the new action and gives the
+    rig back the action (and slot) it played, so the file is as before.  The new action gets a fake user;
+    the displaced one too (the report remembers whether it had one)."""
     choice(key_shape, "key shape", KEY_SHAPES, ErrorCode.KEY_SHAPE)             # before anything is written
-    key = obj.data.shape_keys
-    previous = actions.active_action(key)
+    check_finite_weights(W, names, "the retarget")
+    plan, kept = _plan_curves(names, np.asarray(frames, dtype=np.float64), W, key_tolerance, key_shape)
     if key_tolerance > 0:
+        report.keys_kept_frac = kept
+    key = obj.data.shape_keys
+    ad = key.animation_data
+    previous = ad.action if ad is not None else None
+    previous_slot = getattr(ad, "action_slot", None) if ad is not None else None
+    previous_fake = bool(previous.use_fake_user) if previous is not None else None
+    action = None
+    try:
         action = actions.new_action(key, action_name)
-        report.keys_kept_frac = reduce_action_keys(obj, names, frames, W, key_tolerance, key_shape)
-    else:
-        action = actions.key_shape_values(obj, names, frames, W, action_name)
-    report.action = action.name
-    report.previous_action = previous.name if previous is not None else ""
-    data = {k: v for k, v in report.to_json().items() if k in REPORT_KEYS}
-    storage.write_id_blob(key, LAST_PROP, LAST_SCHEMA, data)
+        _write_plan(key, plan)
+        report.action = action.name
+        report.previous_action = previous.name if previous is not None else ""
+        report.previous_fake_user = previous_fake
+        data = {k: v for k, v in report.to_json().items() if k in REPORT_KEYS}
+        storage.write_id_blob(key, LAST_PROP, LAST_SCHEMA, data)
+    except BaseException:
+        _restore(key, action, previous, previous_slot, had_animation=ad is not None)
+        raise
+    action.use_fake_user = True               # every result survives saving (a batch keeps them all)
+    if previous is not None:
+        previous.use_fake_user = True         # the displaced action too (Discard Result restores the flag)
     return report
+
+
+def _restore(key, made, previous, previous_slot, had_animation: bool) -> None:
+    """Undo a half-written result: delete ``made``, give ``key`` back ``previous`` (and its slot)."""
+    if made is not None and made.name in bpy.data.actions:
+        bpy.data.actions.remove(made)
+    if previous is not None:
+        ad = key.animation_data or key.animation_data_create()
+        ad.action = previous
+        if previous_slot is not None and hasattr(ad, "action_slot"):
+            ad.action_slot = previous_slot
+    elif not had_animation and key.animation_data is not None:
+        key.animation_data_clear()
 
 
 def reduce_action_keys(obj, names, frames, W, tolerance: float, key_shape: str = "BEZIER") -> float:
     """Rewrite the dense curves ``W`` (f, n) of ``names`` with the fewest keys within ``tolerance``
-    (smooth Bézier keys, or linear ones); returns the fraction of keys kept."""
+    (smooth Bézier keys, or linear ones) in the action ``obj``'s Key plays; returns the fraction of keys kept.
+    All keys are computed before the first curve is rewritten."""
     choice(key_shape, "key shape", KEY_SHAPES, ErrorCode.KEY_SHAPE)
-    key = obj.data.shape_keys
-    kept = 0
-    for j, name in enumerate(names):
-        path = actions.shape_key_path(name)
-        if key_shape == "BEZIER":
-            idx, key_values, slopes = reduce_keys_bezier(frames, W[:, j], tolerance)
-            actions.write_bezier_curve(key, path, frames[idx], key_values, slopes)
-        else:
-            idx = reduce_keys(frames, W[:, j], tolerance)
-            actions.write_curve(key, path, frames[idx], W[idx, j])
-        kept += idx.size
-    return kept / max(frames.size * len(names), 1)
+    tolerance = positive(tolerance, "key tolerance")
+    plan, kept = _plan_curves(names, np.asarray(frames, dtype=np.float64), np.asarray(W, dtype=np.float64),
+                              tolerance, key_shape)
+    _write_plan(obj.data.shape_keys, plan)
+    return kept
 
 
 # ------------------------------------------------------------------ the last result (stored on the Key)
@@ -240,19 +365,33 @@ def last_report(obj) -> RetargetReport | None:
 
 
 def discard_last(obj) -> str:
-    """Undo the last retarget's result: give the rig back the action it played before and delete the
-    retargeted action if nothing else uses it.  Returns the restored action's name ('' for none)."""
+    """Undo the last retarget's result: give the rig back the action it played before (with its fake-user
+    flag as it was) and delete the retargeted action if nothing else uses it.  Returns the restored action's
+    name ('' for none).
+
+    Only ever restores: refused (nothing changed) when the rig no longer plays the result, or when the
+    action to restore is no longer in the file (e.g. a file saved by ShapeSpace 0.1.0 that lost it).
+    """
     rep = last_report(obj)
     if rep is None:
         raise ShapeSpaceError(f"{obj.name!r} has no retarget result to discard", "no_result")
     key = obj.data.shape_keys
-    made = bpy.data.actions.get(rep.action)
-    previous = bpy.data.actions.get(rep.previous_action)
+    made = bpy.data.actions.get(rep.action) if rep.action else None
+    current = actions.active_action(key)
+    if current is not None and current != made:
+        raise ShapeSpaceError(f"{obj.name!r} plays {current.name!r}, not the retarget result {rep.action!r}: "
+                              "nothing was discarded", ErrorCode.NO_RESULT)
+    previous = bpy.data.actions.get(rep.previous_action) if rep.previous_action else None
+    if rep.previous_action and previous is None:
+        raise ShapeSpaceError(f"the action {rep.previous_action!r} that {rep.action!r} replaced is no longer in "
+                              "the file: nothing was discarded (the result is kept)", ErrorCode.NO_ACTION)
     if previous is not None:
         actions.assign_action(key, previous)
+        if rep.previous_fake_user is not None:
+            previous.use_fake_user = rep.previous_fake_user
     elif key.animation_data is not None:
         key.animation_data.action = None
-    if made is not None and made.users == 0:
+    if made is not None and made != previous and made.users - int(made.use_fake_user) == 0:
         bpy.data.actions.remove(made)
     del key[LAST_PROP]
     return previous.name if previous is not None else ""
@@ -275,6 +414,18 @@ def stored_mapping(obj) -> dict:
     return data
 
 
+def _mapping_number(source: str, label: str, value) -> float:
+    """A gain or offset: finite and within ±:data:`MAX_MAPPING_VALUE` (slider ranges lie within ±10)."""
+    value = float(value)
+    if not math.isfinite(value):
+        raise ShapeSpaceError(f"the {label} of {source!r} must be a finite number, got {value:g}",
+                              ErrorCode.NON_FINITE)
+    if abs(value) > MAX_MAPPING_VALUE:
+        raise ShapeSpaceError(f"the {label} of {source!r} must lie within ±{MAX_MAPPING_VALUE:g}, got {value:g}",
+                              ErrorCode.RANGE)
+    return value
+
+
 def remove_mapping(obj, source: str) -> None:
     """Drop the override of ``source`` (name matching applies again)."""
     data = stored_mapping(obj)
@@ -289,6 +440,7 @@ def set_mapping(obj, source: str, target: str, gain: float = 1.0, offset: float 
     key = obj.data.shape_keys
     if not source:
         raise ShapeSpaceError("name the source channel", "missing_channel")
+    gain, offset = _mapping_number(source, "gain", gain), _mapping_number(source, "offset", offset)
     if key is None or target not in key.key_blocks or target == key.reference_key.name:
         raise ShapeSpaceError(f"{obj.name!r} has no shape key {target!r} to map to", "missing_key")
     data = stored_mapping(obj)

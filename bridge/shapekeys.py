@@ -95,11 +95,11 @@ def read_blendshape_model(obj, finite: bool = True) -> BlendshapeModel:
     key = obj.data.shape_keys
     blocks = key.key_blocks
     ref = key.reference_key
-    neutral = read_float(ref.data, "co", 3).astype(np.float64)
+    neutral = read_float(ref.points, "co", 3).astype(np.float64)   # points: the bulk accessor (~100x .data)
     meta = driven.prune(key)
     sliders = set(slider_names(obj, meta))
     targets = [kb for kb in blocks if kb.name in sliders]
-    coords = {kb.name: read_float(kb.data, "co", 3).astype(np.float64) for kb in blocks}
+    coords = {kb.name: read_float(kb.points, "co", 3).astype(np.float64) for kb in blocks}
     if finite:
         _check_finite(obj, blocks, coords)
     need_groups = any(kb.vertex_group for kb in targets)
@@ -155,7 +155,10 @@ def read_slider_values(obj, names=None) -> np.ndarray:
 
 
 def write_slider_values(obj, names, values) -> None:
-    """Set ``value`` of the named keys in one bulk write; clamped to each slider range as Blender does."""
+    """Set ``value`` of the named keys in one bulk write; clamped to each slider range as Blender does.
+
+    Refuses (before writing anything) a non-finite value, naming the key: no solver can put NaN in a file.
+    """
     key = obj.data.shape_keys
     blocks = key.key_blocks
     values = np.asarray(values, dtype=np.float64).ravel()
@@ -165,6 +168,10 @@ def write_slider_values(obj, names, values) -> None:
     missing = [n for n in names if n not in index]
     if missing:
         raise ShapeSpaceError(f"{obj.name!r} has no shape keys named {', '.join(missing)}", "missing_key")
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise ShapeSpaceError(f"refusing to write {values[bad[0]]} into shape key {names[bad[0]]!r} of "
+                              f"{obj.name!r}: nothing was changed", "non_finite")
     current = read_float(blocks, "value", 1).astype(np.float64)
     lo = read_float(blocks, "slider_min", 1)
     hi = read_float(blocks, "slider_max", 1)

@@ -95,3 +95,27 @@ def upgrade_file(data) -> int:
                     setattr(ex, attr, new)
                     count += 1
     return count
+
+
+def damaged_blobs(obj) -> list:
+    """``core.Issue`` errors (code ``corrupt_metadata``) for every stored blob of ``obj`` that does not read.
+
+    Covers the blobs on the object's shape keys and its pose-space examples' strings; used by Check Rig.
+    """
+    from ..core.result import Issue, ShapeSpaceError
+    found = []
+    key = getattr(obj.data, "shape_keys", None) if obj is not None and obj.type == "MESH" else None
+    checks = []
+    if key is not None:
+        checks += [(key.get(prop), schema, where(key, prop)) for prop, schema in _key_blob_schemas().items()
+                   if prop in key]
+    if obj is not None and obj.type == "MESH":
+        for ex in obj.shapespace_psd.examples:
+            checks += [(getattr(ex, attr), schema, where(ex, attr))
+                       for attr, schema in _example_blob_schemas().items() if getattr(ex, attr)]
+    for text, schema, place in checks:
+        try:
+            _schema.loads(text, schema, place)
+        except ShapeSpaceError as exc:
+            found.append(Issue("error", "corrupt_metadata", str(exc)))
+    return found

@@ -26,7 +26,7 @@ from .result import ShapeSpaceError
 from .validate import array, non_negative
 
 __all__ = ["CONSTANT", "LINEAR", "sample_keys", "frames_to_seconds", "seconds_to_frames",
-           "reduce_keys", "reduce_keys_bezier", "curve_slopes", "hermite"]
+           "reduce_keys", "reduce_keys_bezier", "curve_slopes", "hermite", "chebyshev_fit"]
 
 CONSTANT = 0
 LINEAR = 1
@@ -240,19 +240,109 @@ def _fit_two_keys(A: np.ndarray, y: np.ndarray) -> tuple:
     return x, float(np.abs(A @ x - y).max())
 
 
-def _minimax_two_keys(A: np.ndarray, y: np.ndarray) -> tuple:
-    """Values and slopes minimising the max error exactly (a small linear program, HiGHS)."""
-    from scipy.optimize import linprog
+def _chebyshev_start(A: np.ndarray, y: np.ndarray) -> tuple:
+    """First reference of :func:`chebyshev_fit`: k independent rows (pivoted QR) plus the worst row of the
+    least-squares fit, with signs and dual weights from the null vector of their k × (k + 1) transpose."""
+    from scipy.linalg import qr
     k = A.shape[1]
-    ones = np.ones((y.size, 1))
-    res = linprog(np.r_[np.zeros(k), 1.0], A_ub=np.block([[A, -ones], [-A, -ones]]), b_ub=np.r_[y, -y],
-                  bounds=[(None, None)] * k + [(0, None)], method="highs")
-    return (res.x[:k], float(res.x[k])) if res.status == 0 else (None, np.inf)
+    rows = [int(r) for r in qr(A.T, mode="r", pivoting=True)[1][:k]]
+    r0 = np.abs(A @ np.linalg.lstsq(A, y, rcond=None)[0] - y)
+    r0[rows] = -1.0
+    rows.append(int(np.argmax(r0)))
+    u = np.ones(k + 1)
+    u[:k] = -np.linalg.solve(A[rows[:k]].T, A[rows[k]])
+    return np.array(rows), np.where(u < 0, -1.0, 1.0), np.abs(u) / np.abs(u).sum()
+
+
+def chebyshev_fit(A: ArrayLike, y: ArrayLike, stop_above: float = np.inf, max_iter: int = 500) -> tuple:
+    """Discrete Chebyshev (minimax) fit ``min_x ‖A x − y‖∞`` by the exchange algorithm (Stiefel).
+
+    The dual of the linear program ``min t  s.t.  −t ≤ A x − y ≤ t`` is
+    ``max yᵀu  s.t.  Aᵀu = 0, ‖u‖₁ ≤ 1``, whose basic solutions are
+    references of k + 1 rows S with signs σ.  On a reference the levelled
+    fit solves ``σᵢ (yᵢ − aᵢᵀx) = h`` (i ∈ S), a (k+1) × (k+1) system; the
+    row with the largest residual enters if it exceeds h, the ratio test on
+    the dual weights picks the row that leaves (a simplex step, so
+    non-Haar systems are fine), and h increases monotonically to the
+    optimum.  Each h is a lower bound of the optimum, so a caller who only
+    needs to know whether the optimum is ≤ a tolerance can stop early
+    (``stop_above``).  Rank-deficient A is reduced to a column basis
+    (pivoted QR) first.  Same optimum as ``scipy.optimize.linprog`` on the
+    linear program, at a few small solves instead of a general LP solver.
+
+    Parameters
+    ----------
+    A : array_like, shape (m, k)
+    y : array_like, shape (m,)
+    stop_above : float
+        Return as soon as the lower bound h exceeds this (``x`` is then None).
+    max_iter : int
+        Exchange steps before giving up (degenerate cycling; ``x`` None, error inf).
+
+    Returns
+    -------
+    x : ndarray (k,) or None
+    err : float
+        ``‖A x − y‖∞`` at the optimum, or the lower bound that exceeded ``stop_above``.
+    """
+    from scipy.linalg import qr
+    A = np.asarray(A, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    x = np.zeros(A.shape[1])
+    if y.size == 0:
+        return x, 0.0
+    _, R, piv = qr(A, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    k = int((d > 1e-12 * d[0]).sum()) if d.size and d[0] > 0 else 0
+    if k == 0 or k >= y.size:
+        x[piv[:k]] = np.linalg.lstsq(A[:, piv[:k]], y, rcond=None)[0] if k else 0.0
+        return x, float(np.abs(A @ x - y).max())
+    cols = piv[:k]
+    Ar = A[:, cols]
+    S, sigma, w = _chebyshev_start(Ar, y)
+    scale = float(np.abs(y).max())
+    last = np.ones(k + 1)
+    for _ in range(max_iter):
+        Minv = np.linalg.inv(np.vstack([(Ar[S] * sigma[:, None]).T, last]))
+        pi = Minv.T @ (sigma * y[S])
+        xr, h = pi[:k], pi[k]
+        if h > stop_above:
+            return None, float(h)
+        res = y - Ar @ xr
+        j = int(np.argmax(np.abs(res)))
+        if abs(res[j]) <= h + 1e-13 * scale:
+            x[cols] = xr
+            return x, float(np.abs(res).max())
+        tau = 1.0 if res[j] > 0 else -1.0
+        dd = Minv @ np.r_[tau * Ar[j], 1.0]
+        pos = dd > 1e-14
+        ratios = np.where(pos, w / np.where(pos, dd, 1.0), np.inf)
+        leave = int(np.argmin(ratios))
+        w = w - ratios[leave] * dd
+        w[leave] = ratios[leave]
+        S[leave], sigma[leave] = j, tau
+    return None, np.inf
+
+
+def _hermite_errors(t: np.ndarray, v: np.ndarray, m: np.ndarray, i: int, js: np.ndarray,
+                    ks: np.ndarray) -> np.ndarray:
+    """Max error over samples ``ks`` of the Hermite segments from sample i to each end in ``js``, shape (L,)
+    (samples at or beyond an end do not count)."""
+    h = t[js] - t[i]
+    s = (t[ks][None, :] - t[i]) / h[:, None]                         # (L, K)
+    inside = s < 1.0 - 1e-12
+    h00, h10 = (1 + 2 * s) * (1 - s) ** 2, s * (1 - s) ** 2
+    h01, h11 = s * s * (3 - 2 * s), s * s * (s - 1)
+    curve = h00 * v[i] + h10 * (h * m[i])[:, None] + h01 * v[js][:, None] + h11 * (h * m[js])[:, None]
+    return np.where(inside, np.abs(curve - v[ks][None, :]), 0.0).max(axis=1)
 
 
 def _interpolating_keys(t: np.ndarray, v: np.ndarray, m: np.ndarray, tol: float, max_span: int) -> list:
     """Stage 1 of :func:`reduce_keys_bezier`: the fewest samples whose Hermite (sample values and slopes)
-    stays within ``tol``, by a shortest path over the valid segments up to ``max_span`` samples long."""
+    stays within ``tol``, by a shortest path over the valid segments up to ``max_span`` samples long.
+
+    Exact, with two prunings that never change the answer: only ends the path could still improve are
+    tested, and a segment is first tested on a sparse subset of its samples (failing there is failing)."""
     n = t.size
     best = np.full(n, np.iinfo(np.int64).max)
     prev = np.full(n, -1)
@@ -262,19 +352,17 @@ def _interpolating_keys(t: np.ndarray, v: np.ndarray, m: np.ndarray, tol: float,
         if best[i] == np.iinfo(np.int64).max:
             continue
         js = i + offs[offs < n - i]                                  # candidate ends (L,)
-        h = t[js] - t[i]
+        js = js[best[i] + 1 < best[js]]
+        if js.size == 0:
+            continue
         ks = np.arange(i + 1, js[-1])                                # interior samples of the longest
-        if ks.size:
-            s = (t[ks][None, :] - t[i]) / h[:, None]                 # (L, K)
-            inside = s < 1.0 - 1e-12
-            h00, h10 = (1 + 2 * s) * (1 - s) ** 2, s * (1 - s) ** 2
-            h01, h11 = s * s * (3 - 2 * s), s * s * (s - 1)
-            curve = (h00 * v[i] + h10 * (h * m[i])[:, None] + h01 * v[js][:, None]
-                     + h11 * (h * m[js])[:, None])
-            err = np.where(inside, np.abs(curve - v[ks][None, :]), 0.0).max(axis=1)
-        else:
-            err = np.zeros(js.size)
-        ok = js[(err <= tol) & (best[i] + 1 < best[js])]
+        if ks.size > 16:                                             # sparse test first, exact after
+            js = js[_hermite_errors(t, v, m, i, js, ks[::ks.size // 8]) <= tol]
+            ks = np.arange(i + 1, js[-1]) if js.size else ks[:0]
+        if js.size == 0:
+            continue
+        err = _hermite_errors(t, v, m, i, js, ks) if ks.size else np.zeros(js.size)
+        ok = js[err <= tol]
         best[ok] = best[i] + 1
         prev[ok] = i
     return _shortest_path(prev)
@@ -291,8 +379,8 @@ def reduce_keys_bezier(times: ArrayLike, values: ArrayLike, tol: float, max_span
     over the valid segments (searched up to ``max_span`` samples long).
     (2) ``refine``: sweep the keys and drop each one whose two neighbours can
     absorb it — their values and slopes refitted (least squares, else the
-    minimax linear program) so that the max error over the samples they
-    govern stays within ``tol`` — until no key can go.  Stage 2 is what curve
+    minimax fit of :func:`chebyshev_fit`) so that the max error over the
+    samples they govern stays within ``tol`` — until no key can go.  Stage 2 is what curve
     fitters like Blender's Decimate do; starting it from the optimal
     interpolating solution gives fewer keys at the same max error.
 
@@ -362,8 +450,9 @@ def _absorb_keys(t: np.ndarray, v: np.ndarray, idx: list, kv: list, km: list, to
         while p < len(idx) - 1:
             A, y = _absorb_system(t, v, idx, kv, km, p)
             x, err = _fit_two_keys(A, y)
-            if err > tol:
-                x, err = _minimax_two_keys(A, y)
+            if err > tol and np.linalg.norm(A @ x - y) <= tol * np.sqrt(y.size):
+                # ‖r‖∞ ≥ ‖r_ls‖₂ / √m for every fit, so only then can the minimax one be within tol
+                x, err = chebyshev_fit(A, y, stop_above=tol)
             if err <= tol * (1 - 1e-6):
                 kv[p - 1], km[p - 1], kv[p + 1], km[p + 1] = x
                 del idx[p], kv[p], km[p]

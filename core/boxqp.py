@@ -20,12 +20,20 @@ Stopping test: the natural residual ``‖x − clip(x − ∇f(x))‖∞ ≤ tol
 max(1, ‖g‖∞)``, which is zero exactly at the KKT point; or, when no step
 decreases the objective measurably any more (the rounding limit of an
 ill-conditioned problem), a residual ≤ 1e-8 · max(1, ‖g‖∞).
+
+The small symmetric positive definite systems of both solvers are solved by
+Cholesky factorisation (:func:`_spd_solve`), not a general LU solve: besides
+halving the work, an LU solve (``numpy.linalg.solve``) on a multi-threaded
+OpenBLAS costs 5–100× more when it runs right after Blender has evaluated the
+depsgraph on its own threads (measured 40 µs–4 ms against 5–80 µs for 15–60
+unknowns), which is exactly when a drag solves.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg.lapack import dpotrf, dpotrs
 
 from .errors import ErrorCode
 from .result import Result, ShapeSpaceError, Status
@@ -58,6 +66,17 @@ class BoxQPResult(Result):
         return self.value
 
 
+def _spd_solve(H: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``H⁻¹ b`` for a symmetric positive definite ``H`` (LAPACK Cholesky ``potrf``/``potrs`` called directly;
+    an LU solve only if ``H`` is not numerically positive definite)."""
+    factor, info = dpotrf(H, lower=1, clean=0)
+    if info == 0:
+        x, info = dpotrs(factor, b, lower=1)
+        if info == 0:
+            return x
+    return np.linalg.solve(H, b)
+
+
 def _hess_apply(a, V, s, x):
     return a * x + V @ (s * (V.T @ x))
 
@@ -78,6 +97,14 @@ def _bounds(lo, hi, n):
     if np.any(lo > hi):
         raise ShapeSpaceError(f"lo must not exceed hi (first at index {int(np.argmax(lo > hi))})", ErrorCode.RANGE)
     return lo, hi
+
+
+def _stopping(tol, max_iter):
+    """Checked stopping rule: ``tol`` finite and > 0, ``max_iter`` a whole number ≥ 0."""
+    tol = positive(tol, "tol")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 0:
+        raise ShapeSpaceError(f"max_iter must be a whole number ≥ 0, got {max_iter!r}", ErrorCode.RANGE)
+    return tol, int(max_iter)
 
 
 def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
@@ -108,9 +135,11 @@ def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.n
     Raises
     ------
     ShapeSpaceError
-        ``shape`` for mismatched sizes, ``range`` for ``a ≤ 0``, a zero in ``s`` or ``lo > hi``,
-        ``non_finite`` for NaN/inf in ``a``, ``V``, ``s``, ``g`` or NaN in the bounds.
+        ``shape`` for mismatched sizes, ``range`` for ``a ≤ 0``, a zero in ``s``, ``lo > hi``, ``tol ≤ 0`` or
+        ``max_iter < 0``, ``non_finite`` for NaN/inf in ``a``, ``V``, ``s``, ``g``, ``x0``, ``tol`` or NaN in
+        the bounds.
     """
+    tol, max_iter = _stopping(tol, max_iter)
     g = array(g, "g", ndim=1)
     n = g.shape[0]
     V = array(V, "V", ndim=(1, 2))
@@ -131,6 +160,7 @@ def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.n
     dense = V.shape[1] >= n             # low rank buys nothing: solve the free block directly
     H = a * np.eye(n) + (V * s) @ V.T if dense else None
     gram = None if dense else V.T @ V   # r × r, reused for every free-set solve
+    positive_s = bool(np.all(s > 0))    # then the Woodbury inner matrix a S⁻¹ + VfᵀVf is positive definite
     vx = V.T @ x
     f = 0.5 * (a * (x @ x) + (s * vx) @ vx) - g @ x
     for it in range(1, max_iter + 1):
@@ -145,7 +175,7 @@ def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.n
         if n_act < n and dense:
             free_idx = np.flatnonzero(~active)
             d = d.copy()
-            d[free_idx] = -np.linalg.solve(H[np.ix_(free_idx, free_idx)], grad[free_idx])
+            d[free_idx] = -_spd_solve(H[np.ix_(free_idx, free_idx)], grad[free_idx])
         elif n_act < n:
             # Woodbury on the free block: (aI + Vf S Vfᵀ)⁻¹ q = (q − Vf (aS⁻¹ + VfᵀVf)⁻¹ Vfᵀ q) / a,
             # with VfᵀVf = VᵀV − VaᵀVa (cheaper when few variables are bound).
@@ -153,7 +183,8 @@ def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.n
             inner = gram - Va.T @ Va
             inner[np.diag_indices_from(inner)] += a / s
             qf = np.where(active, 0.0, grad)
-            d_free = -(qf - V @ np.linalg.solve(inner, V.T @ qf)) / a
+            vq = V.T @ qf
+            d_free = -(qf - V @ (_spd_solve(inner, vq) if positive_s else np.linalg.solve(inner, vq))) / a
             d = np.where(active, d, d_free)
         free = ~active
         t = 1.0
@@ -233,7 +264,7 @@ def solve_box_lsq_dual(R: np.ndarray, m: np.ndarray, c: float, b: np.ndarray, lo
     b : ndarray, shape (n,)
     lo, hi : ndarray, shape (n,)
     dual0 : ndarray, shape (q,), optional
-        Warm start (e.g. ``2 (R x_prev − m)``).
+        Warm start (e.g. ``2 (R x_prev − m)``); by default the dual optimum without the bounds.
 
     Returns
     -------
@@ -243,16 +274,24 @@ def solve_box_lsq_dual(R: np.ndarray, m: np.ndarray, c: float, b: np.ndarray, lo
     Raises
     ------
     ShapeSpaceError
-        ``shape`` for mismatched sizes, ``range`` for ``c ≤ 0`` or ``lo > hi``, ``non_finite`` for NaN/inf.
+        ``shape`` for mismatched sizes, ``range`` for ``c ≤ 0``, ``lo > hi``, ``tol ≤ 0`` or ``max_iter < 0``,
+        ``non_finite`` for NaN/inf.
     """
+    tol, max_iter = _stopping(tol, max_iter)
     R = array(R, "R", ndim=2)
     q, n = R.shape
     m = _vector(m, "m", q)
     b = _vector(b, "b", n)
     c = positive(c, "c")
     lo, hi = _bounds(lo, hi, n)
-    lam = np.zeros(q) if dual0 is None else _vector(dual0, "dual0", q).copy()
-    gram = R @ R.T
+    gram = None                      # R Rᵀ, built when needed
+    if dual0 is None:
+        # cold start: the dual optimum of the problem without bounds, (½I + RRᵀ/(2c)) λ = R b − m — from
+        # there the clipping pattern is usually a few Newton steps away (about half as many as from λ = 0)
+        gram = R @ R.T
+        lam = _spd_solve(gram / (2 * c) + 0.5 * np.eye(q), R @ b - m)
+    else:
+        lam = _vector(dual0, "dual0", q).copy()
 
     def parts(lam):
         x = np.clip(b - (R.T @ lam) / (2 * c), lo, hi)
@@ -282,6 +321,7 @@ def solve_box_lsq_dual(R: np.ndarray, m: np.ndarray, c: float, b: np.ndarray, lo
                 Rf = R[:, free]
                 H = Rf @ Rf.T
             else:
+                gram = R @ R.T if gram is None else gram
                 Rb = R[:, ~free]
                 H = gram - Rb @ Rb.T if Rb.shape[1] else gram.copy()
             H /= 2 * c
@@ -297,7 +337,7 @@ def solve_box_lsq_dual(R: np.ndarray, m: np.ndarray, c: float, b: np.ndarray, lo
                 Rl = R[:, left]
                 H -= Rl @ Rl.T / (2 * c)
         free_prev = free
-        step = np.linalg.solve(H, grad)
+        step = _spd_solve(H, grad)          # H ⪰ ½ I
         t, slope = 1.0, grad @ step
         while True:
             lam_t = lam + t * step

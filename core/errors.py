@@ -105,6 +105,19 @@ class ErrorCode(str, enum.Enum):
     STALE_TARGETS = "stale_targets"
     WPSD_INPUTS = "wpsd_inputs"
     EMPTY_CURVE = "empty_curve"
+    NOT_A_FILE = "not_a_file"
+    TOO_LARGE = "too_large"
+    OVERWRITE = "overwrite"
+    UNWRITABLE = "unwritable"
+    MALFORMED_PACKET = "malformed_packet"
+    PORT_IN_USE = "port_in_use"
+    NETWORK = "network"
+    LIVE_STATE = "live_state"
+    MISSING_LIBRARY = "missing_library"
+    FORMAT = "format"
+    NOTHING_TO_EXPORT = "nothing_to_export"
+    RESERVED_NAME = "reserved_name"
+    DUPLICATE_NAME = "duplicate_name"
 
     def __str__(self) -> str:
         return self.value
@@ -203,4 +216,20 @@ DESCRIPTIONS = {
     ErrorCode.STALE_TARGETS: "driven targets that no longer match the examples",
     ErrorCode.WPSD_INPUTS: "weighted PSD inputs that do not match",
     ErrorCode.EMPTY_CURVE: "an F-Curve without keys",
+    ErrorCode.NOT_A_FILE: "a directory, FIFO or device where a regular file is needed",
+    ErrorCode.TOO_LARGE: "a file, take or resampled stream beyond its size or memory limit",
+    ErrorCode.OVERWRITE: "an output that would overwrite an input or a file of another kind",
+    ErrorCode.UNWRITABLE: "an output path that cannot be written",
+    ErrorCode.MALFORMED_PACKET: "a live capture datagram that does not decode (truncated, wrong version or "
+                                "count, bad values)",
+    ErrorCode.PORT_IN_USE: "a network port another program (or receiver) already uses",
+    ErrorCode.NETWORK: "a socket that cannot be opened or used",
+    ErrorCode.LIVE_STATE: "a live-capture action that does not fit the receiver's state (not running, "
+                          "already recording, …)",
+    ErrorCode.MISSING_LIBRARY: "a library the feature needs is not installed",
+    ErrorCode.FORMAT: "an unknown export format, or an output file whose extension does not match it",
+    ErrorCode.NOTHING_TO_EXPORT: "no chosen object has anything an export can write (a mesh or an armature)",
+    ErrorCode.RESERVED_NAME: "a shape key named like a key ShapeSpace must create (e.g. a whole-face copy's Zero "
+                             "or Neutral)",
+    ErrorCode.DUPLICATE_NAME: "a list of names that must be distinct repeats one",
 }

@@ -1,8 +1,9 @@
 """Operators, one per file, grouped by capability: poll → bridge → core → bridge → report."""
 import bpy
 
-from . import facespace, manipulation, posespace, retarget, rig
+from . import export, facespace, live, manipulation, posespace, retarget, rig
 
-classes = (*rig.classes, *manipulation.classes, *posespace.classes, *retarget.classes, *facespace.classes)
+classes = (*rig.classes, *manipulation.classes, *posespace.classes, *retarget.classes, *facespace.classes,
+           *live.classes, *export.classes)
 
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -3,6 +3,7 @@
 import bpy
 
 from ..bridge import facespace
+from ..core.result import ShapeSpaceError
 from .base import ShapeKeyPanel
 
 
@@ -37,7 +38,14 @@ class SHAPESPACE_PT_face_space(ShapeKeyPanel, bpy.types.Panel):
         for form, label in (("WHOLE_FACE", "Whole-Face"), ("DELTA", "Delta"), ("PCA", "PCA")):
             row.operator("shapespace.convert_rig", text=label).form = form
         box.operator("shapespace.make_convex", icon="MESH_ICOSPHERE")
-        analysis = facespace.stored(ob, facespace.ANALYSIS_PROP)
+        issue = facespace.whole_face_issue(ob)
+        if issue:
+            box.label(text=issue, icon="ERROR")
+        try:
+            analysis = facespace.stored_analysis(ob)
+        except ShapeSpaceError as exc:       # damaged report: say so, draw the rest
+            analysis = {}
+            box.label(text=str(exc), icon="ERROR")
         row = box.row(align=True)
         row.operator("shapespace.compression_report", icon="FILE_ARCHIVE")
         comp = analysis.get("compression")
@@ -53,7 +61,7 @@ class SHAPESPACE_PT_face_space(ShapeKeyPanel, bpy.types.Panel):
             img = bpy.data.images.get(coh["image"])
             if img is not None:
                 box.template_icon(icon_value=img.preview_ensure().icon_id, scale=8.0)
-            box.label(text=f"mutual coherence {coh['mutual_coherence']:.3f}")
+            box.label(text=f"mutual coherence {_fmt(coh['mutual_coherence'], '.3f')}")
             for name in coh["empty_targets"]:
                 box.label(text=f"{name}: empty", icon="ERROR")
             for a, b, c in coh["similar_pairs"][:6]:
@@ -73,7 +81,7 @@ class SHAPESPACE_PT_face_space(ShapeKeyPanel, bpy.types.Panel):
                 col.label(text=f"face norm {m['norm']:.2f} (typical ≈ {m['shell_radius']:.2f})")
                 col.label(text=f"percentile {100 * m['percentile']:.1f} % — {m['status'].replace('_', ' ')}",
                           icon="CHECKMARK" if m["status"] == "typical" else "ERROR")
-            except Exception as exc:  # noqa: BLE001 — a stale prior must not break the sidebar
+            except ShapeSpaceError as exc:   # a stale or damaged prior must not break the sidebar
                 box.label(text=str(exc), icon="ERROR")
             box.operator("shapespace.find_implausible_frames", icon="ZOOM_ALL")
             if len(face.implausible):

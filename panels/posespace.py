@@ -1,6 +1,15 @@
 import bpy
 
+from ..bridge import posespace
 from .base import ShapeSpaceSidebar
+
+
+def _problem(ob) -> str:
+    """What stops the mesh's correctives from working, one line ('' when nothing); a draw never raises."""
+    try:
+        return posespace.problem(ob)
+    except Exception as exc:    # damaged data of a kind no check foresaw: say so instead of failing the draw
+        return f"cannot read the pose-space data: {type(exc).__name__}"
 
 
 class SHAPESPACE_UL_examples(bpy.types.UIList):
@@ -37,9 +46,13 @@ class SHAPESPACE_PT_correctives(ShapeSpaceSidebar, bpy.types.Panel):
 
     def draw(self, context):
         layout = self.layout
-        st = context.active_object.shapespace_psd
+        ob = context.active_object
+        st = ob.shapespace_psd
         layout.prop(st, "method")
         layout.prop(st, "live_preview")
+        message = _problem(ob)
+        if message:
+            layout.label(text=message, icon="ERROR")
         layout.label(text="Pose space")
         layout.template_list("SHAPESPACE_UL_readers", "", st, "readers", st, "active_reader", rows=2)
         layout.label(text="Examples")

@@ -1,6 +1,7 @@
 import bpy
 
 from ..bridge import retarget
+from ..core.result import ShapeSpaceError
 from .base import ShapeKeyPanel
 
 
@@ -35,36 +36,55 @@ class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
         op.source_object = st.source_object.name if st.source_kind == "MESH" and st.source_object else ""
         op.key_pose_action = st.key_pose_action.name if st.key_pose_action else ""
 
+        _draw_result(layout, ob)
+        _draw_mapping(layout, ob)
+        _draw_landmarks(layout, ob, st)
+
+
+def _draw_result(layout, ob):
+    try:
         rep = retarget.last_report(ob)
-        if rep is not None:
-            box = layout.box()
-            col = box.column(align=True)
-            col.label(text=f"{rep.action}: {rep.method}, {rep.frames} frames", icon="ACTION")
-            if rep.velocity_error_rms is not None and rep.position_error_rms is not None:
-                col.label(text=f"error: position {rep.position_error_rms:.3g}, velocity "
-                               f"{rep.velocity_error_rms:.3g} (of the head size)")
-            if rep.clipping_frames:
-                col.label(text=f"{rep.clipping_frames} frames beyond the slider ranges", icon="ERROR")
-            if rep.keys_kept_frac is not None:
-                col.label(text=f"{100 * rep.keys_kept_frac:.1f} % of the keys kept")
-            box.operator("shapespace.discard_retarget", icon="LOOP_BACK")
-
+    except ShapeSpaceError as exc:          # damaged stored data: say so, never fail the draw
+        layout.label(text=str(exc), icon="ERROR")
+        return
+    if rep is not None:
         box = layout.box()
-        box.label(text="Channel Mapping (overrides; the rest by name)")
-        for src, entry in sorted(retarget.stored_mapping(ob).items()):
-            row = box.row(align=True)
-            row.label(text=f"{src} → {entry.get('target')}  ×{entry.get('gain', 1.0):g} "
-                           f"{entry.get('offset', 0.0):+g}")
-            op = row.operator("shapespace.remove_mapping", text="", icon="X")
-            op.source = src
-        box.operator("shapespace.set_mapping", icon="LINKED")
+        col = box.column(align=True)
+        col.label(text=f"{rep.action}: {rep.method}, {rep.frames} frames", icon="ACTION")
+        if rep.velocity_error_rms is not None and rep.position_error_rms is not None:
+            col.label(text=f"error: position {rep.position_error_rms:.3g}, velocity "
+                           f"{rep.velocity_error_rms:.3g} (of the head size)")
+        if rep.clipping_frames:
+            col.label(text=f"{rep.clipping_frames} frames beyond the slider ranges", icon="ERROR")
+        if rep.keys_kept_frac is not None:
+            col.label(text=f"{100 * rep.keys_kept_frac:.1f} % of the keys kept")
+        box.operator("shapespace.discard_retarget", icon="LOOP_BACK")
 
-        box = layout.box()
-        landmarks = [g.name for g in ob.vertex_groups if g.name.startswith(retarget.LANDMARK_PREFIX)]
-        box.label(text=f"Landmarks: {len(landmarks)} (for meshes of another topology)", icon="VERTEXSEL")
+
+def _draw_mapping(layout, ob):
+    box = layout.box()
+    box.label(text="Channel Mapping (overrides; the rest by name)")
+    try:
+        mapping = retarget.stored_mapping(ob)
+    except ShapeSpaceError as exc:
+        box.label(text=str(exc), icon="ERROR")
+        mapping = {}
+    for src, entry in sorted(mapping.items()):
         row = box.row(align=True)
-        row.operator("shapespace.add_landmark", icon="PIVOT_CURSOR")
-        sub = row.row(align=True)
-        sub.enabled = st.source_kind == "MESH" and st.source_object is not None
-        op = sub.operator("shapespace.landmarks_from_shapes", icon="SHAPEKEY_DATA")
-        op.source_object = st.source_object.name if st.source_object else ""
+        row.label(text=f"{src} → {entry.get('target')}  ×{entry.get('gain', 1.0):g} "
+                       f"{entry.get('offset', 0.0):+g}")
+        op = row.operator("shapespace.remove_mapping", text="", icon="X")
+        op.source = src
+    box.operator("shapespace.set_mapping", icon="LINKED")
+
+
+def _draw_landmarks(layout, ob, st):
+    box = layout.box()
+    landmarks = [g.name for g in ob.vertex_groups if g.name.startswith(retarget.LANDMARK_PREFIX)]
+    box.label(text=f"Landmarks: {len(landmarks)} (for meshes of another topology)", icon="VERTEXSEL")
+    row = box.row(align=True)
+    row.operator("shapespace.add_landmark", icon="PIVOT_CURSOR")
+    sub = row.row(align=True)
+    sub.enabled = st.source_kind == "MESH" and st.source_object is not None
+    op = sub.operator("shapespace.landmarks_from_shapes", icon="SHAPEKEY_DATA")
+    op.source_object = st.source_object.name if st.source_object else ""

@@ -9,8 +9,10 @@ import bpy
 from bpy.app.handlers import persistent
 
 from ..bridge import storage
+from ..bridge.live import session as live_session
 
 from .facespace import SHAPESPACE_PG_face, SHAPESPACE_PG_flagged_frame
+from .live import SHAPESPACE_PG_live
 from .manipulation import SHAPESPACE_PG_pin, SHAPESPACE_PG_settings
 from .posespace import SHAPESPACE_PG_example, SHAPESPACE_PG_psd, SHAPESPACE_PG_reader, SHAPESPACE_PG_target
 from .retarget import KEY_SHAPES, RETARGET_METHODS, SHAPESPACE_PG_retarget
@@ -19,7 +21,7 @@ __all__ = ["KEY_SHAPES", "RETARGET_METHODS", "classes", "register", "unregister"
 
 classes = (SHAPESPACE_PG_pin, SHAPESPACE_PG_settings, SHAPESPACE_PG_reader, SHAPESPACE_PG_target,
            SHAPESPACE_PG_example, SHAPESPACE_PG_psd, SHAPESPACE_PG_retarget,
-           SHAPESPACE_PG_flagged_frame, SHAPESPACE_PG_face)
+           SHAPESPACE_PG_flagged_frame, SHAPESPACE_PG_face, SHAPESPACE_PG_live)
 
 
 @persistent
@@ -36,11 +38,15 @@ def register():
     bpy.types.Object.shapespace_psd = bpy.props.PointerProperty(type=SHAPESPACE_PG_psd)
     bpy.types.Object.shapespace_retarget = bpy.props.PointerProperty(type=SHAPESPACE_PG_retarget)
     bpy.types.Object.shapespace_face = bpy.props.PointerProperty(type=SHAPESPACE_PG_face)
+    bpy.types.Scene.shapespace_live = bpy.props.PointerProperty(type=SHAPESPACE_PG_live)
+    live_session.register()
 
 
 def unregister():
+    live_session.unregister()    # receivers stopped: takes finished, sockets closed, threads joined, timer off
     if _upgrade_before_save in bpy.app.handlers.save_pre:
         bpy.app.handlers.save_pre.remove(_upgrade_before_save)
+    del bpy.types.Scene.shapespace_live
     del bpy.types.Object.shapespace_face
     del bpy.types.Object.shapespace_retarget
     del bpy.types.Object.shapespace_psd

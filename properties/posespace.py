@@ -65,3 +65,6 @@ class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
     live_preview: bpy.props.BoolProperty(
         name="Live Preview", description="Update the correctives while posing and scrubbing")
     revision: bpy.props.IntProperty(options={"HIDDEN"}, description="Bumped when examples change")
+    preview_message: bpy.props.StringProperty(
+        name="Live Preview Stopped", options={"HIDDEN"},
+        description="Why Live Preview last stopped for this mesh (cleared when it runs again)")

@@ -4,8 +4,10 @@
 
 Suites: ``dm`` (direct manipulation, issue #3), ``psd`` (pose-space correctives,
 issue #4), ``retarget`` (expression cloning, issue #5), ``facespace`` (covariance inpainting of
-held-out gaps in real curves vs Blender's own interpolation, thesis 9.3); psd, retarget and
-facespace also write a PNG plot next to the JSON.  Every goal metric named in
+held-out gaps in real curves vs Blender's own interpolation, thesis 9.3), ``live`` (live capture
+per packet, issue #14); psd, retarget and
+facespace also write a PNG plot next to the JSON; ``export`` (glTF/FBX/Alembic round trips through
+Blender's importers and bake + export speed, issue #12).  Every goal metric named in
 the issue is computed in ``--quick`` mode too, with fewer repetitions.
 Reference solvers are measured in the same run, on the same machine.
 Creates ``.venv/bpy50`` on first use (Blender is needed to read the real rigs).
@@ -21,7 +23,7 @@ TOOLS = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, TOOLS)
 import env  # noqa: E402
 
-SUITES = ("dm", "psd", "retarget", "facespace")
+SUITES = ("dm", "psd", "retarget", "facespace", "live", "export")
 
 
 def main(argv) -> int:
@@ -37,9 +39,15 @@ def main(argv) -> int:
     elif args.suite == "retarget":
         import bench_retarget
         metrics = bench_retarget.run(quick=args.quick, plot_path=os.path.splitext(args.json)[0] + ".png")
+    elif args.suite == "live":
+        import bench_live
+        metrics = bench_live.run(quick=args.quick)
     elif args.suite == "facespace":
         import bench_facespace
         metrics = bench_facespace.run(quick=args.quick, plot_path=os.path.splitext(args.json)[0] + ".png")
+    elif args.suite == "export":
+        import bench_export
+        metrics = bench_export.run(quick=args.quick)
     else:
         import bench_psd
         metrics = bench_psd.run(quick=args.quick, plot_path=os.path.splitext(args.json)[0] + ".png")

@@ -1,4 +1,12 @@
-"""Direct-manipulation benchmark (issue #3): solve speed vs peers, update overhead, artist effort."""
+"""Direct-manipulation benchmark (issue #3): solve speed vs peers, update overhead, artist effort; and (issue #17)
+pin-and-drag at production scale: mouse moves, overlay redraws and Solve Pins on 27k–105k-vertex faces next to
+Blender's own re-evaluation, measured in the same run.
+
+The production faces are built here from the shared assets, read from ``../shared/data`` only (never copied):
+ICT FaceKit as is (26,719 vertices, 57 keys); ICT subdivided once with bmesh (which interpolates the shape
+keys, as Blender's Subdivide does: 105,569 vertices) and its keys duplicated with small variations to 150;
+the Ready Player Me head under its armature, posed.
+"""
 from __future__ import annotations
 
 import csv
@@ -10,6 +18,9 @@ import numpy as np
 import env
 
 ASSETS = os.path.join(env.ROOT, "assets")
+SHARED = os.path.join(os.path.dirname(env.ROOT), "shared", "data")
+ICT = os.path.join(SHARED, "ict_facekit", "ict_facekit_expressions.glb")
+RPM = os.path.join(SHARED, "rpm_brunette", "brunette-t.glb")
 
 
 # ----------------------------------------------------------------------------- problems
@@ -141,6 +152,12 @@ def solve_speed(quick):
     out["peer_best_ms_675x20"] = out["peer_best_ms_synthetic675_675x20"]
     out["speedup_vs_peer_675x20"] = out["peer_best_ms_675x20"] / out["solve_ms_675x20"]
     out["objective_rel_gap_max"] = float(max(gaps))
+    # the one pass over a model's deltas a cold solve no longer repeats (finite check, inert keys; kept on the model)
+    from shapespace.core.manipulation import rig_facts
+    fresh = synthetic_model(675, seed=675)
+    t = time.perf_counter()
+    rig_facts(fresh)
+    out["rig_check_ms_675"] = (time.perf_counter() - t) * 1e3
     return out
 
 
@@ -270,11 +287,279 @@ def artist_effort(quick):
     return out
 
 
+# ------------------------------------------------------------------- production scale (issue #17)
+def _ict_face():
+    import bpy
+    from shapespace.bridge import assets
+    assets.load(ICT)
+    return bpy.data.objects["ICTFace"]
+
+
+def _ict_subdivided(n_keys=150, seed=17):
+    """ICT subdivided once (bmesh interpolates every shape key) and its keys duplicated with variations."""
+    import bmesh
+    ob = _ict_face()
+    bm = bmesh.new()
+    bm.from_mesh(ob.data)
+    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=1, use_grid_fill=True)
+    bm.to_mesh(ob.data)
+    bm.free()
+    ob.data.update()
+    blocks = ob.data.shape_keys.key_blocks
+    size = 3 * len(ob.data.vertices)
+    basis, buf = np.empty(size, np.float32), np.empty(size, np.float32)
+    blocks[0].points.foreach_get("co", basis)
+    sources = [kb.name for kb in blocks[1:]]
+    rng = np.random.default_rng(seed)
+    i = 0
+    while len(blocks) < n_keys + 1:
+        name = sources[i % len(sources)]
+        i += 1
+        blocks[name].points.foreach_get("co", buf)
+        delta = (buf - basis).reshape(-1, 3)
+        gain = rng.uniform(0.7, 1.3) * (1.0 + 0.1 * np.sin(rng.uniform(0.5, 2.0) * delta[:, :1]))
+        kb = ob.shape_key_add(name=f"{name}_var{i}", from_mix=False)
+        kb.points.foreach_set("co", (basis.reshape(-1, 3) + delta * gain).astype(np.float32).ravel())
+        kb.value = 0.0
+    ob.data.update()
+    return ob
+
+
+def _rpm_posed():
+    import bpy
+    from shapespace.bridge import assets, skin
+    assets.load(RPM)
+    ob = bpy.data.objects["Wolf3D_Head"]
+    arm = skin.armature_modifiers(ob)[0].object
+    for bone, rot in (("Head", (0.3, 0.2, -0.25)), ("Neck", (0.1, -0.15, 0.05)), ("Spine2", (0.05, 0.0, 0.1))):
+        pb = arm.pose.bones[bone]
+        pb.rotation_mode = "XYZ"
+        pb.rotation_euler = rot
+    bpy.context.view_layer.update()
+    return ob
+
+
+PRODUCTION_CASES = {"ict27k": _ict_face, "ict100k": _ict_subdivided, "rpm_posed": _rpm_posed}
+
+
+def _init_gpu():
+    """Background Blender unlocks the gpu module once a GPU context exists: a tiny Workbench render makes one."""
+    import bpy
+    scene = bpy.context.scene
+    scene.render.engine = "BLENDER_WORKBENCH"
+    scene.render.resolution_x = scene.render.resolution_y = 8
+    cam = bpy.data.objects.new("GpuInitCam", bpy.data.cameras.new("GpuInitCam"))
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    bpy.ops.render.render()
+    bpy.data.objects.remove(cam)
+
+
+def _drag_setup(ob, n_still=4, seed=5):
+    """Zero sliders, a dragged pin at the jaw and ``n_still`` stationary pins; the drag's world-space goal."""
+    import bpy
+    from shapespace.bridge import manipulation, meshes, shapekeys
+    from shapespace.core.manipulation import Pin
+    bpy.context.view_layer.objects.active = ob
+    key = ob.data.shape_keys
+    if key.animation_data is not None:
+        key.animation_data.action = None
+    names = shapekeys.slider_names(ob)
+    shapekeys.write_slider_values(ob, names, np.zeros(len(names)))
+    ob.shapespace.mode = "DIRECT"
+    manipulation.clear_pins(ob)
+    t = time.perf_counter()
+    model = manipulation.rig_model(ob)
+    read_ms = (time.perf_counter() - t) * 1e3
+    jaw = model.index("jawOpen")
+    v = int(np.argmax(np.linalg.norm(model.deltas[jaw], axis=1)))
+    manipulation.add_pin(ob, Pin.at_vertex(v))
+    moving = np.flatnonzero(np.abs(model.deltas).max(axis=(0, 2)) > 1e-3 * model.scale)
+    rng = np.random.default_rng(seed)
+    for u in rng.choice(moving, n_still, replace=False):
+        manipulation.add_pin(ob, Pin.at_vertex(int(u)), stationary=True)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    start = meshes.to_world(ob, manipulation.deformed_pin_positions(ob, depsgraph)[:1])[0]
+    goal_w = np.zeros(model.n_targets)
+    goal_w[jaw] = 0.6
+    for name in ("mouthSmile_L", "mouthSmileLeft"):
+        if name in model.names:
+            goal_w[model.index(name)] = 0.4
+    manipulation.write_sliders(ob, model.names, goal_w)
+    goal = meshes.to_world(ob, manipulation.deformed_pin_positions(ob, depsgraph)[:1])[0]
+    manipulation.write_sliders(ob, model.names, np.zeros(model.n_targets))
+    return model, start, goal, read_ms
+
+
+def _mouse_path(start, goal, moves):
+    """A mouse path from the pin to the goal: a straight line with a small sideways wobble."""
+    t = np.linspace(0.0, 1.0, moves + 1)[1:]
+    side = np.cross(goal - start, (0.0, 0.0, 1.0))
+    side = side / (np.linalg.norm(side) + 1e-30) * 0.05 * np.linalg.norm(goal - start)
+    return start + t[:, None] * (goal - start) + np.sin(6 * np.pi * t)[:, None] * side
+
+
+def _overlay_view(ob):
+    """View and projection matrices that frame ``ob`` (orthographic, looking along +Y)."""
+    from mathutils import Matrix
+    from shapespace.bridge import meshes
+    pts = meshes.to_world(ob, np.array([list(c) for c in ob.bound_box]))
+    lo, hi = pts.min(0), pts.max(0)
+    centre, half = (lo + hi) / 2, float((hi - lo).max()) * 0.75 + 1e-6
+    view = Matrix(((1, 0, 0, -centre[0]), (0, 0, 1, -centre[2]), (0, -1, 0, centre[1] - 10 * half), (0, 0, 0, 1)))
+    proj = Matrix(((1 / half, 0, 0, 0), (0, 1 / half, 0, 0), (0, 0, -1 / (20 * half), 0), (0, 0, 0, 1)))
+    return view, proj
+
+
+def _timed_drag(ob, path, offscreen):
+    """One scripted drag through the bridge calls of the Drag Pins tool; per move: its time, the overlay
+    redraw's (the draw callback into ``offscreen``) and the sliders it wrote."""
+    import bpy
+    import gpu
+    from shapespace.bridge import manipulation
+    from shapespace.ui import overlay
+    view, proj = _overlay_view(ob)
+    drag = manipulation.Drag(ob)
+    drag.grab(ob, 0)
+    move_ms, draw_ms, sliders = [], [], []
+    for point in path:
+        t = time.perf_counter()
+        drag.move(ob, bpy.context.evaluated_depsgraph_get(), point)
+        move_ms.append((time.perf_counter() - t) * 1e3)
+        sliders.append(drag.solution.copy())
+        with offscreen.bind():
+            with gpu.matrix.push_pop():
+                gpu.matrix.load_matrix(view)
+                with gpu.matrix.push_pop_projection():
+                    gpu.matrix.load_projection_matrix(proj)
+                    t = time.perf_counter()
+                    overlay._draw_callback()
+                    draw_ms.append((time.perf_counter() - t) * 1e3)
+    drag.cancel(ob)
+    return move_ms, draw_ms, sliders, drag.model.names
+
+
+def _timed_reeval(ob, names, sliders):
+    """Blender alone: the same slider changes, one bulk write and one depsgraph update each."""
+    import bpy
+    key = ob.data.shape_keys
+    blocks = key.key_blocks
+    pos = np.array([blocks.find(n) for n in names])
+    values = np.zeros(len(blocks), dtype=np.float32)
+    blocks.foreach_get("value", values)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    out = []
+    for w in sliders:
+        values[pos] = w
+        t = time.perf_counter()
+        blocks.foreach_set("value", values)
+        key.update_tag()
+        depsgraph.update()
+        out.append((time.perf_counter() - t) * 1e3)
+    values[pos] = 0.0
+    blocks.foreach_set("value", values)
+    key.update_tag()
+    depsgraph.update()
+    return out
+
+
+def _timed_solve_op(ob, start, goal, calls):
+    """The Solve Pins operator moving pin 0 to world-space points: first call and the median of later calls."""
+    import bpy
+    times = []
+    for i in range(calls + 1):
+        point = start + (goal - start) * (0.3 + 0.7 * i / calls)
+        t = time.perf_counter()
+        bpy.ops.shapespace.solve_pins(pin=0, target=tuple(point), space="WORLD")
+        times.append((time.perf_counter() - t) * 1e3)
+    return times[0], float(np.median(times[1:]))
+
+
+def _timed_drag_start(ob, point, reps):
+    """Mouse-down on the face: the drag reads the (cached) rig, the ray picks the surface, the pin is added."""
+    import bpy
+    from shapespace.bridge import manipulation, meshes
+    size = float(np.ptp(meshes.to_world(ob, np.array([list(c) for c in ob.bound_box])), axis=0).max())
+    origin = point + np.array([0.0, -3.0 * size, 0.0])
+    times = []
+    for _ in range(reps):
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        t = time.perf_counter()
+        drag = manipulation.Drag(ob)
+        pin, _ = manipulation.surface_pin(ob, depsgraph, origin, point - origin)
+        index = manipulation.add_pin(ob, pin, None, model=drag.model)
+        drag.grab(ob, index, created=True)
+        times.append((time.perf_counter() - t) * 1e3)
+        drag.cancel(ob)
+    return float(np.median(times))
+
+
+def production_case(name, quick):
+    """Every issue #17 metric of one production face."""
+    import bpy
+    import gpu
+    from shapespace.bridge import manipulation, shapekeys
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    _init_gpu()
+    ob = PRODUCTION_CASES[name]()
+    model, start, goal, read_ms = _drag_setup(ob)
+    moves, reps = 60, (1 if quick else 5)
+    path = _mouse_path(start, goal, moves)
+    offscreen = gpu.types.GPUOffScreen(256, 256)
+    move_ms, draw_ms, reeval_ms = [], [], []
+    try:
+        for _ in range(reps):                      # drag and Blender alone interleaved: same load on both
+            m, d, sliders, names = _timed_drag(ob, path, offscreen)
+            move_ms += m
+            draw_ms += d
+            reeval_ms += _timed_reeval(ob, names, sliders)
+    finally:
+        offscreen.free()
+    first_op, op_ms = _timed_solve_op(ob, start, goal, 5 if quick else 20)
+    start_ms = _timed_drag_start(ob, start, 3 if quick else 10)
+    # a slider moved by hand: the next use verifies the rig (checksum) instead of reading it again
+    shapekeys.write_slider_values(ob, [model.names[0]], [0.3])
+    bpy.context.evaluated_depsgraph_get()
+    verified = manipulation.RIGS.verifications
+    t = time.perf_counter()
+    manipulation.rig_model(ob)
+    verify_ms = (time.perf_counter() - t) * 1e3
+    assert manipulation.RIGS.verifications == verified + 1
+    tag = name
+    return {f"drag_move_ms_{tag}": float(np.median(move_ms)),
+            f"drag_move_ms_p99_{tag}": float(np.percentile(move_ms, 99)),
+            f"overlay_redraw_ms_{tag}": float(np.median(draw_ms)),
+            f"overlay_redraw_ms_p99_{tag}": float(np.percentile(draw_ms, 99)),
+            f"blender_reeval_ms_{tag}": float(np.median(reeval_ms)),
+            f"drag_overhead_ms_{tag}": float(np.median(move_ms) - np.median(reeval_ms)),
+            f"solve_pins_op_ms_{tag}": op_ms,
+            f"solve_pins_op_first_ms_{tag}": first_op,
+            f"drag_start_ms_{tag}": start_ms,
+            f"model_read_ms_{tag}": read_ms,
+            f"rig_verify_ms_{tag}": verify_ms,
+            f"vertices_{tag}": int(model.n_vertices),
+            f"keys_{tag}": int(model.n_targets)}
+
+
+def production_scale(quick):
+    import package
+    pkg = package.load()
+    pkg.register()
+    try:
+        out = {}
+        for name in PRODUCTION_CASES:
+            out.update(production_case(name, quick))
+        return out
+    finally:
+        pkg.unregister()
+
+
 def run(quick=False) -> dict:
     import package
     package.load()
     metrics = {}
     metrics.update(solve_speed(quick))
     metrics.update(update_overhead(quick))
+    metrics.update(production_scale(quick))
     metrics.update(artist_effort(quick))
     return metrics

@@ -23,6 +23,7 @@ vendored Face Cap capture sampled on integer frames (weights).
 from __future__ import annotations
 
 import os
+import sys
 import time
 
 import numpy as np
@@ -35,6 +36,17 @@ MOCAP = os.path.join(SHARED, "cmu_mocap", "131_01.bvh")
 FACECAP = os.path.join(env.ROOT, "assets", "facecap", "facecap_decoded.glb")
 KNEE_GAPS = (10, 20, 40)
 FACE_GAPS = (6, 12)
+
+
+def shared_data(rel: str, what: str):
+    """Path of ``rel`` in the vendored ``assets/`` or in ``../shared/data``; ``None`` (with a message on
+    stderr: that case is skipped) when neither has it."""
+    for base in (ASSETS, SHARED):
+        path = os.path.join(base, rel)
+        if os.path.exists(path):
+            return path
+    print(f"bench: skipping {what}: {rel} is in neither assets/ nor {SHARED}", file=sys.stderr)
+    return None
 # knee, hip bone names as the BVH importer names them (CMU / cgspeed and the common "Leg/UpLeg" style)
 KNEE_NAMES = {"Left": ("LeftKnee", "LeftLeg"), "Right": ("RightKnee", "RightLeg")}
 HIP_NAMES = {"Left": ("LeftHip", "LeftUpLeg"), "Right": ("RightHip", "RightUpLeg")}
@@ -262,11 +274,13 @@ def representations():
     model = shapekeys.read_blendshape_model(head)
     W, frames = facespace.animation_weights(head, model.names, capture)
     rigs = {"facecap": (model, W)}
-    assets.load(os.path.join(SHARED, "ict_facekit", "ict_facekit_expressions.glb"), replace=False)
-    ict = bpy.data.objects["ICTFace"]
-    ict_model = shapekeys.read_blendshape_model(ict)
-    pairs = [(i, j) for i, j, _, _ in retarget.channel_mapping(ict, model.names, ict_model.names)]
-    rigs["ict"] = (ict_model, np.clip(copy_weights(W, pairs, ict_model.n_targets), 0, 1))
+    ict_path = shared_data(os.path.join("ict_facekit", "ict_facekit_expressions.glb"), "the ICT FaceKit rig")
+    if ict_path:
+        assets.load(ict_path, replace=False)
+        ict = bpy.data.objects["ICTFace"]
+        ict_model = shapekeys.read_blendshape_model(ict)
+        pairs = [(i, j) for i, j, _, _ in retarget.channel_mapping(ict, model.names, ict_model.names)]
+        rigs["ict"] = (ict_model, np.clip(copy_weights(W, pairs, ict_model.n_targets), 0, 1))
     for name, (m, Wr) in rigs.items():
         for tol in (1e-3, 1e-2):
             rep = fs.compression_report(m, Wr, tol * m.scale)
@@ -301,7 +315,10 @@ def run(quick=False, plot_path=None) -> dict:
     import package
     package.load()
     t = time.perf_counter()
-    metrics, example = mocap(quick)
+    if shared_data(os.path.join("cmu_mocap", "131_01.bvh"), "the CMU walk (mocap) case and the plot"):
+        metrics, example = mocap(quick)
+    else:
+        metrics, example, plot_path = {}, None, None
     metrics.update(facecap(quick))
     metrics["inpaint_bench_s"] = time.perf_counter() - t
     metrics.update(representations())

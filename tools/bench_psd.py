@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import time
 
 import numpy as np
@@ -9,6 +10,7 @@ import numpy as np
 import env
 
 SHARED = os.path.join(os.path.dirname(env.ROOT), "shared", "data")
+ASSETS = os.path.join(env.ROOT, "assets")
 
 REGIONS = {  # region: (asset, mesh, joints) — rpm_brunette is read from shared/ only (non-commercial)
     "cesium_arm": ("cesium_man/CesiumMan.glb", "Cesium_Man",
@@ -23,11 +25,22 @@ REGIONS = {  # region: (asset, mesh, joints) — rpm_brunette is read from share
 KS = (2, 4, 8, 16, 32)
 
 
+def shared_data(rel: str, what: str):
+    """Path of ``rel`` in the vendored ``assets/`` or in ``../shared/data``; ``None`` (with a message on
+    stderr: that case is skipped) when neither has it."""
+    for base in (ASSETS, SHARED):
+        path = os.path.join(base, rel)
+        if os.path.exists(path):
+            return path
+    print(f"bench: skipping {what}: {rel} is in neither assets/ nor {SHARED}", file=sys.stderr)
+    return None
+
+
 def _rig(asset, mesh_name):
     """Rest mesh, skinning (one Armature modifier), bone rest matrices and parents, via the bridge."""
     import bpy
     from shapespace.bridge import assets, meshes, skin
-    assets.load(os.path.join(SHARED, asset))
+    assets.load(shared_data(asset, asset))
     ob = bpy.data.objects[mesh_name]
     rig = skin.read_skinning(ob)
     arm = skin.armature_modifiers(ob)[0].object
@@ -110,7 +123,7 @@ def quality(quick):
     out = {}
     curves = {}
     n_test = 100
-    for name in REGIONS:
+    for name in [r for r in REGIONS if shared_data(REGIONS[r][0], f"the {r} region")]:
         region = Region(name)
         rng = np.random.default_rng(11)
         nj = len(region.joints)

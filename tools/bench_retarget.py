@@ -3,6 +3,7 @@ velocity error on real captures, key reduction."""
 from __future__ import annotations
 
 import os
+import sys
 import time
 import tracemalloc
 
@@ -12,6 +13,17 @@ import env
 
 ASSETS = os.path.join(env.ROOT, "assets")
 SHARED = os.path.join(os.path.dirname(env.ROOT), "shared", "data")
+
+
+def shared_data(rel: str, what: str):
+    """Path of ``rel`` in the vendored ``assets/`` or in ``../shared/data``; ``None`` (with a message on
+    stderr: that case is skipped) when neither has it."""
+    for base in (ASSETS, SHARED):
+        path = os.path.join(base, rel)
+        if os.path.exists(path):
+            return path
+    print(f"bench: skipping {what}: {rel} is in neither assets/ nor {SHARED}", file=sys.stderr)
+    return None
 
 
 def _problem(F, n, m3, seed=0, dtype=np.float64):
@@ -209,15 +221,17 @@ def key_reduction(quick):
 def landmark_cases():
     """The facecap capture as a mesh performance onto other topologies through landmarks placed from the
     shapes the rigs share (peak vertices), then rigid + thin-plate warp and closest points: FBHead
-    (1.5k vertices) and ICT FaceKit (27k).  Also times the bounded vs unbounded space-time solve on the
-    real FBHead problem (slider ranges [0, 1], dense noisy correspondence)."""
+    (1.5k vertices) and ICT FaceKit (27k, skipped without ../shared/data).  Also times the bounded vs
+    unbounded space-time solve on the real FBHead problem (slider ranges [0, 1], dense noisy correspondence)."""
     import bpy
     from shapespace.bridge import assets, retarget
     from shapespace.core.retarget import performance
     out = {}
     assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"), replace=False)
-    assets.load(os.path.join(SHARED, "ict_facekit", "ict_facekit_expressions.glb"), replace=False)
+    ict = shared_data(os.path.join("ict_facekit", "ict_facekit_expressions.glb"), "the ICT FaceKit landmark case")
+    if ict:
+        assets.load(ict, replace=False)
     scene = bpy.context.scene
     scene.frame_start, scene.frame_end = 1, 268
     src = bpy.data.objects["Mesh_2"]
@@ -232,7 +246,8 @@ def landmark_cases():
         timed["iterations"] = res.iterations
         return res
 
-    for case, target in (("facecap_fbhead_landmarks", "FBHead"), ("facecap_ict_landmarks", "ICTFace")):
+    cases = (("facecap_fbhead_landmarks", "FBHead"), ("facecap_ict_landmarks", "ICTFace"))
+    for case, target in cases if ict else cases[:1]:
         ob = bpy.data.objects[target]
         out[f"landmarks_{case}"] = len(retarget.landmarks_from_shapes(src, ob))
         for method in ("perframe", "spacetime"):
@@ -251,6 +266,109 @@ def landmark_cases():
     return out
 
 
+# ------------------------------------------------------------------ production scale (issue #11)
+def _tiled_llf(count: int):
+    """FBHead and the Live Link Face take tiled to ``count`` frames (names, frames, weights), via the bridge."""
+    import bpy
+    from shapespace.bridge import assets, retarget
+    assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
+    csv = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+    names, frames, src, issues = retarget.read_source(csv, bpy.context.scene)
+    src = np.tile(src, (-(-count // src.shape[0]), 1))[:count]
+    return bpy.data.objects["FBHead"], names, frames[0] + np.arange(src.shape[0], dtype=np.float64), src, issues
+
+
+def _position_mm(D, model):
+    """Per-vertex position error: RMS over vertices and frames of ‖ΔW Bᵀ‖ (mm, head scaled to a 30 cm
+    bounding-box diagonal); ``D`` (f, n) weight errors."""
+    from shapespace.core.blendshape import bounding_box_diagonal
+    mm = 300.0 / bounding_box_diagonal(model.neutral)
+    sq = 0.0
+    for start in range(0, D.shape[0], 256):
+        E = (D[start:start + 256] @ model.delta_matrix.T).reshape(-1, model.n_vertices, 3)
+        sq += float(np.sum(E * E))
+    return float(np.sqrt(sq / (D.shape[0] * model.n_vertices))) * mm
+
+
+def longtake(quick):
+    """The 1,640-frame take (Live Link Face CSV tiled) onto FBHead with every method, wall time including
+    key reduction (tolerance 0.005); the same take with nothing to clip (sliders widened) for drift and
+    per-vertex position error; key reduction alone; the 124-key redundant rig (synthetic, see
+    tests/core/test_retarget_redundant.py)."""
+    from shapespace.bridge import retarget, shapekeys
+    from shapespace.core.animation import reduce_keys_bezier
+    from shapespace.core.blendshape import bounding_box_diagonal
+    from shapespace.core.retarget import performance
+    out = {}
+    ob, names, frames, src, issues = _tiled_llf(1640)
+    original = retarget.read_source
+    retarget.read_source = lambda *a: (names, frames, src, issues)
+    try:
+        for method in ("copy", "perframe", "spacetime"):
+            out[f"longtake_s_{method}_fbhead_{frames.size}"] = _timed(
+                lambda: retarget.retarget(ob, "take.csv", method, key_tolerance=0.005))
+    finally:
+        retarget.read_source = original
+    model = shapekeys.read_blendshape_model(ob)
+    model.slider_min[:], model.slider_max[:] = -10.0, 10.0                 # nothing clips
+    mapping, _ = retarget.resolve_mapping(ob, names, model.names)
+    pairs, gain, offset = retarget.split_mapping(mapping, model.n_targets)
+    raw = retarget.copy_weights(src, pairs, model.n_targets, gain, offset)
+    diag = bounding_box_diagonal(model.neutral)
+    for method in ("perframe", "spacetime"):
+        W = performance.retarget_weights(model, raw, method).weights
+        out[f"position_err_{method}_longtake_noclip"] = _position_mm(W - raw, model)
+        if method == "spacetime":
+            tail = (W - raw)[-max(1, frames.size // 10):]
+            E = (tail @ model.delta_matrix.T).reshape(tail.shape[0], model.n_vertices, 3)
+            out["drift_end_rel_spacetime_noclip"] = float(np.linalg.norm(E, axis=2).max() / diag)
+    dense = np.clip(raw[:, :51], 0, 1)
+    out["keyreduce_s_1640"] = _timed(lambda: [reduce_keys_bezier(frames, dense[:, j], 0.005)
+                                              for j in range(dense.shape[1])])
+    out["keyreduce_frames"], out["keyreduce_curves"] = int(frames.size), int(dense.shape[1])
+    out.update(_redundant_rig(quick))
+    return out
+
+
+def _redundant_rig_problem(seed=0, m=400):
+    """52 local ARKit-like deltas, 20 exact duplicates, 16 scaled copies, 14 near duplicates, 15 visemes
+    (mixes of mouth keys) and 7 empty targets: (B (3m, 124), source weights (131, 52), base (3m, 52))."""
+    rng = np.random.default_rng(seed)
+    P = rng.normal(size=(m, 3))
+    centers = rng.normal(size=(52, 3))
+    base = np.stack([np.exp(-np.sum((P - c) ** 2, 1) / 0.3)[:, None] * rng.normal(size=3) for c in centers], -1)
+    base = base.reshape(3 * m, 52) * 0.05
+    cols = [base[:, j] for j in range(52)]
+    cols += [base[:, j].copy() for j in range(20)]
+    cols += [base[:, j] * rng.uniform(0.5, 2.0) for j in range(20, 36)]
+    cols += [base[:, j] + rng.normal(size=3 * m) * 1e-4 * np.abs(base[:, j]).max() for j in range(36, 50)]
+    cols += [base[:, 20:40] @ rng.dirichlet(np.ones(20)) * 2 for _ in range(15)]
+    cols += [np.zeros(3 * m)] * (124 - len(cols))
+    W = np.clip(np.cumsum(rng.normal(size=(131, 52)) * 0.05, 0) % 1.0, 0, 1)
+    return np.column_stack(cols), W, base
+
+
+def _redundant_rig(quick):
+    from shapespace.core.retarget import spacetime
+    from shapespace.core.retarget.perframe import fit_frames
+    B, Wsrc, base = _redundant_rig_problem()
+    S = Wsrc @ base.T
+    lo, hi, b0 = np.zeros(B.shape[1]), np.ones(B.shape[1]), np.zeros(B.shape[0])
+    out = {"redundant_rig_s_perframe_131": _timed(lambda: fit_frames(B, b0, S, lo, hi))}
+    G = B.T @ B
+    W = fit_frames(B, b0, S, lo, hi)
+    grad = 2 * (W @ G - S @ B) + 2e-6 * np.trace(G) / B.shape[1] * W
+    nat = float(np.abs(W - np.clip(W - grad, lo, hi)).max())
+    out["redundant_rig_converged_perframe"] = bool(nat <= 1e-7 * max(1.0, float(np.abs(2 * S @ B).max())))
+    iters = 10 if quick else 100
+    t = time.perf_counter()
+    res = spacetime(B, b0, S, np.ones(B.shape[1]), 1e-7, lo=lo, hi=hi, relative=True, anchor=True, max_iter=iters)
+    out["redundant_rig_s_spacetime_131"] = time.perf_counter() - t
+    out["redundant_rig_converged_spacetime"] = bool(res.converged)
+    out["redundant_rig_spacetime_max_iter"] = iters
+    return out
+
+
 def run(quick=False, plot_path=None) -> dict:
     import package
     package.load()
@@ -258,4 +376,5 @@ def run(quick=False, plot_path=None) -> dict:
     metrics.update(quality(plot_path))
     metrics.update(landmark_cases())
     metrics.update(key_reduction(quick))
+    metrics.update(longtake(quick))
     return metrics

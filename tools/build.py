@@ -4,14 +4,15 @@
 
 Runs itself in ``.venv/bpy50`` (tools/env.py) unless this Python already has ``bpy``.
 
-1. Downloads the scipy wheels listed in ``blender_manifest.toml`` into
-   ``./wheels`` (pip, for each wheel's CPython version and platform) unless present.
+1. Downloads the wheels listed in ``blender_manifest.toml`` into ``./wheels`` unless present: SciPy for
+   each wheel's CPython version and platform, pure-Python wheels (``py3-none-any``: python-osc) once.
 2. Runs Blender's extension builder (``blender_ext.py build
    --split-platforms``, shipped with Blender and the ``bpy`` module), which
    validates the manifest and writes one zip per platform holding only that
-   platform's wheels (one per Python version: Blender installs the one matching its Python).
+   platform's wheels (one per Python version: Blender installs the one matching its Python) and the
+   pure-Python ones.
 3. Names them ``dist/shapespace-<version>-<platform>.zip`` and checks each holds exactly the
-   manifest's wheels for its platform.
+   manifest's wheels for its platform plus every pure-Python wheel.
 """
 from __future__ import annotations
 
@@ -30,7 +31,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import env  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-WHEEL_NAME = re.compile(r"(?P<dist>[^-]+)-(?P<ver>[^-]+)-(?P<py>cp\d+)-(?P<abi>[^-]+)-(?P<plat>.+)\.whl$")
+WHEEL_NAME = re.compile(r"(?P<dist>[^-]+)-(?P<ver>[^-]+)-(?P<py>cp\d+|py\d+)-(?P<abi>[^-]+)-(?P<plat>.+)\.whl$")
 BLENDER_PLATFORM = {  # Blender platform → (start, end) of its wheels' platform tags
     "linux-x64": ("manylinux", "_x86_64"),
     "windows-x64": ("win", "_amd64"),
@@ -60,14 +61,22 @@ def fetch_wheels(wheels) -> None:
         m = WHEEL_NAME.match(name)
         if not m:
             raise SystemExit(f"build: cannot parse wheel name {name}")
-        plat = PLATFORM_TAG.get(m["plat"], m["plat"].split(".")[0])
         cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--only-binary=:all:",
-               "--python-version", m["py"][2:3] + "." + m["py"][3:], "--implementation", "cp",
-               "--platform", plat, "-d", os.path.dirname(path), f"{m['dist']}=={m['ver']}"]
+               "-d", os.path.dirname(path), f"{m['dist']}=={m['ver']}"]
+        if not pure_python(name):
+            plat = PLATFORM_TAG.get(m["plat"], m["plat"].split(".")[0])
+            cmd[-2:-2] = ["--python-version", m["py"][2:3] + "." + m["py"][3:], "--implementation", "cp",
+                          "--platform", plat]
         print("build: fetching", name, file=sys.stderr)
         subprocess.run(cmd, check=True)
         if not os.path.isfile(path):
             raise SystemExit(f"build: pip did not produce {name}")
+
+
+def pure_python(wheel: str) -> bool:
+    """A wheel for every platform and Python 3 (``py3-none-any``): it goes into every platform's zip."""
+    m = WHEEL_NAME.match(os.path.basename(wheel))
+    return m is not None and m["py"].startswith("py") and m["abi"] == "none" and m["plat"] == "any"
 
 
 def blender_ext_script() -> str:
@@ -108,13 +117,14 @@ def build(out_dir: str) -> list:
 
 
 def check_wheels(zip_path: str, wheels) -> None:
-    """The zip for one platform must hold exactly the manifest's wheels for that platform."""
+    """The zip for one platform must hold exactly the manifest's wheels for that platform and every pure-Python
+    wheel (``py3-none-any``)."""
     plat = os.path.basename(zip_path)[:-4].split("-", 2)[-1]
     if plat not in BLENDER_PLATFORM:
         raise SystemExit(f"build: no wheel platform tag known for {plat}")
     start, end = BLENDER_PLATFORM[plat]
-    want = sorted(name for name in map(os.path.basename, wheels)
-                  if any(t.startswith(start) and t.endswith(end) for t in WHEEL_NAME.match(name)["plat"].split(".")))
+    want = sorted(name for name in map(os.path.basename, wheels) if pure_python(name)
+                  or any(t.startswith(start) and t.endswith(end) for t in WHEEL_NAME.match(name)["plat"].split(".")))
     with zipfile.ZipFile(zip_path) as z:
         got = sorted(os.path.basename(n) for n in z.namelist() if n.endswith(".whl"))
     if got != want:

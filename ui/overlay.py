@@ -1,7 +1,20 @@
-"""Viewport overlay: pins (on the deformed surface) and their targets, drawn with the gpu module."""
+"""Viewport overlay: pins (on the deformed surface) and their targets, drawn with the gpu module.
+
+Every viewport redraw calls the draw handler, and every mouse move of a drag
+redraws the viewport, so the overlay reads only what it draws: the stored pins
+(bulk reads), Blender's evaluated positions of the pinned vertices and the
+crazy-space map cached per pose (:func:`bridge.manipulation.overlay_points`) —
+never the blendshape model or a copy of the mesh.
+
+This module also installs the handlers that keep the rig cache
+(:data:`bridge.manipulation.RIGS`) honest: a ``depsgraph_update_post`` handler
+reporting edits of the cached meshes and keys, and ``load_post`` /
+``undo_post`` / ``redo_post`` handlers emptying it.
+"""
 import bpy
 import gpu
 import numpy as np
+from bpy.app.handlers import persistent
 from gpu_extras.batch import batch_for_shader
 
 from ..bridge import compat, manipulation, meshes
@@ -46,12 +59,7 @@ HANDLERS = DrawHandlers()
 
 def pin_world_points(obj, depsgraph):
     """World-space pin positions, target positions (both on the deformed surface) and stationary flags."""
-    pins, targets, still = manipulation.read_pins(obj)
-    if not pins:
-        return np.zeros((0, 3)), np.zeros((0, 3)), still
-    manipulation.check_pins(obj)
-    current = manipulation.deformed_pin_positions(obj, depsgraph)
-    goal = manipulation.shape_to_deformed_targets(obj, depsgraph, pins, targets, current)
+    current, goal, still = manipulation.overlay_points(obj, depsgraph)
     return meshes.to_world(obj, current), meshes.to_world(obj, goal), still
 
 
@@ -93,9 +101,32 @@ def _draw_callback():
     draw_pins(obj, context.evaluated_depsgraph_get())
 
 
+@persistent
+def _on_depsgraph_update(_scene, depsgraph):
+    manipulation.RIGS.on_depsgraph_update(depsgraph)
+
+
+@persistent
+def _on_reset(*_args):
+    manipulation.RIGS.clear()
+
+
+#: ``bpy.app.handlers`` lists and the rig-cache handler each gets.
+_APP_HANDLERS = (("depsgraph_update_post", _on_depsgraph_update), ("load_post", _on_reset),
+                 ("undo_post", _on_reset), ("redo_post", _on_reset))
+
+
 def register():
     HANDLERS.add(_draw_callback)
+    for name, fn in _APP_HANDLERS:
+        getattr(bpy.app.handlers, name).append(fn)
+    manipulation.RIGS.install()
 
 
 def unregister():
+    manipulation.RIGS.uninstall()
+    for name, fn in _APP_HANDLERS:
+        handlers = getattr(bpy.app.handlers, name)
+        if fn in handlers:
+            handlers.remove(fn)
     HANDLERS.remove_all()

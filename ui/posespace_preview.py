@@ -59,11 +59,13 @@ class PreviewCache:
     """Trained live-preview models keyed by object name (see the module docstring).
 
     ``busy`` guards against re-entrance: writing key values from the handler triggers another
-    depsgraph update.
+    depsgraph update.  ``stopped`` holds the names of objects whose preview failed but could not be
+    turned off (linked data): they are skipped until the cache is cleared, so a failure is reported once.
     """
 
     def __init__(self):
         self._entries: dict[str, TrainedPreview] = {}
+        self.stopped: set[str] = set()
         self.busy = False
 
     def get(self, name: str, revision: int, method: str) -> TrainedPreview | None:
@@ -81,8 +83,9 @@ class PreviewCache:
         self._entries.pop(name, None)
 
     def clear(self) -> None:
-        """Forget every model."""
+        """Forget every model (and every stopped object)."""
         self._entries.clear()
+        self.stopped.clear()
 
     def __len__(self) -> int:
         return len(self._entries)
@@ -114,8 +117,39 @@ def refresh(obj) -> bool:
         return False
     posespace.preview(obj, entry.deformer, entry.names, entry.driver)
     posespace.show_variance(obj, float(entry.confidence.variance(pose)))    # the panel's live confidence
+    posespace.clear_preview_message(obj)
     entry.last_pose = pose
     return True
+
+
+def _one_line(exc: Exception) -> str:
+    """The first line of an error's message; unexpected errors (not ShapeSpaceError) named by type."""
+    lines = str(exc).splitlines()
+    text = lines[0] if lines else type(exc).__name__
+    return text if isinstance(exc, ShapeSpaceError) else f"unexpected {type(exc).__name__}: {text}"
+
+
+def _stop(obj, name: str, exc: Exception) -> None:
+    """Stop previewing ``obj`` after a failure: Live Preview off, one line on the console, never a raise."""
+    CACHE.invalidate(name)
+    detail = _one_line(exc)
+    try:
+        posespace.stop_live_preview(obj, detail)
+    except Exception:       # linked data cannot be changed: skip it from now on instead
+        CACHE.stopped.add(name)
+    print(f"ShapeSpace: Live Preview of {name!r} stopped: {detail}")
+
+
+def _previewed(scene) -> list:
+    """The meshes of ``scene`` with Live Preview on and examples to preview (not while in Edit Mode, where
+    what the preview writes would be overwritten on leaving it)."""
+    out = []
+    for obj in scene.objects:
+        if obj.type == "MESH" and obj.mode != "EDIT" and obj.name not in CACHE.stopped:
+            st = obj.shapespace_psd
+            if st.live_preview and len(st.examples):
+                out.append(obj)
+    return out
 
 
 @persistent
@@ -124,12 +158,14 @@ def _on_update(scene, depsgraph=None):
         return
     CACHE.busy = True
     try:
-        for obj in scene.objects:
-            if obj.type == "MESH" and obj.shapespace_psd.live_preview and len(obj.shapespace_psd.examples):
-                try:
-                    refresh(obj)
-                except ShapeSpaceError:
-                    continue  # the panel shows the problem; playback must not stop
+        for obj in _previewed(scene):
+            name = obj.name
+            try:
+                refresh(obj)
+            except Exception as exc:    # a handler must never raise: stop this object's preview, say why once
+                _stop(obj, name, exc)
+    except Exception as exc:            # the scene itself could not be read (never expected)
+        print(f"ShapeSpace: Live Preview paused: {_one_line(exc)}")
     finally:
         CACHE.busy = False
 

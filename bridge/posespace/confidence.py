@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from ...core.posespace import confidence as gpconf
 from ..arrays import write_float
+from .examples import check_not_editing
 from .pose import read_pose
 from .training import trained_deformer
 
@@ -45,6 +46,7 @@ def confidence(obj, heat_map: bool = False) -> dict:
     The variance is also stored for the panel (:func:`show_variance`).  Returns ``{"variance",
     "examples"}`` plus ``{"max_sd", "attribute"}`` with the heat map.
     """
+    check_not_editing(obj)
     deformer, names = trained_deformer(obj)
     conf = confidence_model(deformer)
     pose = read_pose(obj)

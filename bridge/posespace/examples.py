@@ -10,11 +10,13 @@ import bpy
 import numpy as np
 
 from ...core.errors import ErrorCode
+from ...core.posespace.readers import PoseReader
 from ...core.result import ShapeSpaceError
-from .. import shapekeys
+from .. import meshes, shapekeys
 from ..arrays import read_float
-from .pose import add_default_readers, read_pose, settings
-from .stored import SCULPT_SUFFIX, WPSD_KEY, find_example, set_example_pose, set_pseudo_pose, set_target_values
+from .pose import add_readers, armature_of, default_readers, read_pose, readers, settings
+from .stored import (SCULPT_SUFFIX, WPSD_KEY, check_examples, deleted_key, find_example, set_example_pose,
+                     set_pseudo_pose, set_target_values)
 from .targets import read_targets
 
 
@@ -23,23 +25,62 @@ def example_keys(obj) -> set:
     return {ex.name for ex in settings(obj).examples} | {WPSD_KEY}
 
 
+def check_not_editing(obj) -> None:
+    """Refuse a mesh in Edit Mode: its mesh and shape-key data are stale until Edit Mode is left, and what
+    ShapeSpace wrote would be overwritten then (code ``mode``)."""
+    if obj.mode == "EDIT":
+        raise ShapeSpaceError(f"{obj.name!r} is in Edit Mode: leave Edit Mode first (its mesh data is not up "
+                              "to date until then)", ErrorCode.MODE)
+
+
+def shape_keys(obj):
+    """The mesh's ``Key`` datablock; refused naming the examples' keys when every shape key was deleted."""
+    key = obj.data.shape_keys
+    if key is None:
+        names = [ex.name for ex in settings(obj).examples]
+        if names:
+            raise deleted_key(obj, names[0])
+        raise ShapeSpaceError(f"{obj.name!r} has no shape keys", ErrorCode.NO_SHAPE_KEYS)
+    return key
+
+
+def check_finite_positions(positions: np.ndarray, what: str) -> None:
+    """Refuse NaN/inf positions (p, 3), naming ``what``, the vertex and the axis (code ``non_finite``)."""
+    bad = ~np.isfinite(positions)
+    if bad.any():
+        v, axis = (int(i) for i in np.argwhere(bad)[0])
+        raise ShapeSpaceError(f"{what} has a non-finite coordinate ({'xyz'[axis]} = {positions[v, axis]}) at "
+                              f"vertex {v}", ErrorCode.NON_FINITE)
+
+
+def key_positions(obj, kb) -> np.ndarray:
+    """A shape key's positions (p, 3), float64; refused when its vertex count or a coordinate is wrong."""
+    p = len(obj.data.vertices)
+    if len(kb.data) != p:
+        raise ShapeSpaceError(f"shape key {kb.name!r} of {obj.name!r} has {len(kb.data)} vertices, the mesh has "
+                              f"{p}: the topology changed after the key was made", ErrorCode.VERTEX_COUNT_MISMATCH)
+    co = read_float(kb.data, "co", 3).astype(np.float64)
+    check_finite_positions(co, f"shape key {kb.name!r} of {obj.name!r}")
+    return co
+
+
 def basis_positions(obj) -> np.ndarray:
-    """The reference key's positions (p, 3), float64."""
-    return read_float(obj.data.shape_keys.reference_key.data, "co", 3).astype(np.float64)
+    """The reference key's positions (p, 3), float64 (refused when non-finite, naming the key and vertex)."""
+    return key_positions(obj, shape_keys(obj).reference_key)
 
 
 def example_correctives(obj, examples, missing_as_zero: bool = False) -> np.ndarray:
     """Rest-space correctives (key minus basis) of ``examples``, shape (K, p, 3)."""
-    key = obj.data.shape_keys
+    key = shape_keys(obj)
     basis = basis_positions(obj)
     out = []
     for ex in examples:
         if ex.name in key.key_blocks:
-            out.append(read_float(key.key_blocks[ex.name].data, "co", 3).astype(np.float64) - basis)
+            out.append(key_positions(obj, key.key_blocks[ex.name]) - basis)
         elif missing_as_zero:
             out.append(np.zeros_like(basis))
         else:
-            raise ShapeSpaceError(f"the corrective key {ex.name!r} was deleted", ErrorCode.MISSING_KEY)
+            raise deleted_key(obj, ex.name)
     return np.stack(out) if out else np.zeros((0,) + basis.shape)
 
 
@@ -71,23 +112,41 @@ def new_corrective_key(obj, name: str):
     return kb
 
 
+def _new_pose_space(obj) -> list:
+    """Bones for the default rotation readers when the pose space is empty (none when it has readers)."""
+    if len(settings(obj).readers):
+        return []
+    bones = default_readers(obj)
+    if not bones:
+        raise ShapeSpaceError("pose the rig away from its rest pose first (no bone is rotated), or add "
+                              "pose-space readers by hand", ErrorCode.NO_READERS)
+    return bones
+
+
 def add_example(obj, name: str = None, make_sculpt_copy: bool = True) -> str:
     """Record the current pose as a new example, create its (empty) corrective key and a posed copy to sculpt.
 
-    An empty pose space first gets a rotation reader for every posed deforming bone.  Returns the
-    example's name (its key's name).
+    An empty pose space first gets a rotation reader for every posed deforming bone.  Everything is read and
+    checked before anything is written.  Returns the example's name (its key's name).
     """
+    check_not_editing(obj)
     check_topology(obj)
+    check_examples(obj)
+    if obj.data.shape_keys is not None:
+        basis_positions(obj)
+    else:
+        check_finite_positions(meshes.vertex_positions(obj.data), f"mesh {obj.name!r}")
     st = settings(obj)
-    if not len(st.readers) and not add_default_readers(obj):
-        raise ShapeSpaceError("pose the rig away from its rest pose first (no bone is rotated), or add "
-                              "pose-space readers by hand", ErrorCode.NO_READERS)
-    pose = read_pose(obj)
+    bones = _new_pose_space(obj)
+    rs = [PoseReader("rotation", b, 1.0) for b in bones] if bones else None
+    pose = read_pose(obj, rs)
+    targets = read_targets(obj)
+    add_readers(obj, bones)
     kb = new_corrective_key(obj, name or f"PSD_{len(st.examples) + 1:02d}")
     ex = st.examples.add()
     ex.name = kb.name
     set_example_pose(ex, pose)
-    set_target_values(ex, read_targets(obj))
+    set_target_values(ex, targets)
     st.active_example = len(st.examples) - 1
     st.revision += 1
     copy = make_sculpt_copy and posed_copy(obj, kb.name + SCULPT_SUFFIX)
@@ -120,7 +179,10 @@ def remove_sculpt_copy(obj, example_name: str) -> bool:
 
 
 def remove_example(obj, example_name: str) -> str:
-    """Delete an example, its corrective shape key and its posed copy; returns its name."""
+    """Delete an example, its corrective shape key and its posed copy; returns its name.
+
+    Works on damaged examples too (it is how they are cleaned up)."""
+    check_not_editing(obj)
     st = settings(obj)
     find_example(obj, example_name)
     remove_sculpt_copy(obj, example_name)
@@ -135,7 +197,32 @@ def remove_example(obj, example_name: str) -> str:
 
 def move_example(obj, example_name: str, reset: bool = False) -> None:
     """Shape-by-Example pseudo-example: interpolate this sculpt at the current pose (or back where sculpted)."""
+    check_not_editing(obj)
     st = settings(obj)
     ex = find_example(obj, example_name)
-    set_pseudo_pose(ex, [] if reset else read_pose(obj))
+    check_examples(obj)
+    pose = [] if reset else read_pose(obj)
+    set_pseudo_pose(ex, pose)
     st.revision += 1
+
+
+def problem(obj) -> str:
+    """The first thing that stops ``obj``'s pose-space correctives from working, as one line ('' when none).
+
+    Why Live Preview last stopped, damaged stored data, deleted corrective keys, readers naming missing
+    bones.  Cheap enough for a panel's draw; never raises a ShapeSpaceError.
+    """
+    st = settings(obj)
+    if st.preview_message and not st.live_preview:
+        return f"Live Preview stopped: {st.preview_message}"
+    try:
+        check_examples(obj)
+        rs = readers(obj)
+        arm = armature_of(obj) if any(r.is_bone for r in rs) else None
+        for r in rs:
+            if r.is_bone and (arm is None or r.source not in arm.pose.bones):
+                where = f"in {arm.name!r}" if arm is not None else "(no armature)"
+                return f"pose-space reader bone {r.source!r} does not exist {where}: fix or remove the reader"
+    except ShapeSpaceError as exc:
+        return str(exc)
+    return ""

@@ -9,9 +9,9 @@ from ...core.errors import ErrorCode
 from ...core.posespace.mirror import mirror_displacements, mirror_name, mirror_partners, mirror_pose
 from ...core.result import ShapeSpaceError
 from ..arrays import write_float
-from .examples import basis_positions, example_correctives, new_corrective_key
+from .examples import basis_positions, check_not_editing, example_correctives, new_corrective_key
 from .pose import armature_of, readers, settings
-from .stored import example_pose, find_example, set_example_pose
+from .stored import check_examples, example_pose, find_example, set_example_pose
 
 
 def _check_mirror_bones(obj, rs) -> None:
@@ -30,19 +30,22 @@ def mirror_example(obj, example_name: str, tolerance: float = 1e-4) -> str:
     ``tolerance``: how far a vertex may be from its mirror partner, as a fraction of the mesh size.
     Returns the new example's name.
     """
+    check_not_editing(obj)
     st = settings(obj)
     ex = find_example(obj, example_name)
+    check_examples(obj)
     rs = readers(obj)
     _check_mirror_bones(obj, rs)
     pose = mirror_pose(rs, example_pose(ex))
-    partner = mirror_partners(basis_positions(obj), tolerance)
+    basis = basis_positions(obj)
+    partner = mirror_partners(basis, tolerance)
     mirrored = mirror_displacements(example_correctives(obj, [ex])[0], partner)
     key = obj.data.shape_keys
     name = mirror_name(ex.name)
     if name == ex.name or name in key.key_blocks:
         name = ex.name + "_mirror"
     kb = new_corrective_key(obj, name)
-    write_float(kb.data, "co", basis_positions(obj) + mirrored)
+    write_float(kb.data, "co", basis + mirrored)
     new = st.examples.add()
     new.name = kb.name
     set_example_pose(new, pose)

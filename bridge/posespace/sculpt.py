@@ -16,12 +16,15 @@ from ...core.result import ShapeSpaceError, Status
 from ...core.skinning import deform
 from .. import meshes, skin
 from ..arrays import read_float, write_float
-from .examples import basis_positions, check_topology, example_keys, pre_armature_positions
+from .examples import (basis_positions, check_finite_positions, check_not_editing, check_topology, example_keys,
+                       pre_armature_positions)
 from .pose import settings
-from .stored import find_example
+from .stored import check_examples, find_example
 
 #: Temporary key used while inverting through Blender's own evaluation (removed afterwards).
 TEMP_KEY = "ShapeSpace_invert"
+#: Blender evaluations a typical inversion takes (a few Newton steps of 7): the progress display's scale.
+_EXPECTED_EVALUATIONS = 40.0
 
 
 def modelled_exactly(obj) -> bool:
@@ -37,50 +40,65 @@ def modelled_exactly(obj) -> bool:
 def _sculpt_positions(obj, ex) -> np.ndarray:
     """The sculpt copy's vertices in ``obj``'s object space."""
     p = len(obj.data.vertices)
-    if ex.sculpt is None:
+    copy = ex.sculpt
+    if copy is None:
         raise ShapeSpaceError(f"example {ex.name!r} has no sculpt copy: give sculpt positions", ErrorCode.NO_SCULPT)
-    if len(ex.sculpt.data.vertices) != p:
-        raise ShapeSpaceError(f"the sculpt copy of {ex.name!r} has {len(ex.sculpt.data.vertices)} "
+    if copy.type != "MESH":
+        raise ShapeSpaceError(f"the sculpt copy {copy.name!r} of {ex.name!r} is a {copy.type.lower()}, not a mesh",
+                              ErrorCode.NOT_MESH)
+    if copy.mode == "EDIT":
+        raise ShapeSpaceError(f"the sculpt copy {copy.name!r} of {ex.name!r} is in Edit Mode: leave Edit Mode "
+                              "first (its mesh data is not up to date until then)", ErrorCode.MODE)
+    if len(copy.data.vertices) != p:
+        raise ShapeSpaceError(f"the sculpt copy of {ex.name!r} has {len(copy.data.vertices)} "
                               f"vertices, the mesh has {p}: the topology changed", ErrorCode.VERTEX_COUNT)
-    world = meshes.to_world(ex.sculpt, meshes.vertex_positions(ex.sculpt.data))
+    world = meshes.to_world(copy, meshes.vertex_positions(copy.data))
+    check_finite_positions(world, f"the sculpt copy {copy.name!r} of {ex.name!r}")
     return meshes.to_local(obj, world)
 
 
-def _invert(obj, rest, sculpt) -> InversionResult:
+def _invert(obj, rest, sculpt, progress=None) -> InversionResult:
     if skin.armature_modifiers(obj) and modelled_exactly(obj):
         rig = skin.read_skinning(obj)
         poses = skin.modifier_poses(obj)
         return invert_deformation(lambda x: deform(x, rig, poses), rest, sculpt)
     if [m for m in obj.modifiers if m.show_viewport]:
-        return _invert_through_blender(obj, rest, sculpt)
+        return _invert_through_blender(obj, rest, sculpt, progress)
     return InversionResult(sculpt - rest, residual=0.0, iterations=0, status=Status.OK,
                            message="no armature: the sculpt is the corrective")
 
 
-def apply_example(obj, example_name: str, sculpt_positions=None) -> InversionResult:
+def apply_example(obj, example_name: str, sculpt_positions=None, progress=None) -> InversionResult:
     """Invert the example's sculpt to rest space and store it in the example's shape key.
 
-    ``sculpt_positions`` (p, 3) in ``obj``'s object space; default: the sculpt copy's vertices.
+    ``sculpt_positions`` (p, 3) in ``obj``'s object space; default: the sculpt copy's vertices (refused while
+    the copy is in Edit Mode).  ``progress``: called with an estimated fraction done while inverting
+    through Blender's own evaluation (for a progress display).
     Returns the core ``InversionResult`` (``corrective``, ``residual``, status).
     """
+    check_not_editing(obj)
     check_topology(obj)
     st = settings(obj)
     ex = find_example(obj, example_name)
+    check_examples(obj)
     p = len(obj.data.vertices)
     if sculpt_positions is None:
         sculpt_positions = _sculpt_positions(obj, ex)
     sculpt_positions = np.asarray(sculpt_positions, dtype=np.float64)
     if sculpt_positions.shape != (p, 3):
         raise ShapeSpaceError(f"sculpt positions must have shape ({p}, 3)", ErrorCode.SHAPE)
-    result = _invert(obj, pre_armature_positions(obj), sculpt_positions)
+    check_finite_positions(sculpt_positions, f"the sculpt of {ex.name!r}")
+    basis = basis_positions(obj)
+    result = _invert(obj, pre_armature_positions(obj), sculpt_positions, progress)
+    check_finite_positions(result.corrective, f"the inverted corrective of {ex.name!r}")
     key = obj.data.shape_keys
-    write_float(key.key_blocks[example_name].data, "co", basis_positions(obj) + result.corrective)
+    write_float(key.key_blocks[example_name].data, "co", basis + result.corrective)
     obj.data.update()
     st.revision += 1
     return result
 
 
-def _invert_through_blender(obj, rest, sculpt) -> InversionResult:
+def _invert_through_blender(obj, rest, sculpt, progress=None) -> InversionResult:
     """Newton inversion with Blender's own evaluation as the deformer (B-Bones, other modifiers).
 
     Each evaluation writes the candidate pre-modifier positions into a temporary shape key and reads
@@ -98,8 +116,12 @@ def _invert_through_blender(obj, rest, sculpt) -> InversionResult:
     name = tmp.name
     basis = read_float(key.reference_key.data, "co", 3).astype(np.float64)
     depsgraph = bpy.context.evaluated_depsgraph_get()
+    calls = [0]
 
     def blender_deform(x):
+        calls[0] += 1
+        if progress is not None:
+            progress(min(calls[0] / _EXPECTED_EVALUATIONS, 0.99))
         write_float(obj.data.shape_keys.key_blocks[name].data, "co", basis + (x - rest))
         obj.data.update()
         return meshes.evaluated_positions(obj, depsgraph).astype(np.float64)

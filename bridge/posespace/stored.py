@@ -14,6 +14,7 @@ ShapeSpace 0.1.0 hold bare JSON lists and still load.  Damage raises
 """
 from __future__ import annotations
 
+import math
 import numbers
 
 from ...core.errors import ErrorCode
@@ -42,9 +43,9 @@ def find_example(obj, name: str):
 
 def _read_values(ex, attr: str, schema: Schema) -> list:
     values = storage.read_string_blob(ex, attr, schema)["values"]
-    if not all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in values):
+    if not all(isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) for v in values):
         raise ShapeSpaceError(f"damaged ShapeSpace data in {storage.where(ex, attr)}: "
-                              "field 'values' must hold numbers only", ErrorCode.CORRUPT_METADATA)
+                              "field 'values' must hold finite numbers only", ErrorCode.CORRUPT_METADATA)
     return [float(v) for v in values]
 
 
@@ -83,3 +84,24 @@ def target_values(ex) -> list:
 
 def set_target_values(ex, values) -> None:
     _write_values(ex, "target_values", TARGET_VALUES_SCHEMA, values)
+
+
+def deleted_key(obj, name: str) -> ShapeSpaceError:
+    """The error for an example whose corrective key was deleted (code ``missing_key``)."""
+    return ShapeSpaceError(f"the corrective key {name!r} of {obj.name!r} was deleted: remove example {name!r} "
+                           "(or undo the deletion)", ErrorCode.MISSING_KEY)
+
+
+def check_examples(obj, need_keys: bool = True) -> None:
+    """Refuse damaged pose-space data before anything is written, naming the example.
+
+    Every example's stored pose, pseudo pose and target values must read (the functions above) and, with
+    ``need_keys``, its corrective key must exist.
+    """
+    key = obj.data.shape_keys
+    for ex in settings(obj).examples:
+        example_pose(ex)
+        pseudo_pose(ex)
+        target_values(ex)
+        if need_keys and (key is None or ex.name not in key.key_blocks):
+            raise deleted_key(obj, ex.name)

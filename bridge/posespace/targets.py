@@ -2,13 +2,16 @@
 properties, shape-key values — recorded at each example and interpolated between them."""
 from __future__ import annotations
 
+import math
+import re
+
 import numpy as np
 
 from ...core.errors import ErrorCode
 from ...core.posespace.drivers import train_target_driver
 from ...core.result import ShapeSpaceError
 from .pose import armature_of, settings
-from .stored import find_example, interpolation_pose, set_target_values, target_values
+from .stored import check_examples, find_example, interpolation_pose, set_target_values, target_values
 
 
 def _resolve(owner, data_path: str):
@@ -25,24 +28,51 @@ def _value(owner, data_path: str, index: int) -> float:
     return float(value[index] if index >= 0 else value)
 
 
+def _target_value(t) -> float:
+    """A driven target's current value; refused when it cannot be read or is not finite, naming it."""
+    try:
+        value = _value(t.owner, t.data_path, t.index)
+    except ShapeSpaceError:
+        raise
+    except (IndexError, TypeError, ValueError):
+        raise ShapeSpaceError(f"driven target {t.data_path!r} index {t.index} is not a number on "
+                              f"{t.owner.name!r}", ErrorCode.NOT_NUMBER) from None
+    if not math.isfinite(value):
+        raise ShapeSpaceError(f"driven target {t.data_path!r} of {t.owner.name!r} is {value}: give it a finite "
+                              "value first", ErrorCode.NON_FINITE)
+    return value
+
+
 def read_targets(obj) -> list:
     """Current values of the driven targets (one float each)."""
-    return [_value(t.owner, t.data_path, t.index) for t in settings(obj).targets]
+    return [_target_value(t) for t in settings(obj).targets]
+
+
+def _setter(t):
+    """A function setting driven target ``t`` to a float; refused (naming it) when its path does not resolve."""
+    if t.index >= 0:
+        arr = _resolve(t.owner, t.data_path)
+        if not hasattr(arr, "__setitem__") or not 0 <= t.index < len(arr):
+            raise ShapeSpaceError(f"driven target {t.data_path!r} has no index {t.index} on {t.owner.name!r}",
+                                  ErrorCode.MISSING_TARGET)
+        return lambda v: arr.__setitem__(t.index, v)
+    custom = re.match(r'^(.*)\[(["\'])([^"\']*)\2\]$', t.data_path)
+    if custom:                  # a custom property: owner["name"] or owner.path["name"]
+        path, name = custom.group(1), custom.group(3)
+        holder = _resolve(t.owner, path) if path else t.owner
+        return lambda v: holder.__setitem__(name, v)
+    path, _, prop = t.data_path.rpartition(".")
+    holder = _resolve(t.owner, path) if path else t.owner
+    if not hasattr(holder, prop):
+        raise ShapeSpaceError(f"{t.owner.name!r} has no property {t.data_path!r}", ErrorCode.MISSING_TARGET)
+    return lambda v: setattr(holder, prop, v)
 
 
 def write_targets(obj, values) -> None:
-    """Set the driven targets to ``values`` (one float each, in order)."""
-    for t, v in zip(settings(obj).targets, values):
-        if t.index >= 0:
-            arr = _resolve(t.owner, t.data_path)
-            arr[t.index] = float(v)
-        else:
-            path, _, prop = t.data_path.rpartition(".")
-            holder = t.owner.path_resolve(path) if path else t.owner
-            if prop.startswith("["):   # custom property: owner["name"]
-                holder[prop[2:-2]] = float(v)
-            else:
-                setattr(holder, prop, float(v))
+    """Set the driven targets to ``values`` (one float each, in order); every path is resolved first."""
+    setters = [_setter(t) for t in settings(obj).targets]
+    for set_value, v in zip(setters, values):
+        set_value(float(v))
 
 
 def add_target(obj, data_path: str, index: int = -1, on_armature: bool = True) -> tuple:
@@ -71,6 +101,7 @@ def record_targets(obj, example_name: str) -> list:
     """Store the driven targets' current values as the example's (after the rigger set them at its pose)."""
     st = settings(obj)
     ex = find_example(obj, example_name)
+    check_examples(obj)
     values = read_targets(obj)
     set_target_values(ex, values)
     st.revision += 1

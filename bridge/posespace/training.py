@@ -6,11 +6,11 @@ import numpy as np
 from ...core.errors import ErrorCode
 from ...core.posespace.examples import example_issues
 from ...core.posespace.psd import skin_group_inputs, train_psd
-from ...core.result import ShapeSpaceError
+from ...core.result import Issue, ShapeSpaceError
 from .. import skin
 from .examples import example_correctives
 from .pose import readers, settings
-from .stored import interpolation_pose
+from .stored import check_examples, interpolation_pose
 
 
 def trained_deformer(obj) -> tuple:
@@ -19,13 +19,15 @@ def trained_deformer(obj) -> tuple:
     Returns ``(PoseSpaceDeformer, example names)`` in the deformer's example order.
     """
     st = settings(obj)
+    check_examples(obj, need_keys=False)
     key = obj.data.shape_keys
     active = [ex for ex in st.examples if not ex.mute]
     if not active:
         raise ShapeSpaceError("no (unmuted) examples to interpolate", ErrorCode.NO_EXAMPLES)
     missing = [ex.name for ex in active if key is None or ex.name not in key.key_blocks]
     if missing:
-        raise ShapeSpaceError(f"the corrective keys {', '.join(missing)} were deleted", ErrorCode.MISSING_KEY)
+        raise ShapeSpaceError(f"the corrective keys {', '.join(missing)} of {obj.name!r} were deleted: remove "
+                              "those examples (or undo the deletion)", ErrorCode.MISSING_KEY)
     rs = readers(obj)
     n_features = sum(r.dims for r in rs)
     poses = []
@@ -45,16 +47,23 @@ def trained_deformer(obj) -> tuple:
 
 
 def flag_examples(obj) -> list:
-    """Recompute duplicate/conflict/outlier flags on the examples; returns the core issues."""
+    """Recompute duplicate/conflict/outlier flags on the examples; returns the core issues.
+
+    Advisory: called after an operation succeeded, it never raises — unreadable examples leave the flags
+    as they are and come back as one warning.
+    """
     st = settings(obj)
     exs = list(st.examples)
     if not exs or obj.data.shape_keys is None:
         return []
-    poses = [interpolation_pose(ex) for ex in exs]
-    if len({len(p) for p in poses}) != 1:
-        return []
-    D = example_correctives(obj, exs, missing_as_zero=True)
-    issues = example_issues(np.array(poses), D, [ex.name for ex in exs])
+    try:
+        poses = [interpolation_pose(ex) for ex in exs]
+        if len({len(p) for p in poses}) != 1:
+            return []
+        D = example_correctives(obj, exs, missing_as_zero=True)
+        issues = example_issues(np.array(poses), D, [ex.name for ex in exs])
+    except ShapeSpaceError as exc:
+        return [Issue("warning", str(exc.code), f"examples not checked for duplicates: {exc}")]
     for ex in exs:
         ex.flags = ", ".join(sorted({i.code.replace("_", " ") for i in issues if ex.name in i.items}))
     return issues

@@ -13,13 +13,14 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
+from .. import validate
 from ..blendshape import BlendshapeModel
 from ..errors import ErrorCode
 from ..result import Result, ShapeSpaceError, Status
 from ._common import EPS, check_model, shaped
 
 __all__ = ["to_whole_face", "from_whole_face", "whole_face_weights", "delta_weights", "project_convex",
-           "convex_slider_values"]
+           "convex_slider_values", "neutral_key_count"]
 
 
 def to_whole_face(model: BlendshapeModel) -> tuple[np.ndarray, np.ndarray]:
@@ -40,6 +41,34 @@ def to_whole_face(model: BlendshapeModel) -> tuple[np.ndarray, np.ndarray]:
     """
     check_model(model, need_targets=False)
     return model.neutral + model.deltas, model.neutral.copy()
+
+
+def neutral_key_count(slider_min: ArrayLike, slider_max: ArrayLike, limit: float = 10.0) -> int:
+    """How many Neutral keys share the neutral's whole-face weight ``c0 = 1 − Σw`` (thesis 3.7.3).
+
+    A host application may bound every key weight to ``[−limit, limit]`` (Blender: ±10).  Splitting
+    ``b0`` over ``K`` identical keys, each weighted ``c0 / K``, keeps ``Σ_k c_k b_k`` exact for every
+    slider vector of the box ``slider_min ≤ w ≤ slider_max`` when ``|c0| / K ≤ limit``:
+    ``K = ⌈max(|1 − Σ slider_max|, |1 − Σ slider_min|) / limit⌉`` (at least 1).
+
+    Parameters
+    ----------
+    slider_min, slider_max : array_like, shape (n,)
+        Finite slider ranges, ``slider_min ≤ slider_max``.
+    limit : float
+        Largest weight magnitude one key may take, > 0.
+
+    Returns
+    -------
+    int
+    """
+    lo = validate.array(slider_min, "slider_min", ndim=1)
+    hi = validate.array(slider_max, "slider_max", shape=lo.shape)
+    limit = validate.positive(limit, "limit")
+    if np.any(lo > hi):
+        raise ShapeSpaceError("slider_min must not exceed slider_max", ErrorCode.RANGE)
+    worst = max(abs(1.0 - hi.sum()), abs(1.0 - lo.sum()))
+    return max(1, int(np.ceil(worst / limit - 1e-9)))
 
 
 def from_whole_face(neutral: ArrayLike, targets: ArrayLike, names: list[str], slider_min: ArrayLike | None = None,

@@ -460,8 +460,13 @@ class PCASliders:
         return np.atleast_2d(np.asarray(weights, dtype=np.float64)) @ self.A.T + self.a
 
 
-def pca_sliders(model: BlendshapeModel, basis: PCABasis) -> PCASliders:
+def pca_sliders(model: BlendshapeModel, basis: PCABasis, weights: ArrayLike | None = None,
+                limit: float | None = None) -> PCASliders:
     """Unit-scaled PCA sliders of ``basis`` for the rig ``model`` (thesis 3.4.6, 3.7.5).
+
+    Slider ``i`` moves the face by ``unit_i`` along ``u_i``: ``unit_i = √variance_i``, grown where needed so
+    that the slider values ``s = A w + a`` of every frame of ``weights`` stay within ``±limit`` (a host
+    application clamps a key's value, Blender to ±10; a clamped slider would silently miss its frame).
 
     Parameters
     ----------
@@ -469,14 +474,22 @@ def pca_sliders(model: BlendshapeModel, basis: PCABasis) -> PCASliders:
         ``n`` targets over ``p`` vertices.
     basis : PCABasis
         ``m`` components over the rig's vertices.
+    weights : array_like, shape (f, n), optional
+        Frames the sliders must reproduce (with ``limit``).
+    limit : float, optional
+        Largest slider magnitude, > 0.
 
     Returns
     -------
     PCASliders
-        Keys (m, p, 3) one standard deviation (or singular value) out along each
-        component, and the map ``s = A w + a`` scaled to those units.
+        Keys (m, p, 3) one unit out along each component, and the map ``s = A w + a`` scaled to those
+        units.
     """
     A, a = blendshape_to_pca_maps(model, basis)
     unit = np.sqrt(np.maximum(basis.variances, 1e-300))
-    keys = (basis.mean[None] + (unit * basis.components).T).reshape(basis.n_components, -1, 3)
+    if weights is not None and limit is not None:
+        W = shaped(weights, "weights", f"(f, {model.n_targets})", ndims=(2,), last=model.n_targets)
+        reach = np.abs(W @ A.T + a).max(axis=0, initial=0.0) / validate.positive(limit, "limit")
+        unit = np.maximum(unit, reach)
+    keys = (basis.mean[None] + (unit * basis.components).T).reshape(basis.n_components, basis.mean.size // 3, 3)
     return PCASliders(basis, unit, basis.mean.reshape(-1, 3), keys, A / unit[:, None], a / unit)

@@ -8,6 +8,7 @@ flagged both when too extreme and when too average.
 """
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +20,7 @@ from ..errors import ErrorCode
 from ..result import Issue, Result, ShapeSpaceError, Status
 from ._common import shaped
 
-__all__ = ["FaceGaussian", "fit_face_gaussian"]
+__all__ = ["FaceGaussian", "fit_face_gaussian", "face_gaussian_from_arrays"]
 
 
 @dataclass
@@ -184,3 +185,58 @@ def fit_face_gaussian(weights: ArrayLike, ridge: float | None = None) -> FaceGau
     cond = float(lam[0] / lam[-1]) if lam[-1] > 0 else np.inf
     return FaceGaussian(mean, V, lam + ridge, dim, ridge, ridge > 0, message,
                         {"constant_channels": constant.tolist(), "frames": f, "condition": cond})
+
+
+def _stored_names(names: object) -> list[str]:
+    if not isinstance(names, (list, tuple)) or not names or not all(isinstance(n, str) for n in names):
+        raise ShapeSpaceError(f"names must be a non-empty list of slider names, got {names!r:.80}", ErrorCode.TYPE)
+    dup = sorted(n for n, c in Counter(names).items() if c > 1)
+    if dup:
+        raise ShapeSpaceError(f"names repeats {', '.join(map(repr, dup))}", ErrorCode.DUPLICATE_NAME)
+    return list(names)
+
+
+def face_gaussian_from_arrays(names: list[str], mean: ArrayLike, eigvecs: ArrayLike, eigvals: ArrayLike,
+                              dimension: float, ridge: float = 0.0, regularised: bool = False,
+                              message: str = "") -> FaceGaussian:
+    """A :class:`FaceGaussian` over the sliders ``names`` from stored arrays, every shape checked.
+
+    What :func:`fit_face_gaussian` gives, read back (from a file, say): the whitening
+    ``z = Λ^{-1/2} Vᵀ (w − μ)`` (thesis 3.7.9) needs ``μ`` (n,), orthonormal ``V`` (n, n) and
+    ``Λ`` (n,) > 0 for the ``n`` named sliders, and ``0 < d ≤ n``.
+
+    Parameters
+    ----------
+    names : list of str, length n
+        Distinct slider names, n ≥ 1.
+    mean : array_like, shape (n,)
+    eigvecs : array_like, shape (n, n)
+        Orthonormal columns.
+    eigvals : array_like, shape (n,)
+        Positive whitening variances.
+    dimension : float
+        Effective dimension, in (0, n].
+    ridge : float
+        ≥ 0.
+    regularised : bool
+    message : str
+
+    Returns
+    -------
+    FaceGaussian
+    """
+    n = len(_stored_names(names))
+    mean = validate.array(mean, "mean", shape=(n,))
+    eigvecs = validate.array(eigvecs, "eigvecs", shape=(n, n))
+    eigvals = validate.array(eigvals, "eigvals", shape=(n,))
+    if np.any(eigvals <= 0):
+        raise ShapeSpaceError(f"eigvals must be positive, found {eigvals.min():g}", ErrorCode.RANGE)
+    if not np.allclose(eigvecs.T @ eigvecs, np.eye(n), atol=1e-6):
+        raise ShapeSpaceError("eigvecs must have orthonormal columns", ErrorCode.NOT_ORTHONORMAL)
+    dimension = validate.positive(dimension, "dimension")
+    if dimension > n * (1 + 1e-9):
+        raise ShapeSpaceError(f"dimension must be at most the {n} sliders, got {dimension:g}", ErrorCode.RANGE)
+    ridge = validate.non_negative(ridge, "ridge")
+    if not isinstance(regularised, bool) or not isinstance(message, str):
+        raise ShapeSpaceError("regularised must be a bool and message a string", ErrorCode.TYPE)
+    return FaceGaussian(mean, eigvecs, eigvals, dimension, ridge, regularised, message)

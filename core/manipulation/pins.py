@@ -17,6 +17,7 @@ import numpy as np
 from ..blendshape import BlendshapeModel, normalised_unit
 from ..errors import ErrorCode
 from ..result import ShapeSpaceError
+from .rig import check_model, rig_facts
 
 __all__ = ["Pin", "PinRows", "pin_matrix", "pin_rest_positions", "pin_positions", "pins_key"]
 
@@ -55,24 +56,36 @@ def _pin_arrays(pins, p):
     idx = np.zeros((k, 3), dtype=np.int64)
     bary = np.zeros((k, 3))
     for j, pin in enumerate(pins):
-        v = tuple(int(i) for i in pin.vertices)
-        b = tuple(float(x) for x in pin.weights)
+        v, b = tuple(pin.vertices), tuple(pin.weights)
         if not 1 <= len(v) <= 3 or len(v) != len(b):
             raise ShapeSpaceError(f"pin {j}: vertices and weights must have 1–3 matching entries", ErrorCode.PIN)
-        if any(i < 0 or i >= p for i in v):
-            raise ShapeSpaceError(f"pin {j}: vertex index out of range 0..{p - 1}", ErrorCode.PIN)
-        if not np.isfinite(b).all() or abs(sum(b) - 1.0) > 1e-6:
-            raise ShapeSpaceError(f"pin {j}: barycentric weights must be finite and sum to 1", ErrorCode.PIN)
         idx[j, :len(v)] = v
         bary[j, :len(b)] = b
+    out_of_range = np.flatnonzero(((idx < 0) | (idx >= p)).any(axis=1))
+    if out_of_range.size:
+        raise ShapeSpaceError(f"pin {out_of_range[0]}: vertex index out of range 0..{p - 1}", ErrorCode.PIN)
+    bad = np.flatnonzero(~np.isfinite(bary).all(axis=1) | (np.abs(bary.sum(axis=1) - 1.0) > 1e-6))
+    if bad.size:
+        raise ShapeSpaceError(f"pin {bad[0]}: barycentric weights must be finite and sum to 1", ErrorCode.PIN)
     return idx, bary
 
 
 def _rows(model, idx, bary, deltas=None):
-    """Barycentric rows of ``deltas`` (t, p, 3) at the pins, (3k, t); muted keys zeroed for the model's own."""
+    """Barycentric rows of ``deltas`` (t, p, 3) at the pins, (3k, t); muted keys zeroed for the model's own.
+
+    Gathers only the vertex slots some pin uses (a pin on a vertex uses one of its three).
+    """
     d = model.deltas if deltas is None else deltas
-    gathered = d[:, idx, :]                                   # (t, k, 3 vertices, 3 coords)
-    rows = (gathered * bary[None, :, :, None]).sum(axis=2)    # (t, k, 3)
+    rows = None
+    for slot in range(3):
+        w = bary[:, slot]
+        if slot and not w.any():
+            continue
+        part = np.take(d, idx[:, slot], axis=1)               # (t, k, 3)
+        if not (w == 1.0).all():
+            with np.errstate(invalid="ignore"):                   # inf × 0: a non-finite rig is named later
+                part *= w[None, :, None]
+        rows = part if rows is None else rows + part
     rows = np.ascontiguousarray(rows.reshape(d.shape[0], -1).T)  # (3k, t)
     if deltas is None:
         rows[:, model.mute] = 0.0
@@ -103,16 +116,34 @@ class PinRows:
         Rows of the driven (in-between and combination) keys; ``None`` for a linear rig.
     unit : float
         Model units per normalised unit (:func:`~core.blendshape.normalised_unit`).
+
+    Raises
+    ------
+    ShapeSpaceError
+        ``no_pins`` / ``pin`` for bad pins.
     """
 
     def __init__(self, model: BlendshapeModel, pins: Sequence[Pin]):
         self.model = model
         self.key = pins_key(pins)
         self.idx, self.bary = _pin_arrays(pins, model.n_vertices)
+        self._inert = None
         self.R = _rows(model, self.idx, self.bary)
         self.rest = np.einsum("kc,kcx->kx", self.bary, model.neutral[self.idx])
         self.Rd = None if model.is_linear else _rows(model, self.idx, self.bary, model.driven_deltas())
         self.unit = normalised_unit(model)
+
+    @property
+    def inert(self) -> np.ndarray:
+        """Sliders whose keys move no vertex (:func:`~.rig.inert_keys`), bool (n,): a solve leaves them be.
+
+        The first access for a model object checks the whole model (:func:`~.rig.rig_facts`, code
+        ``non_finite`` naming the key and vertex) — one pass over the deltas, kept on the model, so a new set of
+        pins (a new drag) on the same model costs only its own rows.
+        """
+        if self._inert is None:
+            self._inert = rig_facts(self.model).inert
+        return self._inert
 
     def matches(self, model: BlendshapeModel, pins: Sequence[Pin]) -> bool:
         """True when these rows were built for this very model object and these pins."""
@@ -203,5 +234,16 @@ def pin_positions(model: BlendshapeModel, pins: Sequence[Pin], weights: np.ndarr
     Returns
     -------
     ndarray, shape (k, 3)
+
+    Raises
+    ------
+    ShapeSpaceError
+        ``non_finite`` when a position is not finite, naming the key and vertex when the rig is the cause.
     """
-    return PinRows(model, pins).positions(weights)
+    with np.errstate(invalid="ignore", over="ignore"):      # a non-finite rig is reported below, by name
+        pos = PinRows(model, pins).positions(weights)
+    if not np.isfinite(pos).all():
+        check_model(model)
+        raise ShapeSpaceError("the pin positions are not finite: the slider values contain NaN or infinity",
+                              ErrorCode.NON_FINITE)
+    return pos

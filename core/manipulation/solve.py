@@ -30,6 +30,14 @@ relative decrease falls below ``gn_tol`` or after ``gn_max_iter`` steps.
 An interactive drag passes a :class:`~.session.DragSession` to every solve:
 it carries the pin rows, the previous sliders and the previous dual from one
 mouse move to the next.
+
+Every route leaves two kinds of sliders exactly at ``w0`` (bounds ``lo = hi``):
+muted keys, and keys that move no vertex (:func:`~.rig.inert_keys` — nothing
+in the data term decides them, and an invisible change would still be keyed).
+A model with a NaN or infinite coordinate or slider range is refused by name
+(:func:`~.rig.check_model`), as are non-finite targets, ``w0``, ``x0`` and
+regularisers; a solver stopped at its iteration limit makes the result
+``NOT_CONVERGED``, its message starting "not converged".
 """
 from __future__ import annotations
 
@@ -42,9 +50,10 @@ from ..blendshape import BlendshapeModel, normalised_unit
 from ..boxqp import solve_box_lsq_dual, solve_box_qp
 from ..errors import ErrorCode
 from ..result import Issue, Result, ShapeSpaceError, Status
-from ..validate import array, choice, non_negative
+from ..validate import array, choice, non_negative, positive
 from .pins import Pin, PinRows, pin_matrix, pin_rest_positions
 from .prior import WeightPrior, prior_terms, snap_term
+from .rig import check_model, inert_keys
 from .session import DragSession
 
 __all__ = ["DragResult", "solve_drag", "solve_drag_reference", "drag_objective"]
@@ -67,11 +76,13 @@ class DragResult(Result):
     iterations : int
         QP iterations (summed over Gauss–Newton steps).
     status : Status
-        ``OK``, or ``WARNING`` when ``issues``/``message`` report dead pins, conflicting pins, unreachable
-        targets or a QP that stopped before full convergence (the sliders are then the best found).
+        ``OK``; ``WARNING`` when ``issues``/``message`` report dead pins, conflicting pins or unreachable
+        targets; ``NOT_CONVERGED`` when a QP or the Gauss–Newton loop stopped at its iteration limit (the
+        message says so first; the sliders are then the best found).
     diagnostics : dict
-        ``unit`` (model units per normalised unit), ``clamped`` (sliders at a bound), and
-        ``prior_form`` / ``snap_neighbours`` when those routes ran.
+        ``unit`` (model units per normalised unit), ``clamped`` (sliders at a bound), ``inert`` (names of the
+        keys that move no vertex: their sliders were left where they were), and ``prior_form`` /
+        ``snap_neighbours`` when those routes ran.
     """
 
     objective: float
@@ -118,31 +129,59 @@ def _objective(rows, targets, w, w0, alpha, mu, prior) -> float:
     return data + reg + mu * float(np.asarray(w) @ np.asarray(w))
 
 
-def _bounds(model, w0):
-    """Slider bounds ``(lo, hi)``; muted sliders are fixed where they are."""
+def _bounds(model, w0, inert):
+    """Slider bounds ``(lo, hi)``; muted sliders and those of keys that move nothing (``inert``) stay at ``w0``."""
     lo = model.slider_min.copy()
     hi = model.slider_max.copy()
-    mute = model.mute
-    lo[mute] = hi[mute] = np.clip(w0[mute], model.slider_min[mute], model.slider_max[mute])
+    fixed = model.mute | inert
+    lo[fixed] = hi[fixed] = np.clip(w0[fixed], model.slider_min[fixed], model.slider_max[fixed])
     return lo, hi
+
+
+def _slider_vector(values, name, model):
+    """``values`` (n,) checked finite, the message naming the first bad key; clipped to the slider ranges."""
+    w = array(values, name, shape=(model.n_targets,), finite=False)
+    bad = np.flatnonzero(~np.isfinite(w))
+    if bad.size:
+        raise ShapeSpaceError(f"{name} of shape key {model.names[bad[0]]!r} is {w[bad[0]]}", ErrorCode.NON_FINITE)
+    return np.clip(w, model.slider_min, model.slider_max)
 
 
 def _validate(model, pins, targets, w0):
     """Checked targets (k, 3) and sliders before the drag (n,), clipped to the slider ranges."""
     k = len(pins)
-    targets = array(targets, "targets", shape=(k, 3))
-    w0 = model.values if w0 is None else array(w0, "w0", shape=(model.n_targets,))
-    return targets, np.clip(w0, model.slider_min, model.slider_max)
+    targets = array(targets, "targets", shape=(k, 3), finite=False)
+    bad = np.flatnonzero(~np.isfinite(targets).all(axis=1))
+    if bad.size:
+        raise ShapeSpaceError(f"the target of pin {bad[0]} is not finite: {tuple(targets[bad[0]].tolist())}",
+                              ErrorCode.NON_FINITE)
+    w0 = _slider_vector(model.values, "value", model) if w0 is None else _slider_vector(w0, "w0", model)
+    return targets, w0
 
 
-def _check_settings(model, alpha, mu, prior, prior_form, snap):
-    """Check the regularisers and the learned-mode options; return the prior aligned to the rig."""
+def _check_prior(prior):
+    """Refuse a prior with non-finite or non-positive statistics (a hand-built or damaged one)."""
+    array(prior.mean, "the prior's mean", ndim=1)
+    array(prior.components, "the prior's components", ndim=2)
+    array(prior.coefficients, "the prior's coefficients", ndim=2)
+    variances = array(prior.variances, "the prior's variances", ndim=1)
+    if variances.size == 0 or np.any(variances <= 0):
+        raise ShapeSpaceError("the prior's variances must be positive", ErrorCode.RANGE)
+    positive(prior.eps, "the prior's eps")
+
+
+def _check_settings(model, alpha, mu, prior, prior_form, snap, gn_tol, gn_max_iter):
+    """Check the regularisers, the stopping rule and the learned-mode options; return the aligned prior."""
     alpha, mu = non_negative(alpha, "alpha"), non_negative(mu, "mu")
     if alpha + mu <= 0:
         raise ShapeSpaceError(f"alpha and mu must have a positive sum, got {alpha}, {mu}", ErrorCode.RANGE)
+    positive(gn_tol, "gn_tol")
+    if isinstance(gn_max_iter, bool) or not isinstance(gn_max_iter, (int, np.integer)) or gn_max_iter < 1:
+        raise ShapeSpaceError(f"gn_max_iter must be a whole number ≥ 1, got {gn_max_iter!r}", ErrorCode.RANGE)
     if snap and prior is None:
         raise ShapeSpaceError("mode snapping needs a learned prior", ErrorCode.NO_PRIOR)
     if prior is not None:
+        _check_prior(prior)
         prior = prior.aligned(model.names)
     choice(prior_form, "prior_form", PRIOR_FORMS)
     return prior
@@ -186,26 +225,30 @@ def solve_drag(model: BlendshapeModel, pins: Sequence[Pin], targets: np.ndarray,
     -------
     DragResult
         Sliders (n,), objective, residuals (k,); status ``WARNING`` with a message when a pin cannot do what
-        it asks.
+        it asks, ``NOT_CONVERGED`` when a solver stopped at its iteration limit.  Sliders of keys that move
+        no vertex (:func:`~.rig.inert_keys`) and muted sliders keep their ``w0``.
 
     Raises
     ------
     ShapeSpaceError
-        Bad targets, ``w0``, regularisers, prior options or pins (codes ``shape``, ``non_finite``, ``range``,
-        ``no_prior``, ``prior_stale``, ``method``, ``no_pins``, ``pin``, ``nonlinear``).
+        Bad model, targets, ``w0``, ``x0``, regularisers, prior options or pins (codes ``shape``,
+        ``non_finite`` — naming the key, vertex, pin or argument —, ``range``, ``no_prior``, ``prior_stale``,
+        ``method``, ``no_pins``, ``pin``, ``nonlinear``).
     """
-    targets, w0 = _validate(model, pins, targets, w0)
-    prior = _check_settings(model, alpha, mu, prior, prior_form, snap)
     rows = session.pin_rows(model, pins) if session is not None else PinRows(model, pins)
-    lo, hi = _bounds(model, w0)
+    inert = rows.inert                  # checks the model (finite) the first time these rows are used
+    targets, w0 = _validate(model, pins, targets, w0)
+    prior = _check_settings(model, alpha, mu, prior, prior_form, snap, gn_tol, gn_max_iter)
+    x0 = None if x0 is None else _slider_vector(x0, "x0", model)
+    lo, hi = _bounds(model, w0, inert)
     problem = _Problem(rows, targets, w0, float(alpha), float(mu), prior, lo, hi)
-    x = np.clip(w0 if x0 is None else np.asarray(x0, dtype=np.float64), lo, hi)
+    x = np.clip(w0 if x0 is None else x0, lo, hi)
     dual = None
     start = session.start(model.n_targets) if session is not None else None
     if start is not None:
         x = np.clip(start, lo, hi) if x0 is None else x
         dual = session.dual
-    diag = {"unit": rows.unit}
+    diag = {"unit": rows.unit, "inert": [model.names[i] for i in np.flatnonzero(inert)]}
     if prior is not None and prior_form == "pca":
         x, iterations, solver_status = _solve_pca(problem)
         dual = None
@@ -238,15 +281,20 @@ def _solve_covariance(problem, x, snap, dual, gn_tol, gn_max_iter, diag):
 def _result(problem, pins, x, iterations, solver_status, prior_form, diag):
     """The :class:`DragResult` of sliders ``x``: residuals, warnings, objective, diagnostics."""
     rows, targets, lo, hi = problem.rows, problem.targets, problem.lo, problem.hi
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:   # finite input can still overflow (targets near the float limit): never hand back NaN
+        raise ShapeSpaceError(f"the solve gave a non-finite value for shape key {rows.model.names[bad[0]]!r} "
+                              "(are the targets absurdly far?)", ErrorCode.NON_FINITE)
     residuals = np.linalg.norm(rows.positions(x) - targets, axis=1)
     issues = _warnings(rows, pins, targets, residuals)
-    if solver_status:
-        issues.append(Issue("warning", "not_converged",
-                            "the solver stopped before full convergence (weights are the best found)"))
+    status = Status.WARNING if issues else Status.OK
+    if solver_status == Status.NOT_CONVERGED:
+        issues.insert(0, Issue("warning", "not_converged", "not converged: the solver stopped at its iteration "
+                               "limit (the sliders are the best found)"))
+        status = Status.NOT_CONVERGED
     obj = problem.objective(x, problem.prior if prior_form == "covariance" else None)
     diag["clamped"] = int(np.sum((x <= lo + 1e-12) | (x >= hi - 1e-12)))
-    return DragResult(x, objective=obj, residuals=residuals, iterations=iterations,
-                      status=Status.WARNING if issues else Status.OK,
+    return DragResult(x, objective=obj, residuals=residuals, iterations=iterations, status=status,
                       message="; ".join(i.message for i in issues) if issues else "ok",
                       diagnostics=diag, issues=issues)
 
@@ -342,7 +390,11 @@ class _GaussNewton:
         return lo2, hi2
 
     def descend(self, x):
-        """Gauss–Newton steps from ``x``; returns ``(w, objective, iterations, status)``."""
+        """Gauss–Newton steps from ``x``; returns ``(w, objective, iterations, status)``.
+
+        ``status`` is ``NOT_CONVERGED`` when a step's QP did not converge or the loop used all
+        ``max_iter`` steps while the objective was still decreasing by more than ``tol``.
+        """
         total, status = 0, Status.OK
         f = self.true_obj(x)
         for _ in range(self.max_iter):
@@ -363,6 +415,8 @@ class _GaussNewton:
             x, f = x + t * step, f_new
             if done:
                 break
+        else:
+            status = Status.NOT_CONVERGED
         return x, f, total, status
 
 
@@ -394,8 +448,8 @@ def _warnings(rows, pins, targets, residuals):
         out.append(Issue("warning", "dead_pins", f"pins {', '.join(map(str, dead))} are on points no shape key moves",
                          tuple(map(str, dead))))
     keyed = {}
-    for j in range(len(pins)):
-        key = tuple(np.round(np.concatenate([rows.idx[j], rows.bary[j]]), 9))
+    points = np.round(np.concatenate([rows.idx, rows.bary], axis=1), 9).tolist()    # (k, 6): where each pin is
+    for j, key in enumerate(map(tuple, points)):
         if key in keyed and np.linalg.norm(targets[j] - targets[keyed[key]]) > 1e-9 * size:
             out.append(Issue("warning", "conflicting_pins", f"pins {keyed[key]} and {j} share a point but have "
                              "different targets: both are met halfway", (str(keyed[key]), str(j))))
@@ -452,6 +506,7 @@ def solve_drag_reference(model: BlendshapeModel, pins: Sequence[Pin], targets: n
     """
     from scipy.optimize import lsq_linear
 
+    check_model(model)
     targets, w0 = _validate(model, pins, targets, w0)
     if not model.is_linear:
         raise ShapeSpaceError("the reference solver handles linear rigs only", ErrorCode.NONLINEAR)
@@ -461,9 +516,9 @@ def solve_drag_reference(model: BlendshapeModel, pins: Sequence[Pin], targets: n
     n = model.n_targets
     A = np.vstack([R, np.sqrt(alpha) * np.eye(n), np.sqrt(mu) * np.eye(n)])
     b = np.concatenate([m, np.sqrt(alpha) * w0, np.zeros(n)])
-    lo, hi = _bounds(model, w0)
+    lo, hi = _bounds(model, w0, inert_keys(model))
     fixed = lo == hi
-    if fixed.any():  # lsq_linear needs lo < hi: eliminate fixed (muted) sliders
+    if fixed.any():  # lsq_linear needs lo < hi: eliminate fixed (muted, inert) sliders
         b = b - A[:, fixed] @ lo[fixed]
         A = A[:, ~fixed]
     res = lsq_linear(A, b, bounds=(lo[~fixed], hi[~fixed]), method="bvls", tol=1e-15)

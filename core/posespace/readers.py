@@ -56,8 +56,9 @@ class PoseReader:
         if self.kind not in READER_DIMS:
             raise ShapeSpaceError(f"unknown pose reader {self.kind!r}; choose from {', '.join(READER_DIMS)}",
                                   ErrorCode.READER)
-        if not self.scale > 0:
-            raise ShapeSpaceError(f"reader scale must be positive, got {self.scale}", ErrorCode.RANGE)
+        if not (np.isfinite(self.scale) and self.scale > 0):
+            raise ShapeSpaceError(f"reader scale of {self.kind} {self.source!r} must be a positive number, got "
+                                  f"{self.scale}", ErrorCode.RANGE)
 
     @property
     def dims(self) -> int:
@@ -70,15 +71,15 @@ class PoseReader:
         return self.kind in ("rotation", "swing", "twist", "location")
 
 
-def _unit_quats(q) -> np.ndarray:
+def _unit_quats(q, name: str = "quaternions") -> np.ndarray:
     """Quaternions (..., 4) normalised; zero or non-finite ones are refused (code ``non_finite``)."""
-    q = validate.array(q, "quaternions", finite=False)
+    q = validate.array(q, name, finite=False)
     if q.ndim < 1 or q.shape[-1] != 4:
-        raise ShapeSpaceError(f"quaternions must have last dimension 4 (w, x, y, z), got {q.shape}",
+        raise ShapeSpaceError(f"{name} must have last dimension 4 (w, x, y, z), got {q.shape}",
                               ErrorCode.SHAPE)
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if np.any(n < 1e-12) or not np.isfinite(q).all():
-        raise ShapeSpaceError("quaternions must be finite and non-zero", ErrorCode.NON_FINITE)
+        raise ShapeSpaceError(f"{name} must be finite and non-zero", ErrorCode.NON_FINITE)
     return q / n
 
 
@@ -173,7 +174,7 @@ def reader_features(reader: PoseReader, value: ArrayLike) -> np.ndarray:
     """
     kind = reader.kind
     if kind in ("rotation", "swing", "twist"):
-        q = _unit_quats(value)
+        q = _unit_quats(value, f"the rotation of {kind} reader {reader.source!r}")
         if kind == "rotation":
             R = quaternion_to_matrix(q)
             f = (R - np.eye(3)).reshape(q.shape[:-1] + (9,)) / np.sqrt(2.0)

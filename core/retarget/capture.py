@@ -9,26 +9,63 @@ The timecode is ``HH:MM:SS:FF.fff`` at 60 frames per second (the fractional
 part subdivides a frame).  :func:`read_live_link_csv` validates the file and
 returns seconds and weights; :func:`resample` interpolates any weight stream
 onto scene frames at another rate.
+
+Limits (each refusal is a :class:`~core.result.ShapeSpaceError` naming the file and line):
+
+- only regular files of at most :data:`MAX_FILE_BYTES` are read (a directory,
+  FIFO or device is refused before it is opened for reading);
+- a take may cross midnight (``23:59:59 → 00:00:00``: the later rows continue
+  the day), but hours must be 0–23, consecutive rows at most
+  :data:`MAX_GAP_SECONDS` apart and the whole take at most
+  :data:`MAX_TAKE_SECONDS` long;
+- weights beyond ± :data:`MAX_ABS_WEIGHT` are damaged cells; channels leaving
+  ``[0, 1]`` by more than :data:`WEIGHT_SLACK` are reported;
+- :func:`resample` refuses to build more than :data:`MAX_RESAMPLE_BYTES`.
 """
 from __future__ import annotations
 
 import csv
 import io
-from dataclasses import dataclass, field
-
+import math
 import os
+import stat
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..errors import ErrorCode
 from ..names import ARKIT_52, canonical_name
 from ..result import Issue, ShapeSpaceError
+from ..validate import array
 
-__all__ = ["WeightStream", "parse_timecode", "read_live_link_csv", "resample"]
+__all__ = ["WeightStream", "parse_timecode", "read_live_link_csv", "resample", "MAX_FILE_BYTES",
+           "MAX_TAKE_SECONDS", "MAX_GAP_SECONDS", "MAX_ABS_WEIGHT", "MAX_RESAMPLE_BYTES"]
 
 #: Live Link Face's timecode rate.
 LLF_TIMECODE_FPS = 60.0
+
+#: Largest capture file read, in bytes (a Live Link Face take is ~0.6 KB a frame: ~2 h at 60 fps).
+MAX_FILE_BYTES = 256 * 2 ** 20
+
+#: Longest take accepted, in seconds.
+MAX_TAKE_SECONDS = 4 * 3600.0
+
+#: Longest jump between consecutive timecodes, in seconds: a longer one is a damaged row, not a pause.
+MAX_GAP_SECONDS = 60.0
+
+#: Seconds in a day: a timecode more than half a day before the previous row is on the next day.
+DAY_SECONDS = 86400.0
+
+#: Largest weight magnitude read: beyond it a cell is damaged (ARKit weights lie in [0, 1]).
+MAX_ABS_WEIGHT = 100.0
+
+#: Channels whose weights leave ``[-WEIGHT_SLACK, 1 + WEIGHT_SLACK]`` are reported (a warning).
+WEIGHT_SLACK = 0.1
+
+#: Largest resampled stream, in bytes of float64 weights (frames × channels × 8).
+MAX_RESAMPLE_BYTES = 2 ** 30
 
 
 @dataclass
@@ -54,7 +91,8 @@ class WeightStream:
 
 
 def parse_timecode(text: str, fps: float = LLF_TIMECODE_FPS) -> float:
-    """``HH:MM:SS:FF(.fff)`` → seconds."""
+    """``HH:MM:SS:FF(.fff)`` → seconds of the day (hours 0–23; a take crossing midnight is unwrapped by
+    :func:`read_live_link_csv`)."""
     parts = text.strip().split(":")
     if len(parts) != 4:
         raise ShapeSpaceError(f"timecode {text!r} is not HH:MM:SS:FF", "timecode")
@@ -63,8 +101,9 @@ def parse_timecode(text: str, fps: float = LLF_TIMECODE_FPS) -> float:
         frames = float(parts[3])
     except ValueError:
         raise ShapeSpaceError(f"timecode {text!r} is not HH:MM:SS:FF", "timecode") from None
-    if not (h >= 0 and 0 <= m < 60 and 0 <= s < 60 and 0 <= frames < fps):
-        raise ShapeSpaceError(f"timecode {text!r} is out of range", "timecode")
+    if not (0 <= h < 24 and 0 <= m < 60 and 0 <= s < 60 and 0 <= frames < fps):
+        raise ShapeSpaceError(f"timecode {text!r} is out of range (HH 0–23, MM and SS 0–59, FF below {fps:g})",
+                              ErrorCode.TIMECODE)
     return h * 3600.0 + m * 60.0 + s + frames / fps
 
 
@@ -72,21 +111,28 @@ def read_live_link_csv(source: str | os.PathLike, required: Sequence[str] = ARKI
                        fps: float = LLF_TIMECODE_FPS) -> WeightStream:
     """Read a Live Link Face CSV (path or text) into a :class:`WeightStream`.
 
-    Validation (each a clear error or a recorded issue):
+    Validation (each a clear error naming the file and line, or a recorded issue):
 
+    - not a regular file, larger than :data:`MAX_FILE_BYTES`, not UTF-8 or
+      not parseable as CSV (stray quote, a cell beyond the csv module's limit)
+      → error;
     - missing ``Timecode`` column or no ARKit channel at all → error;
     - missing, extra or renamed channels → the ARKit channels present are
       kept (matched by canonical name), the rest listed in ``issues``;
     - NaN / empty cells → linearly filled from the neighbouring frames
-      (issue), or error if a channel has no valid value;
-    - timecode gaps (> 2.5 frame periods) → issue; reversed or repeated
-      timecodes → rows sorted, duplicates dropped (issue);
+      (issue), or error if a channel has no valid value; a weight beyond
+      ±:data:`MAX_ABS_WEIGHT` → error; channels leaving ``[0, 1]`` → issue;
+    - a take crossing midnight → later rows continue the day (issue);
+      impossible timecodes (hour ≥ 24, …) → error; timecode gaps
+      (> 2.5 frame periods) → issue, beyond :data:`MAX_GAP_SECONDS` → error;
+      a take longer than :data:`MAX_TAKE_SECONDS` → error; reversed or
+      repeated timecodes → rows sorted, duplicates dropped (issue);
     - fewer than 3 frames → error (nothing to retarget).
 
     Parameters
     ----------
     source : str or os.PathLike
-        A file path, or the CSV text itself.
+        A file path, or the CSV text itself (a ``str`` with a line break that names no file).
     required : sequence of str
         The channels wanted (matched by canonical name).
     fps : float
@@ -95,34 +141,71 @@ def read_live_link_csv(source: str | os.PathLike, required: Sequence[str] = ARKI
     Returns
     -------
     WeightStream
-        ``times`` (f,) from 0, ``weights`` (f, n) for the n channels found.
+        ``times`` (f,) from 0, ``weights`` (f, n) for the n channels found, all finite.
+
+    Raises
+    ------
+    ShapeSpaceError
+        Every failure (never another exception); from a file, the message starts with its path.
     """
-    text = _read_text(source)
-    numbered = [(i, r) for i, r in enumerate(csv.reader(io.StringIO(text)), start=1) if any(c.strip() for c in r)]
+    text, label = _read_text(source)
+    try:
+        return _parse(text, required, fps)
+    except ShapeSpaceError as exc:
+        if label is None:
+            raise
+        raise ShapeSpaceError(f"{label}: {exc}", exc.code) from None
+
+
+def _parse(text: str, required: Sequence[str], fps: float) -> WeightStream:
+    """The stream of a CSV text (errors name the line, not the file)."""
+    numbered = _csv_rows(text)
     rows = [r for _, r in numbered]
     line_of = [i for i, _ in numbered]
     if not rows:
-        raise ShapeSpaceError("the CSV file is empty", "empty")
+        raise ShapeSpaceError("the CSV file is empty", ErrorCode.EMPTY)
     header = [h.strip() for h in rows[0]]
     if "Timecode" not in header:
-        raise ShapeSpaceError("the CSV has no Timecode column: not a Live Link Face recording", "no_timecode")
+        raise ShapeSpaceError("the CSV has no Timecode column: not a Live Link Face recording",
+                              ErrorCode.NO_TIMECODE)
     t_col = header.index("Timecode")
     cols, names, issues = _channel_columns(header, t_col, required)
     t, w = _read_rows(rows, line_of, header, t_col, cols, fps)
+    lines = np.array(line_of[1:], dtype=np.int64)
+    t = _unwrap_midnight(t, lines, issues)
     order = np.argsort(t, kind="stable")
     if np.any(np.diff(t) < 0):
         issues.append(Issue("warning", "reversed_timecode", "timecodes were out of order; rows were sorted"))
-    t, w = t[order], w[order]
+    t, w, lines = t[order], w[order], lines[order]
     keep = np.concatenate([[True], np.diff(t) > 1e-9])
     if not keep.all():
         issues.append(Issue("warning", "repeated_timecode", f"dropped {int((~keep).sum())} rows with a repeated "
                             "timecode"))
-        t, w = t[keep], w[keep]
+        t, w, lines = t[keep], w[keep], lines[keep]
     if t.size < 3:
-        raise ShapeSpaceError(f"the recording has {t.size} frames; at least 3 are needed", "too_short")
-    issues += _fill_and_check(t, w, names)
-    start = rows[1 + int(order[0])][t_col] if len(rows) > 1 else ""
+        raise ShapeSpaceError(f"the recording has {t.size} frames; at least 3 are needed", ErrorCode.TOO_SHORT)
+    _check_span(t, lines)
+    issues += _fill_and_check(t, w, names, lines)
+    start = rows[1 + int(order[0])][t_col].strip()
     return WeightStream(names, t - t[0], w, issues, start)
+
+
+def _csv_rows(text: str) -> list:
+    """``[(line, cells)]`` of the non-blank records; any line ending (LF, CRLF, CR) ends a line."""
+    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    reader = csv.reader(io.StringIO(text, newline=""))
+    out = []
+    while True:
+        start = reader.line_num + 1         # the record's first line (a quoted cell may span lines)
+        try:
+            row = next(reader)
+        except StopIteration:
+            return out
+        except csv.Error as exc:
+            raise ShapeSpaceError(f"line {start}: not a readable CSV row ({exc}; a stray quote?)",
+                                  ErrorCode.CORRUPT_FILE) from None
+        if any(c.strip() for c in row):
+            out.append((reader.line_num, row))
 
 
 def _channel_columns(header: list, t_col: int, required: Sequence[str]) -> tuple:
@@ -159,52 +242,153 @@ def _read_rows(rows: list, line_of: list, header: list, t_col: int, cols: list, 
     for k, r in enumerate(rows[1:], start=1):
         i = line_of[k]
         if len(r) < len(header):
-            raise ShapeSpaceError(f"line {i} has {len(r)} cells, the header has {len(header)}", "ragged")
-        times.append(parse_timecode(r[t_col], fps))
-        vals = []
-        for j in cols:
-            cell = r[j].strip()
-            try:
-                vals.append(float(cell) if cell else np.nan)
-            except ValueError:
-                raise ShapeSpaceError(f"line {i}, column {header[j]!r}: {cell!r} is not a number", "not_number") \
-                    from None
-        values.append(vals)
+            raise ShapeSpaceError(f"line {i} has {len(r)} cells, the header has {len(header)}", ErrorCode.RAGGED)
+        try:
+            times.append(parse_timecode(r[t_col], fps))
+        except ShapeSpaceError as exc:
+            raise ShapeSpaceError(f"line {i}: {exc}", exc.code) from None
+        values.append([_cell(r[j], i, header[j]) for j in cols])
     return np.array(times), np.array(values, dtype=np.float64).reshape(len(times), len(cols))
 
 
-def _fill_and_check(t: np.ndarray, w: np.ndarray, names: list) -> list:
-    """Fill NaN cells in ``w`` (in place) from the neighbouring frames; issues for the fills and timecode gaps."""
+def _cell(text: str, line: int, column: str) -> float:
+    """One weight cell: a float, NaN when empty; damaged cells refused naming the line and column."""
+    cell = text.strip()
+    if not cell:
+        return np.nan
+    try:
+        value = float(cell)
+    except ValueError:
+        raise ShapeSpaceError(f"line {line}, column {column!r}: {cell[:40]!r} is not a number",
+                              ErrorCode.NOT_NUMBER) from None
+    if math.isfinite(value) and abs(value) > MAX_ABS_WEIGHT:
+        raise ShapeSpaceError(f"line {line}, column {column!r}: {cell[:40]} is not a blendshape weight (they lie "
+                              f"in [0, 1]; beyond ±{MAX_ABS_WEIGHT:g} a cell is damaged)", ErrorCode.RANGE)
+    return value
+
+
+def _unwrap_midnight(t: np.ndarray, lines: np.ndarray, issues: list) -> np.ndarray:
+    """Seconds made monotonic across midnight: a row more than half a day before the previous one (file
+    order) is on the next day."""
+    wraps = np.diff(t) < -DAY_SECONDS / 2
+    if not wraps.any():
+        return t
+    first = int(lines[1 + int(np.flatnonzero(wraps)[0])])
+    issues.append(Issue("info", "midnight", f"the take crosses midnight at line {first}; later timecodes "
+                        "continue the day"))
+    return t + DAY_SECONDS * np.concatenate([[0], np.cumsum(wraps)])
+
+
+def _check_span(t: np.ndarray, lines: np.ndarray) -> None:
+    """Refuse a jump between consecutive (sorted) timecodes beyond :data:`MAX_GAP_SECONDS`, and a take
+    beyond :data:`MAX_TAKE_SECONDS`."""
+    steps = np.diff(t)
+    k = int(np.argmax(steps))
+    if steps[k] > MAX_GAP_SECONDS:
+        raise ShapeSpaceError(f"the timecode jumps {_duration(steps[k])} between line {lines[k]} and line "
+                              f"{lines[k + 1]} (in time order); a take has no gap longer than "
+                              f"{MAX_GAP_SECONDS:g} s: a damaged timecode?", ErrorCode.TIMECODE)
+    if t[-1] - t[0] > MAX_TAKE_SECONDS:
+        raise ShapeSpaceError(f"the take lasts {_duration(t[-1] - t[0])}; takes longer than "
+                              f"{_duration(MAX_TAKE_SECONDS)} are refused (split it)", ErrorCode.TOO_LARGE)
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds:.1f} s"
+
+
+def _fill_and_check(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray) -> list:
+    """Fill NaN cells in ``w`` (in place) from the neighbouring frames; issues for the fills, channels
+    leaving ``[0, 1]`` and timecode gaps."""
     issues = []
     bad = ~np.isfinite(w)
     if bad.any():
         for j in np.flatnonzero(bad.any(axis=0)):
             ok = ~bad[:, j]
             if not ok.any():
-                raise ShapeSpaceError(f"channel {names[j]!r} has no valid value", "non_finite")
+                raise ShapeSpaceError(f"channel {names[j]!r} has no valid value", ErrorCode.NON_FINITE)
             w[~ok, j] = np.interp(t[~ok], t[ok], w[ok, j])
         issues.append(Issue("warning", "filled_nan", f"filled {int(bad.sum())} missing or NaN values from "
                             "neighbouring frames"))
+    outside = np.flatnonzero(((w < -WEIGHT_SLACK) | (w > 1.0 + WEIGHT_SLACK)).any(axis=0))
+    if outside.size:
+        listed = ", ".join(f"{names[j]} ({w[:, j].min():.3g} … {w[:, j].max():.3g})" for j in outside[:6])
+        issues.append(Issue("warning", "weights_out_of_range",
+                            f"{outside.size} channels leave the weight range [0, 1]: {listed}"
+                            + (" …" if outside.size > 6 else ""), tuple(names[j] for j in outside)))
     step = np.median(np.diff(t))
     gaps = np.flatnonzero(np.diff(t) > 2.5 * step)
     if gaps.size:
+        k = int(gaps[np.argmax(np.diff(t)[gaps])])
         issues.append(Issue("warning", "timecode_gap", f"{gaps.size} gaps in the timecode (largest "
-                            f"{np.diff(t).max():.3f} s); values are interpolated across them"))
+                            f"{np.diff(t).max():.3f} s, before line {lines[k + 1]}); values are interpolated "
+                            "across them"))
     return issues
 
 
-def _read_text(source: str | os.PathLike) -> str:
+def _read_text(source: str | os.PathLike) -> tuple:
+    """``(text, label)``: the CSV text, and the path it came from (``None`` when ``source`` is the text).
+
+    A path must be a regular file of at most :data:`MAX_FILE_BYTES`; it is opened without blocking (a FIFO
+    never blocks the reader) and checked with ``fstat`` before a byte is read.
+    """
     if isinstance(source, os.PathLike):
         source = os.fspath(source)
-    if isinstance(source, str) and "\n" not in source and len(source) < 4096:
+    if isinstance(source, bytes):
+        source = os.fsdecode(source)
+    if not isinstance(source, str):
+        raise ShapeSpaceError(f"a CSV source must be a path or text, got {type(source).__name__}", ErrorCode.TYPE)
+    if ("\n" in source or "\r" in source) and not _exists(source):
+        return source, None
+    return _read_file(source), source
+
+
+def _exists(path: str) -> bool:
+    try:
+        return os.path.lexists(path)
+    except (OSError, ValueError):
+        return False
+
+
+def _read_file(path: str) -> str:
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        raise ShapeSpaceError(f"file not found: {path}", ErrorCode.MISSING_FILE) from None
+    except IsADirectoryError:
+        raise ShapeSpaceError(f"{path}: is a directory, not a CSV file", ErrorCode.NOT_A_FILE) from None
+    except (OSError, ValueError) as exc:
+        raise ShapeSpaceError(f"{path}: cannot be read ({getattr(exc, 'strerror', None) or exc})",
+                              ErrorCode.CORRUPT_FILE) from None
+    try:
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise ShapeSpaceError(f"{path}: is a directory, not a CSV file", ErrorCode.NOT_A_FILE)
+        if not stat.S_ISREG(info.st_mode):
+            raise ShapeSpaceError(f"{path}: is not a regular file (a FIFO, socket or device); give a CSV file",
+                                  ErrorCode.NOT_A_FILE)
+        if info.st_size > MAX_FILE_BYTES:
+            raise ShapeSpaceError(f"{path}: is {info.st_size / 2 ** 20:.0f} MiB; capture files larger than "
+                                  f"{MAX_FILE_BYTES / 2 ** 20:.0f} MiB are refused (split the take)",
+                                  ErrorCode.TOO_LARGE)
         try:
-            with open(source, encoding="utf-8-sig", newline="") as fh:
-                return fh.read()
-        except FileNotFoundError:
-            raise ShapeSpaceError(f"file not found: {source}", "missing_file") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ShapeSpaceError(f"cannot read {source}: {exc}", "corrupt_file") from None
-    return str(source)
+            with os.fdopen(os.dup(fd), "rb") as fh:
+                data = fh.read(MAX_FILE_BYTES + 1)
+        except OSError as exc:
+            raise ShapeSpaceError(f"{path}: cannot be read ({exc.strerror or exc})", ErrorCode.CORRUPT_FILE) \
+                from None
+    finally:
+        os.close(fd)
+    if len(data) > MAX_FILE_BYTES:
+        raise ShapeSpaceError(f"{path}: is larger than {MAX_FILE_BYTES / 2 ** 20:.0f} MiB; split the take",
+                              ErrorCode.TOO_LARGE)
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise ShapeSpaceError(f"{path}: line {line}: not UTF-8 text (byte {exc.start}): not a Live Link Face CSV",
+                              ErrorCode.CORRUPT_FILE) from None
 
 
 def resample(times: ArrayLike, weights: ArrayLike, fps: float, start_frame: float = 1.0,
@@ -212,15 +396,17 @@ def resample(times: ArrayLike, weights: ArrayLike, fps: float, start_frame: floa
     """Resample a stream onto scene frames ``start_frame, start_frame + 1, …`` at ``fps / fps_base``.
 
     Linear interpolation in time; the last frame is the last one inside the
-    recording.
+    recording.  A result larger than :data:`MAX_RESAMPLE_BYTES` is refused
+    before anything is allocated.
 
     Parameters
     ----------
     times : ndarray (f,)
-        Increasing sample times in seconds.
+        Strictly increasing, finite sample times in seconds.
     weights : ndarray (f, n)
+        Finite.
     fps, fps_base : float
-        Scene rate ``fps / fps_base`` frames per second.
+        Scene rate ``fps / fps_base`` frames per second (positive, finite).
     start_frame : float
         Scene frame of the first sample.
 
@@ -229,12 +415,27 @@ def resample(times: ArrayLike, weights: ArrayLike, fps: float, start_frame: floa
     frames : ndarray (g,)
     weights : ndarray (g, n)
     """
-    t = np.asarray(times, dtype=np.float64)
-    w = np.asarray(weights, dtype=np.float64)
-    if fps <= 0 or fps_base <= 0:
-        raise ShapeSpaceError(f"fps must be positive, got {fps}/{fps_base}", "fps")
-    rate = fps / fps_base
-    count = int(np.floor((t[-1] - t[0]) * rate + 1e-9)) + 1
+    for value in (fps, fps_base):
+        if not isinstance(value, (int, float, np.integer, np.floating)) or not (math.isfinite(value) and value > 0):
+            raise ShapeSpaceError(f"fps must be positive, got {fps}/{fps_base}", ErrorCode.FPS)
+    t = array(times, "times", ndim=1)
+    w = array(weights, "weights", shape=(t.size, None))
+    if t.size == 0:
+        raise ShapeSpaceError("the stream has no samples", ErrorCode.EMPTY)
+    if np.any(np.diff(t) <= 0):
+        raise ShapeSpaceError("times must be strictly increasing", ErrorCode.UNSORTED)
+    start = float(array(start_frame, "start_frame", ndim=0))
+    rate = float(fps) / float(fps_base)
+    span = float(t[-1]) - float(t[0])
+    frames_float = span * rate + 1.0                      # Python floats: overflow is inf, never a warning
+    size = frames_float * max(w.shape[1], 1) * 8
+    if not (math.isfinite(rate) and math.isfinite(size)) or size > MAX_RESAMPLE_BYTES:
+        raise ShapeSpaceError(f"resampling {_duration(span)} at {rate:g} fps makes {frames_float:.3g} frames "
+                              f"({size / 2 ** 30:.3g} GiB); the limit is {MAX_RESAMPLE_BYTES / 2 ** 30:g} GiB: "
+                              "check the timecodes or split the take", ErrorCode.TOO_LARGE)
+    count = math.floor(span * rate + 1e-9) + 1
     sample_t = t[0] + np.arange(count) / rate
-    out = np.stack([np.interp(sample_t, t, w[:, j]) for j in range(w.shape[1])], axis=1)
-    return start_frame + np.arange(count, dtype=np.float64), out
+    out = np.empty((count, w.shape[1]))
+    for j in range(w.shape[1]):
+        out[:, j] = np.interp(sample_t, t, w[:, j])
+    return start + np.arange(count, dtype=np.float64), out

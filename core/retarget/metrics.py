@@ -7,6 +7,7 @@ One definition of each, used by every retarget path (weights or dense meshes):
   the target, relative to the target's size;
 - :func:`velocity_error_rms` — the same on frame-to-frame differences (the
   quantity space-time cloning matches, thesis ch. 5);
+- :func:`weight_errors` — both, for a weight difference on a rig, without forming the dense residual;
 - :func:`clipping_frames` — frames whose ideal weights leave the slider ranges;
 - :func:`slider_scales` — the per-slider scales σ of the space-time regulariser.
 """
@@ -15,10 +16,13 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["position_error_rms", "velocity_error_rms", "clipping_frames", "slider_scales"]
+__all__ = ["position_error_rms", "velocity_error_rms", "weight_errors", "clipping_frames", "slider_scales"]
 
 #: Floor of the slider scales σ_k, as a fraction of the slider's range.
 SIGMA_FLOOR = 0.05
+
+#: Frames whose dense residual :func:`weight_errors` forms at a time (memory stays O(rows · 3p)).
+CHUNK_ROWS = 1024
 
 
 def position_error_rms(residual: ArrayLike, size: float) -> float:
@@ -54,6 +58,42 @@ def velocity_error_rms(residual: ArrayLike, size: float) -> float:
     """
     R = np.asarray(residual, dtype=np.float64).reshape(len(residual), -1)
     return position_error_rms(np.diff(R, axis=0), size)
+
+
+def weight_errors(dW: ArrayLike, delta_matrix: ArrayLike, size: float) -> tuple:
+    """Position and velocity error RMS of the residual ``dW Dᵀ``, a few frames at a time.
+
+    The same numbers as :func:`position_error_rms` and :func:`velocity_error_rms` of
+    ``dW @ delta_matrix.T`` (the residual is linear in the weights, so its frame
+    differences are ``diff(dW) Dᵀ``), without the (f, 3p) array: a long take on a
+    dense rig needs O(f·n) memory.
+
+    Parameters
+    ----------
+    dW : ndarray (f, n)
+        Result weights minus ideal weights.
+    delta_matrix : ndarray (3p, n)
+        ``D``, the rig's shape-key offsets.
+    size : float
+
+    Returns
+    -------
+    (float, float)
+        Position and velocity error RMS (``nan`` for velocity with fewer than 2 frames).
+    """
+    dW = np.asarray(dW, dtype=np.float64)
+    D = np.asarray(delta_matrix, dtype=np.float64)
+
+    def rms(X: np.ndarray) -> float:
+        if X.shape[0] == 0:
+            return float("nan")
+        total = 0.0
+        for a in range(0, X.shape[0], CHUNK_ROWS):
+            R = X[a:a + CHUNK_ROWS] @ D.T
+            total += float(np.sum(R ** 2))
+        return float(np.sqrt(total / X.shape[0]) / size)
+
+    return rms(dW), rms(np.diff(dW, axis=0))
 
 
 def clipping_frames(ideal: ArrayLike, lo: ArrayLike, hi: ArrayLike, tol: float = 1e-9) -> int:

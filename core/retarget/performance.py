@@ -13,6 +13,13 @@ Both work in size-normalised units (the model's bounding-box diagonal
 measures :data:`~core.blendshape.NORMALISED_DIAGONAL`), so λ means the same
 for any rig, and report the errors of :mod:`.metrics` against the ideal
 (unlimited) performance.
+
+Keys that move nothing (:func:`empty_keys`) take no part in a geometric fit: no
+solver changes their sliders.  From a weight performance they keep the copied
+value (clipped to the range, as ``copy`` keys them), from a dense performance
+they stay at rest (0, or the nearest end of the range).  A geometric fit whose
+dense positions would exceed :data:`MAX_DENSE_BYTES` is refused before any
+work, and every result is checked finite (a NaN names the slider).
 """
 from __future__ import annotations
 
@@ -22,19 +29,29 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..blendshape import BlendshapeModel, normalised_unit
-from ..validate import array, choice
-from .metrics import clipping_frames, position_error_rms, slider_scales, velocity_error_rms
+from ..errors import ErrorCode
+from ..result import ShapeSpaceError
+from ..validate import array, choice, positive
+from .metrics import clipping_frames, position_error_rms, slider_scales, velocity_error_rms, weight_errors
 from .perframe import fit_frames
 from .spacetime_solver import SpacetimeResult, spacetime
 
 __all__ = ["METHODS", "GEOMETRIC_METHODS", "PerformanceFit", "normalised_basis", "retarget_weights",
-           "retarget_positions"]
+           "retarget_positions", "empty_keys", "check_dense_budget", "check_finite_weights", "EMPTY_TOL",
+           "MAX_DENSE_BYTES"]
 
 METHODS = ("copy", "learned", "perframe", "spacetime")
 GEOMETRIC_METHODS = ("perframe", "spacetime")
 
 #: Bounds of the unbounded ("ideal") per-frame fit of a dense performance.
 IDEAL_BOUND = 10.0
+
+#: A key whose largest vertex offset is at most this fraction of the rig's size moves nothing (the
+#: ``empty_target`` of :func:`~core.blendshape.diagnose_model`).
+EMPTY_TOL = 1e-7
+
+#: Largest dense performance a geometric fit builds: frames × 3 × vertices × 8 bytes (4 GiB).
+MAX_DENSE_BYTES = 4 * 2 ** 30
 
 
 @dataclass
@@ -71,12 +88,42 @@ def normalised_basis(model: BlendshapeModel) -> tuple:
     return model.delta_matrix / unit, model.neutral.ravel() / unit, unit
 
 
+def empty_keys(model: BlendshapeModel, rel_tol: float = EMPTY_TOL) -> np.ndarray:
+    """Keys that move no vertex: bool (n,), ``max |δ_k| ≤ rel_tol · size``."""
+    D = model.delta_matrix
+    if D.size == 0:
+        return np.ones(model.n_targets, dtype=bool)
+    return np.abs(D).max(axis=0) <= rel_tol * (model.scale or 1.0)
+
+
+def check_dense_budget(frames: int, vertices: int, what: str = "the fit") -> None:
+    """Refuse a dense performance of ``frames`` × ``vertices`` beyond :data:`MAX_DENSE_BYTES` (before building it)."""
+    size = int(frames) * 3 * int(vertices) * 8
+    if size > MAX_DENSE_BYTES:
+        raise ShapeSpaceError(f"{what} of {int(frames)} frames on {int(vertices)} vertices needs "
+                              f"{size / 2 ** 30:.1f} GiB; the limit is {MAX_DENSE_BYTES / 2 ** 30:g} GiB: split the "
+                              "take, or use the copy method", ErrorCode.TOO_LARGE)
+
+
+def check_finite_weights(W: ArrayLike, names: list, what: str = "the fit") -> None:
+    """Refuse NaN or infinite weights (f, n), naming the first slider and frame index affected."""
+    W = np.asarray(W, dtype=np.float64)
+    bad = ~np.isfinite(W)
+    if bad.any():
+        f, j = (int(i) for i in np.argwhere(bad)[0])
+        name = names[j] if j < len(names) else f"#{j}"
+        raise ShapeSpaceError(f"{what} gave NaN or infinite weights for slider {name!r} (first at frame index {f}, "
+                              f"{int(bad.any(axis=0).sum())} sliders in all)", ErrorCode.NON_FINITE)
+
+
 def _fit(B: np.ndarray, b0: np.ndarray, S: np.ndarray, lo: np.ndarray, hi: np.ndarray, method: str,
-         ideal: np.ndarray, lam: float) -> tuple:
+         ideal: np.ndarray, lam: float, names: list) -> tuple:
     """Per-frame or space-time fit of the sliders to positions ``S`` (f, 3p); σ from the ideal weights."""
     if method == "perframe":
         return fit_frames(B, b0, S, lo, hi), None
-    res = spacetime(B, b0, S, slider_scales(ideal, lo, hi), lam, lo=lo, hi=hi, relative=True)
+    # anchored regulariser (#11): pull towards the per-frame ridge fit, not zero, so long takes do not drift
+    res = spacetime(B, b0, S, slider_scales(ideal, lo, hi), lam, lo=lo, hi=hi, relative=True, names=names,
+                    anchor=True)
     return res.weights, res
 
 
@@ -84,35 +131,44 @@ def retarget_weights(model: BlendshapeModel, ideal: ArrayLike, method: str, lam:
     """Retarget an unlimited weight performance on the target's sliders.
 
     ``copy``/``learned``: ``W = clip(ideal, lo, hi)``.  ``perframe``/``spacetime``:
-    the sliders fitted to the geometry ``b0 + ideal Bᵀ`` (thesis ch. 5 for
-    space-time, λ relative to the data).  Errors are measured on
-    ``(W − ideal) Bᵀ`` at every vertex (:mod:`.metrics`).
+    the sliders of the keys that move something fitted to the geometry
+    ``b0 + ideal Bᵀ`` (thesis ch. 5 for space-time, λ relative to the data);
+    the sliders of empty keys keep ``clip(ideal, lo, hi)``.  Errors are
+    measured on ``(W − ideal) Bᵀ`` at every vertex (:mod:`.metrics`).
 
     Parameters
     ----------
     model : BlendshapeModel
         The target (n sliders, p vertices).
     ideal : ndarray (f, n)
+        Finite.
     method : str
         One of :data:`METHODS`.
     lam : float
+        Positive, finite.
 
     Returns
     -------
     PerformanceFit
+        ``weights`` finite and within the slider ranges.
     """
     choice(method, "method", METHODS)
     raw = array(ideal, "ideal", shape=(None, model.n_targets))
     lo, hi = model.slider_min, model.slider_max
     solver = None
-    if method in ("copy", "learned"):
-        W = np.clip(raw, lo, hi)
-    else:
-        B, b0, _ = normalised_basis(model)
-        W, solver = _fit(B, b0, b0 + raw @ B.T, lo, hi, method, raw, lam)
-    residual = (W - raw) @ model.delta_matrix.T
-    return PerformanceFit(W, raw, position_error_rms(residual, model.scale),
-                          velocity_error_rms(residual, model.scale), clipping_frames(raw, lo, hi), solver)
+    W = np.clip(raw, lo, hi)
+    if method in GEOMETRIC_METHODS:
+        positive(lam, "lam")
+        check_dense_budget(raw.shape[0], model.n_vertices, f"a {method} fit")
+        live = ~empty_keys(model)
+        if live.any():
+            B, b0, _ = normalised_basis(model)
+            Bl = B[:, live]
+            W[:, live], solver = _fit(Bl, b0, b0 + raw[:, live] @ Bl.T, lo[live], hi[live], method, raw[:, live],
+                                      lam, [n for n, keep in zip(model.names, live) if keep])
+    check_finite_weights(W, model.names, f"the {method} fit")
+    pos, vel = weight_errors(W - raw, model.delta_matrix, model.scale)
+    return PerformanceFit(W, raw, pos, vel, clipping_frames(raw, lo, hi), solver)
 
 
 def retarget_positions(model: BlendshapeModel, positions: ArrayLike, method: str,
@@ -121,29 +177,40 @@ def retarget_positions(model: BlendshapeModel, positions: ArrayLike, method: str
 
     The ideal weights are the per-frame fit within ±:data:`IDEAL_BOUND`
     (clipping counted with 1e-6 slack, as they are a numerical fit); ``W`` the
-    ``perframe`` or ``spacetime`` fit within the slider ranges.  Errors are
+    ``perframe`` or ``spacetime`` fit within the slider ranges of the keys that
+    move something (empty keys stay at rest, 0 within the range).  Errors are
     measured on ``b0 + W Bᵀ − positions`` at every vertex (:mod:`.metrics`).
 
     Parameters
     ----------
     model : BlendshapeModel
     positions : ndarray (f, 3p)
-        Target-vertex positions per frame, model units.
+        Target-vertex positions per frame, model units; finite.
     method : str
         ``perframe`` or ``spacetime``.
     lam : float
+        Positive, finite.
 
     Returns
     -------
     PerformanceFit
     """
     choice(method, "method", GEOMETRIC_METHODS)
+    positive(lam, "lam")
     S = array(positions, "positions", shape=(None, 3 * model.n_vertices))
     B, b0, unit = normalised_basis(model)
     lo, hi = model.slider_min, model.slider_max
-    bound = np.full(model.n_targets, IDEAL_BOUND)
-    ideal = fit_frames(B, b0, S / unit, -bound, bound)
-    W, solver = _fit(B, b0, S / unit, lo, hi, method, ideal, lam)
+    live = ~empty_keys(model)
+    ideal = np.zeros((S.shape[0], model.n_targets))
+    W = np.broadcast_to(np.clip(0.0, lo, hi), ideal.shape).copy()
+    solver = None
+    if live.any():
+        Bl = B[:, live]
+        bound = np.full(int(live.sum()), IDEAL_BOUND)
+        ideal[:, live] = fit_frames(Bl, b0, S / unit, -bound, bound)
+        W[:, live], solver = _fit(Bl, b0, S / unit, lo[live], hi[live], method, ideal[:, live], lam,
+                                  [n for n, keep in zip(model.names, live) if keep])
+    check_finite_weights(W, model.names, f"the {method} fit")
     residual = (b0 + W @ B.T) * unit - S
     return PerformanceFit(W, ideal, position_error_rms(residual, model.scale),
                           velocity_error_rms(residual, model.scale), clipping_frames(ideal, lo, hi, 1e-6), solver)

@@ -51,6 +51,9 @@ class RetargetReport(Report):
         The action written.
     previous_action : str
         The action the rig played before ('' for none).
+    previous_fake_user : bool or None
+        Whether that action had a fake user before the retarget gave it one (``None``: no previous action,
+        or a report written by ShapeSpace 0.1.0).
     """
 
     source: str = ""
@@ -69,6 +72,7 @@ class RetargetReport(Report):
     keys_kept_frac: float | None = None
     action: str = ""
     previous_action: str = ""
+    previous_fake_user: bool | None = None
 
     def record(self, fit: PerformanceFit) -> None:
         """Take the errors, clipping and (space-time) solver outcome of a :class:`~.performance.PerformanceFit`."""

@@ -43,6 +43,7 @@ a projected Armijo search (Bertsekas 1982; monotone) takes over
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,7 +55,7 @@ from ..result import Result, ShapeSpaceError, Status
 from ..validate import array, finite_scalar, positive
 from .perframe import fit_frames
 
-__all__ = ["spacetime", "SpacetimeResult", "SpacetimeSystem", "GreenTables", "BANDED_FLOP_LIMIT",
+__all__ = ["spacetime", "DRIFT_BETA", "SpacetimeResult", "SpacetimeSystem", "GreenTables", "BANDED_FLOP_LIMIT",
            "reduced_step", "capacitance_step", "banded_step", "cg_step", "active_set", "projected_newton"]
 
 #: Largest banded-Cholesky Newton step (≈ flops, f·n·(2n)²) before bounded space-time falls back to CG.
@@ -65,6 +66,9 @@ GREEN_TABLE_LIMIT = 4e7
 
 #: Source rows multiplied at a time when forming ``S B Σ`` (the source is never copied as a whole).
 CHUNK_ROWS = 2048
+
+#: Default β of the retarget command's space-time method (position term, per frame²; #11).
+DRIFT_BETA = 1e-3
 
 
 @dataclass(kw_only=True)
@@ -164,7 +168,8 @@ class SpacetimeSystem:
         Cache of :meth:`banded`.
     """
 
-    def __init__(self, B: np.ndarray, sigma: np.ndarray, lam: float, frame_count: int, relative: bool = False):
+    def __init__(self, B: np.ndarray, sigma: np.ndarray, lam: float, frame_count: int, relative: bool = False,
+                 beta: float = 0.0):
         self.B, self.sigma = B, sigma
         self.frame_count, self.n = int(frame_count), B.shape[1]
         self.shape = (self.frame_count - 2, self.n)
@@ -175,20 +180,23 @@ class SpacetimeSystem:
         if relative:  # λ relative to the data's scale: the mean eigenvalue of ΣBᵀBΣ
             lam = lam * max(float(self.mu.mean()), 1e-300)
         self.lam = lam
+        self.beta = float(beta)
+        self.lam_modes = lam + self.beta * self.mu      # per-mode shift: μ_j (T + β I) + λ = μ_j T + (λ + β μ_j)
         self.factors = [self._factor(j) for j in range(self.n if self.frame_count > 3 else 0)]
         self.solves = 0
         self.green: GreenTables | None = None
         self.band: np.ndarray | None = None
 
     def _factor(self, j: int) -> tuple:
-        """LAPACK ``pttrf`` of ``μ_j T + λ I`` (f − 2 interior frames)."""
-        F, mu, lam = self.frame_count, self.mu, self.lam
+        """LAPACK ``pttrf`` of ``μ_j (T + β I) + λ I`` (f − 2 interior frames)."""
+        F, mu, lam = self.frame_count, self.mu, self.lam_modes[j]
         diag_j, off_j, info = lapack.dpttrf(np.full(F - 2, 2.0 * mu[j] + lam), np.full(F - 3, -mu[j]))
         if info:
             raise ShapeSpaceError("the space-time system is not positive definite (λ must be > 0)", "range")
         return diag_j, off_j
 
-    def rhs(self, frames: np.ndarray, neutral: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
+    def rhs(self, frames: np.ndarray, neutral: np.ndarray, first: np.ndarray, last: np.ndarray,
+            anchor: bool = False) -> np.ndarray:
         """``DᵀD (S − b0) B Σ`` on the interior frames, the fixed end frames moved to the right-hand side.
 
         Parameters
@@ -198,6 +206,9 @@ class SpacetimeSystem:
         neutral : ndarray (3m,)
         first, last : ndarray (n,)
             The fixed end frames' weights.
+        anchor : bool
+            Regularise towards the per-frame ridge fit ``Y_pf = S B Σ (M + λ I)⁻¹`` instead of towards 0:
+            ``λ ‖Y − Y_pf‖²`` adds ``λ Y_pf`` here (the operator is unchanged).
 
         Returns
         -------
@@ -213,6 +224,10 @@ class SpacetimeSystem:
         if not np.isfinite(SB).all():
             raise ShapeSpaceError("frames contain NaN or infinite values", ErrorCode.NON_FINITE)
         R = 2 * SB[1:-1] - SB[:-2] - SB[2:]
+        if self.beta:                                                     # the position term β‖W Bᵀ − S‖²
+            R += self.beta * SB[1:-1]
+        if anchor:
+            R += self.lam * ((SB[1:-1] @ self.Q) / (self.mu + self.lam)) @ self.Q.T
         # boundary frames moved to the right-hand side: DᵀD couples frame 1 to 0 and F−2 to F−1
         R[0] += (first / sig) @ self.M
         R[-1] += (last / sig) @ self.M
@@ -223,7 +238,7 @@ class SpacetimeSystem:
         Q, mu = self.Q, self.mu
         Rq = rhs @ Q
         if self.frame_count == 3:                                   # one interior frame: a diagonal system
-            return (Rq / (2.0 * mu + self.lam)) @ Q.T
+            return (Rq / (2.0 * mu + self.lam_modes)) @ Q.T
         Z = np.empty_like(Rq)
         for j, (diag_j, off_j) in enumerate(self.factors):
             Z[:, j] = lapack.dpttrs(diag_j, off_j, Rq[:, j])[0]
@@ -234,6 +249,8 @@ class SpacetimeSystem:
         T = 2.0 * Y
         T[1:] -= Y[:-1]
         T[:-1] -= Y[1:]
+        if self.beta:
+            T += self.beta * Y
         return T @ self.M + self.lam * Y
 
     def objective(self, Y: np.ndarray, R0: np.ndarray) -> float:
@@ -249,7 +266,7 @@ class SpacetimeSystem:
         if g is not None and np.isin(chans, g.chans).all():
             return g
         chans = np.union1d(chans, g.chans if g is not None else np.zeros(0, int))
-        n, Ni, mu, lam, Q = self.n, self.frame_count - 2, self.mu, self.lam, self.Q
+        n, Ni, mu, lam, Q = self.n, self.frame_count - 2, self.mu, self.lam_modes, self.Q
         s_ = np.sqrt(lam * mu + 0.25 * lam * lam)
         rho = mu / (mu + 0.5 * lam + s_)
         pw = rho[:, None] ** np.arange(2 * Ni + 3)[None, :]                      # (n, 2N + 3)
@@ -306,7 +323,7 @@ class SpacetimeSystem:
                 i = j[o:] - o
                 ti, ki = np.divmod(i, n)
                 same = ti == tj[o:]
-                vals = np.where(same, 2.0 * M[ki, kj[o:]] + self.lam * (o == 0),
+                vals = np.where(same, (2.0 + self.beta) * M[ki, kj[o:]] + self.lam * (o == 0),
                                 np.where(tj[o:] == ti + 1, -M[ki, kj[o:]], 0.0))
                 ab[u - o, o:] = vals
             self.band = ab
@@ -566,7 +583,7 @@ def projected_newton(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo
         eps = min(1e-3, nat)
         act = ((Y <= ylo + eps) & (g > 0)) | ((Y >= yhi - eps) & (g < 0))
         d = reduced_step(system, act, np.where(~act, -g, 0.0), scale, max_exact_active)
-        d = np.where(act, -g / (4.0 * float(system.mu.max()) + system.lam), d)
+        d = np.where(act, -g / (4.0 * float(system.mu.max()) * (1.0 + 0.25 * system.beta) + system.lam), d)
         step = 1.0
         while True:
             Yt = np.clip(Y + step * d, ylo, yhi)
@@ -627,8 +644,16 @@ def _bound(x: ArrayLike | None, name: str, n: int, default: float) -> np.ndarray
     return np.broadcast_to(b, (n,))
 
 
+def _sliders(indices: np.ndarray, names: Sequence[str] | None) -> str:
+    """Sliders named for a message (their indices when no names are given)."""
+    idx = [int(i) for i in indices]
+    if names is None or len(names) <= max(idx, default=-1):
+        return str(idx)
+    return ", ".join(names[i] for i in idx)
+
+
 def _check(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayLike, lo: ArrayLike | None,
-           hi: ArrayLike | None, tol: float, max_iter: int) -> tuple:
+           hi: ArrayLike | None, tol: float, max_iter: int, names: Sequence[str] | None = None) -> tuple:
     """Validated inputs of :func:`spacetime`: B, b0, S (dtype kept, not copied), σ, lo, hi."""
     B = array(B, "B", ndim=2)
     b0 = array(neutral, "neutral", shape=(B.shape[0],))
@@ -643,10 +668,12 @@ def _check(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayLike
         raise ShapeSpaceError(f"sigma must have {n} entries (one per slider), got {sig.size}", ErrorCode.SHAPE)
     sig = sig.reshape(n)
     if np.any(sig <= 0) or not np.isfinite(sig).all():
-        raise ShapeSpaceError("sigma must be positive and finite for every slider", "range")
+        raise ShapeSpaceError(f"sigma must be positive and finite for every slider (not for "
+                              f"{_sliders(np.flatnonzero(~(sig > 0) | ~np.isfinite(sig)), names)})", "range")
     lo, hi = _bound(lo, "lo", n, -np.inf), _bound(hi, "hi", n, np.inf)
     if np.any(lo > hi):
-        raise ShapeSpaceError(f"lo exceeds hi for sliders {np.flatnonzero(lo > hi).tolist()}", ErrorCode.INFEASIBLE)
+        raise ShapeSpaceError(f"lo exceeds hi for sliders {_sliders(np.flatnonzero(lo > hi), names)}",
+                              ErrorCode.INFEASIBLE)
     positive(tol, "tol")
     if int(max_iter) < 1:
         raise ShapeSpaceError(f"max_iter must be at least 1, got {max_iter}", ErrorCode.RANGE)
@@ -656,10 +683,11 @@ def _check(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayLike
 def spacetime(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayLike, lam: float = 1e-3,
               first: ArrayLike | None = None, last: ArrayLike | None = None, lo: ArrayLike | None = None,
               hi: ArrayLike | None = None, tol: float = 1e-8, max_iter: int = 100, relative: bool = False,
-              max_exact_active: int = 1000) -> SpacetimeResult:
+              max_exact_active: int = 1000, names: Sequence[str] | None = None,
+              beta: float = 0.0, anchor: bool = False) -> SpacetimeResult:
     """Space-time expression cloning (thesis ch. 5), optionally with slider bounds.
 
-    Minimises ``‖D (W Bᵀ − S)‖² + λ Σ_f Σ_k (w_fk / σ_k)²`` over the interior
+    Minimises ``‖D (W Bᵀ − S)‖² + β ‖W Bᵀ − S‖² + λ Σ_f Σ_k (w_fk / σ_k)²`` over the interior
     frames, with ``W[0] = first`` and ``W[-1] = last`` fixed (default: the
     per-frame fits of the end frames, :func:`~.perframe.fit_frames`), where
     ``S`` are the source positions at the corresponding points relative to the
@@ -692,6 +720,24 @@ def spacetime(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayL
         Largest active set for which a Newton step uses the capacitance
         system (cost O(m³) plus lookup tables of O(c²·f) for the c channels
         involved); larger ones use the banded Cholesky (or CG).
+    names : sequence of str (n,), optional
+        Slider names for the messages (indices otherwise).
+    beta : float
+        β ≥ 0, weight of the position term (per frame², relative to the
+        velocity term).  0 is the thesis' pure velocity matching; a small β
+        (e.g. :data:`DRIFT_BETA`) anchors long takes so that errors the
+        regulariser lets into slow modes cannot integrate into drift, while
+        clipped stretches shorter than about 1/√β frames keep their velocity
+        shape (Fig. 3.9).  Each mode stays one tridiagonal system
+        ``(μ_j (T + β I) + λ) z_j = r_j``.
+    anchor : bool
+        Regularise towards the per-frame ridge fit instead of towards zero:
+        ``λ Σ_f Σ_k ((w_fk − w⁰_fk) / σ_k)²`` with ``W⁰ = argmin ‖W Bᵀ − S‖² + λ ‖W Σ⁻¹‖²``
+        frame by frame.  Where nothing clips, ``W⁰`` (plus the velocity
+        term's own minimiser, the same up to O(λ)) is the answer: no drift on
+        long takes, which the zero-pulling regulariser causes in modes with
+        ``μ_j ≲ λ f²``.  Where sliders clip the pull is as weak as before, so
+        the velocity shape is kept (Fig. 3.9).  Used by the retarget command.
 
     Returns
     -------
@@ -700,8 +746,11 @@ def spacetime(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayL
         ``NOT_CONVERGED`` (iteration limit, stalled).
     """
     bounded = lo is not None or hi is not None
-    B, b0, S, sig, lo, hi = _check(B, neutral, frames, sigma, lo, hi, tol, max_iter)
+    B, b0, S, sig, lo, hi = _check(B, neutral, frames, sigma, lo, hi, tol, max_iter, names)
     lam = finite_scalar(lam, "lam")
+    beta = finite_scalar(beta, "beta")
+    if beta < 0:
+        raise ShapeSpaceError(f"beta must be ≥ 0, got {beta}", "range")
     F, n = S.shape[0], B.shape[1]
     if first is None or last is None:
         ends = fit_frames(B, b0, S[[0, -1]].astype(np.float64), lo if bounded else np.full(n, -1e6),
@@ -709,8 +758,8 @@ def spacetime(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayL
         first = ends[0] if first is None else first
         last = ends[1] if last is None else last
     first, last = array(first, "first", shape=(n,)), array(last, "last", shape=(n,))
-    system = SpacetimeSystem(B, sig, lam, F, relative)
-    R0 = system.rhs(S, b0, first, last)
+    system = SpacetimeSystem(B, sig, lam, F, relative, beta)
+    R0 = system.rhs(S, b0, first, last, anchor)
     Y = system.solve(R0)
     if not bounded:
         return SpacetimeResult(_assemble(Y, sig, first, last), diagnostics={"modes": n})

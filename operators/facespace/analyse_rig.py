@@ -3,6 +3,7 @@ import bpy
 from ...bridge import facespace
 from ..polls import active_rig
 from ..reporting import FAILED, attempt
+from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_analyse_rig(bpy.types.Operator):
@@ -25,7 +26,8 @@ animation in blendshape vs PCA form (thesis 3.7)"""
     def execute(self, context):
         ob = context.active_object
         path = bpy.path.abspath(self.filepath) if self.filepath else None
-        rep = attempt(self, facespace.analyse, ob, None, path, self.threshold)
+        with WindowProgress(context) as progress:
+            rep = attempt(self, facespace.analyse, ob, None, path, self.threshold, progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}
         for name in rep["empty_targets"]:

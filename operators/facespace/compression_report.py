@@ -3,6 +3,7 @@ import bpy
 from ...bridge import facespace
 from ..polls import animated_object, active_rig
 from ..reporting import FAILED, attempt
+from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_compression_report(bpy.types.Operator):
@@ -20,7 +21,9 @@ class SHAPESPACE_OT_compression_report(bpy.types.Operator):
         return active_rig(cls, context) is not None and animated_object(cls, context) is not None
 
     def execute(self, context):
-        rep = attempt(self, facespace.compression_relative, context.active_object, self.tolerance)
+        with WindowProgress(context) as progress:
+            rep = attempt(self, facespace.compression_relative, context.active_object, self.tolerance,
+                          progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"{rep['components']} of {rep['targets']} components keep {rep['frames']} frames "

@@ -3,6 +3,7 @@ import bpy
 from ...bridge import facespace
 from ..polls import active_mesh
 from ..reporting import FAILED, attempt
+from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_convert_rig(bpy.types.Operator):
@@ -38,8 +39,9 @@ is left untouched)"""
         return ob is not None
 
     def execute(self, context):
-        new = attempt(self, facespace.convert_rig, context.active_object, self.form, self.convex,
-                      self.from_animation, self.tolerance)
+        with WindowProgress(context) as progress:
+            new = attempt(self, facespace.convert_rig, context.active_object, self.form, self.convex,
+                          self.from_animation, self.tolerance, progress=progress)
         if new is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"{new.name}: {len(new.data.shape_keys.key_blocks) - 1} keys")

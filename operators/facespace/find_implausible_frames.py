@@ -3,6 +3,7 @@ import bpy
 from ...bridge import facespace
 from ..polls import prior_rig
 from ..reporting import FAILED, attempt
+from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_find_implausible_frames(bpy.types.Operator):
@@ -21,7 +22,9 @@ or too close to the average face)"""
         return prior_rig(cls, context) is not None
 
     def execute(self, context):
-        found = attempt(self, facespace.flag_implausible_frames, context.active_object, None, self.alpha)
+        with WindowProgress(context) as progress:
+            found = attempt(self, facespace.flag_implausible_frames, context.active_object, None, self.alpha,
+                            progress=progress)
         if found is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"{len(found)} implausible frame(s)")

@@ -3,6 +3,7 @@ import bpy
 from ...bridge import facespace
 from ..polls import animated_object
 from ..reporting import FAILED, attempt
+from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_inpaint_gap(bpy.types.Operator):
@@ -27,8 +28,9 @@ inpainting, thesis 9.3): known frames stay exact, the gap gets one key per frame
         return animated_object(cls, context) is not None
 
     def execute(self, context):
-        rep = attempt(self, facespace.inpaint_gap, context.active_object, self.data_path, self.index,
-                      self.frame_start, self.frame_end, self.use_other_channels)
+        with WindowProgress(context) as progress:
+            rep = attempt(self, facespace.inpaint_gap, context.active_object, self.data_path, self.index,
+                          self.frame_start, self.frame_end, self.use_other_channels, progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"{rep['frames']} frames filled from {rep['channels']} curve(s): {rep['message']}")

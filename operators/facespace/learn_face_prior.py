@@ -3,6 +3,7 @@ import bpy
 from ...bridge import facespace
 from ..polls import animated_object, active_rig
 from ..reporting import FAILED, attempt
+from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_learn_face_prior(bpy.types.Operator):
@@ -18,7 +19,8 @@ probability meter and shell in-betweens (thesis ch. 6)"""
         return active_rig(cls, context) is not None and animated_object(cls, context) is not None
 
     def execute(self, context):
-        rep = attempt(self, facespace.learn_prior, context.active_object)
+        with WindowProgress(context) as progress:
+            rep = attempt(self, facespace.learn_prior, context.active_object, progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}
         self.report({"WARNING"} if rep["regularised"] else {"INFO"}, rep["message"])

@@ -1,8 +1,14 @@
 import bpy
 
-from ...bridge import manipulation, shapekeys
+from ...bridge import manipulation
 from ...core.result import ShapeSpaceError
 from ..polls import active_rig
+
+SPACE_ITEMS = [
+    ("WORLD", "World", "World coordinates of where the point should appear (the 3D cursor, an empty): through "
+     "the object's and its parents' transforms and its deform modifiers"),
+    ("LOCAL", "Local", "The mesh's own undeformed coordinates: shape-key space, as pins store their targets"),
+]
 
 
 class SHAPESPACE_OT_add_pin(bpy.types.Operator):
@@ -14,9 +20,12 @@ class SHAPESPACE_OT_add_pin(bpy.types.Operator):
 
     vertices: bpy.props.IntVectorProperty(name="Vertices", size=3, min=0)
     weights: bpy.props.FloatVectorProperty(name="Weights", size=3, default=(1.0, 0.0, 0.0))
-    target: bpy.props.FloatVectorProperty(name="Target", size=3, subtype="XYZ")
+    target: bpy.props.FloatVectorProperty(name="Target", size=3, subtype="XYZ",
+                                          description="Where the pin should go, in the chosen Space")
     use_target: bpy.props.BoolProperty(
         name="Use Target", description="Give the target; otherwise the pin stays where the point is now")
+    space: bpy.props.EnumProperty(name="Space", items=SPACE_ITEMS, default="LOCAL",
+                                  description="Coordinates the target is given in")
     stationary: bpy.props.BoolProperty(name="Stationary", description="Pin the point in place")
 
     @classmethod
@@ -28,8 +37,9 @@ class SHAPESPACE_OT_add_pin(bpy.types.Operator):
         pin = manipulation.stored_pin(self.vertices, self.weights)
         target = self.target if self.use_target else None
         try:
-            model = shapekeys.read_blendshape_model(ob)
-            index = manipulation.add_pin(ob, pin, target, self.stationary, model=model)
+            model = manipulation.rig_model(ob)
+            index = manipulation.add_pin(ob, pin, target, self.stationary, model=model, space=self.space,
+                                         depsgraph=context.evaluated_depsgraph_get())
         except ShapeSpaceError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

@@ -1,8 +1,9 @@
 import bpy
 
 from ...bridge import manipulation
-from ...core.result import ShapeSpaceError, Status
+from ...core.result import ShapeSpaceError
 from ..polls import pinned_rig
+from .add_pin import SPACE_ITEMS
 
 
 class SHAPESPACE_OT_solve_pins(bpy.types.Operator):
@@ -15,7 +16,9 @@ The scriptable form of a viewport drag"""
 
     pin: bpy.props.IntProperty(name="Pin", default=-1, description="Pin to move first; -1 moves none")
     target: bpy.props.FloatVectorProperty(name="Target", size=3, subtype="XYZ",
-                                          description="New target of that pin, shape-key space")
+                                          description="New target of that pin, in the chosen Space")
+    space: bpy.props.EnumProperty(name="Space", items=SPACE_ITEMS, default="LOCAL",
+                                  description="Coordinates the target is given in")
     key: bpy.props.BoolProperty(name="Key Sliders", description="Key the changed sliders at the current frame")
 
     @classmethod
@@ -25,15 +28,11 @@ The scriptable form of a viewport drag"""
     def execute(self, context):
         ob = context.active_object
         try:
-            if self.pin >= 0:
-                manipulation.set_pin_target(ob, self.pin, self.target)
-            before = manipulation.current_sliders(ob)
-            result = manipulation.solve_pins(ob)
-            if self.key:
-                manipulation.key_changed(ob, before, result.weights, context.scene.frame_current)
+            result = manipulation.solve_to_target(ob, context.evaluated_depsgraph_get(), self.pin, self.target,
+                                                  self.space, context.scene.frame_current if self.key else None)
         except ShapeSpaceError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        level = {"INFO"} if result.status == Status.OK else {"WARNING"}
-        self.report(level, f"{result.message}; largest pin error {result.residuals.max():.4g}")
+        level, text = manipulation.report_text(result, ob, self.space if self.pin >= 0 else None)
+        self.report({level}, text)
         return {"FINISHED"}

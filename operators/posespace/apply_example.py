@@ -4,6 +4,7 @@ from ...bridge import posespace
 from ...core.result import Status
 from ..polls import psd_mesh
 from ..reporting import FAILED, attempt, report_issues
+from .progress import window_progress
 
 
 class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
@@ -22,8 +23,14 @@ class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
         if ob is None:
             return False
         st = ob.shapespace_psd
-        if st.examples[st.active_example].sculpt is None:
-            cls.poll_message_set("The active example has no posed copy to apply")
+        ex = st.examples[st.active_example]
+        copy = ex.sculpt
+        if copy is None:
+            cls.poll_message_set(f"Example '{ex.name}' has no posed copy to apply")
+            return False
+        if copy.mode == "EDIT":
+            cls.poll_message_set(f"The sculpt copy '{copy.name}' is in Edit Mode: leave Edit Mode first (its "
+                                 "mesh data is not up to date until then)")
             return False
         return True
 
@@ -31,7 +38,8 @@ class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
         ob = context.active_object
         st = ob.shapespace_psd
         name = st.examples[st.active_example].name
-        result = attempt(self, posespace.apply_example, ob, name)
+        with window_progress(context) as progress:
+            result = attempt(self, posespace.apply_example, ob, name, progress=progress)
         if result is FAILED:
             return {"CANCELLED"}
         if self.remove_copy:

@@ -1,13 +1,14 @@
 import bpy
 
 from ...bridge import posespace
-from ...core.result import ShapeSpaceError
 from ..polls import psd_mesh
+from ..reporting import FAILED, attempt
+from .progress import window_progress
 
 
 class SHAPESPACE_OT_psd_bake(bpy.types.Operator):
     """Bake the correctives over a frame range into shape-key animation, so the file plays back without
-ShapeSpace or Python (PSD and Shape-by-Example)"""
+ShapeSpace or Python (PSD and Shape-by-Example; only the active method's correctives play)"""
 
     bl_idname = "shapespace.psd_bake"
     bl_label = "Bake Correctives"
@@ -35,10 +36,10 @@ ShapeSpace or Python (PSD and Shape-by-Example)"""
             self.report({"ERROR"}, "the frame range is empty (end before start)")
             return {"CANCELLED"}
         ob = context.active_object
-        try:
-            count = posespace.bake_weights(ob, context.scene, self.frame_start, self.frame_end)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        with window_progress(context) as progress:
+            count = attempt(self, posespace.bake_weights, ob, context.scene, self.frame_start, self.frame_end,
+                            progress=progress)
+        if count is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"Baked {count} corrective keys over frames {self.frame_start}–{self.frame_end}")
         return {"FINISHED"}

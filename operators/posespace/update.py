@@ -1,8 +1,9 @@
 import bpy
 
 from ...bridge import posespace
-from ...core.result import ShapeSpaceError
 from ..polls import psd_mesh
+from ..reporting import FAILED, attempt
+from .progress import window_progress
 
 
 class SHAPESPACE_OT_psd_update(bpy.types.Operator):
@@ -17,9 +18,7 @@ class SHAPESPACE_OT_psd_update(bpy.types.Operator):
         return psd_mesh(cls, context, need_example=True) is not None
 
     def execute(self, context):
-        try:
-            posespace.preview(context.active_object)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
-        return {"FINISHED"}
+        with window_progress(context) as progress:
+            progress(0.0)
+            done = attempt(self, posespace.preview, context.active_object)
+        return {"CANCELLED"} if done is FAILED else {"FINISHED"}

@@ -1,5 +1,6 @@
 """Helpers for the Blender tiers (import after tests/conftest.py set the user folder)."""
 import hashlib
+import os
 
 import numpy as np
 import bpy
@@ -9,6 +10,7 @@ import package  # tools/package.py
 SS = package.load()
 from shapespace.bridge import meshes  # noqa: E402
 from shapespace.core.blendshape import bounding_box_diagonal  # noqa: E402
+from support import ASSETS  # noqa: E402
 
 
 def import_file(path):
@@ -54,3 +56,87 @@ def blend_fingerprint() -> str:
                     h.update(kco.tobytes())
     h.update(",".join(sorted(a.name for a in bpy.data.actions)).encode())
     return h.hexdigest()
+
+
+_CSV = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+
+#: every ShapeSpace operator → keyword arguments for an EXEC_DEFAULT call (what a script would pass).
+OPERATOR_CALLS = {
+    "check_rig": {}, "key_sliders": {},
+    "add_inbetween": {"primary": "K0", "weight": 0.5}, "add_combination": {"first": "K0", "second": "K1"},
+    "add_pin": {"vertices": (3, 0, 0)}, "remove_pin": {"index": 0}, "clear_pins": {},
+    "solve_pins": {"pin": 0, "target": (0.0, 0.0, 1.0)},
+    "psd_add_example": {}, "psd_apply_example": {}, "psd_remove_example": {}, "psd_update": {},
+    "psd_bake": {"frame_start": 1, "frame_end": 2}, "psd_bake_cache": {"frame_start": 1, "frame_end": 2},
+    "psd_move_example": {}, "psd_mirror_example": {}, "psd_add_target": {"data_path": '["x"]'},
+    "psd_record_targets": {}, "psd_confidence": {},
+    "retarget": {"filepath": _CSV, "method": "copy"}, "discard_retarget": {},
+    "set_mapping": {"source": "JawOpen", "target": "K0"}, "remove_mapping": {"source": "JawOpen"},
+    "add_landmark": {"name": "chin", "vertex": 0}, "landmarks_from_shapes": {"source_object": "Other"},
+    "suggest_key_poses": {"filepath": _CSV},
+    "analyse_rig": {}, "compression_report": {}, "convert_rig": {}, "make_convex": {},
+    "fill_between": {"frame_start": 1, "frame_end": 3}, "find_implausible_frames": {}, "go_to_frame": {"frame": 2},
+    "inpaint_gap": {"data_path": 'key_blocks["K0"].value', "frame_start": 2, "frame_end": 3},
+    "learn_face_prior": {},
+    # live capture (live_start opens a socket: it has its own loopback tests in test_live_stream.py)
+    "live_stop": {}, "live_calibrate": {}, "live_record": {}, "live_stop_recording": {}, "live_play_take": {},
+    "live_remove_take": {},
+}
+
+
+def _non_finite_count():
+    bad = 0
+    for ob in bpy.data.objects:
+        if ob.type != "MESH" or ob.data.shape_keys is None:
+            continue
+        for kb in ob.data.shape_keys.key_blocks:
+            co = np.empty(len(ob.data.vertices) * 3 if len(kb.data) == len(ob.data.vertices) else 0, np.float32)
+            if co.size:
+                kb.data.foreach_get("co", co)
+            bad += int((~np.isfinite(co)).sum()) + int(not np.isfinite(kb.value))
+    return bad
+
+
+def _linked_state():
+    out = []
+    for ob in bpy.data.objects:
+        if ob.library is None:
+            continue
+        pins = len(ob.shapespace.pins) if hasattr(ob, "shapespace") else 0
+        keys = [(kb.name, kb.value) for kb in ob.data.shape_keys.key_blocks] if ob.data.shape_keys else []
+        props = sorted(ob.data.shape_keys.keys()) if ob.data.shape_keys else []
+        action = None
+        if ob.data.shape_keys is not None and ob.data.shape_keys.animation_data is not None:
+            action = getattr(ob.data.shape_keys.animation_data.action, "name", None)
+        out.append((ob.name, pins, keys, props, action, len(ob.vertex_groups)))
+    return out
+
+
+def classify_operator_call(op_name: str, kwargs: dict):
+    """Run ``bpy.ops.shapespace.<op_name>(**kwargs)`` and classify what happened (the reliability suites' rule).
+
+    ``refused`` (poll with a specific message), ``cancelled`` (one-line report, file unchanged), ``finished``
+    (nothing finite became NaN, linked data unchanged), else ``traceback``, ``refused_without_message``,
+    ``silent_change``, ``nan_written`` or ``linked_changed``.
+    """
+    before, nan_before, linked_before = blend_fingerprint(), _non_finite_count(), _linked_state()
+    op = getattr(bpy.ops.shapespace, op_name)
+    try:
+        result = op("EXEC_DEFAULT", **kwargs)
+        message = ""
+    except RuntimeError as exc:
+        result, message = None, str(exc)
+    except TypeError as exc:                  # an operator property the test passed does not exist
+        raise AssertionError(f"{op_name}: {exc}") from None
+    if "Traceback" in message or "Python:" in message:
+        return "traceback", message
+    if result is None and ".poll()" in message:
+        return ("refused" if "context is incorrect" not in message else "refused_without_message"), message
+    changed = blend_fingerprint() != before
+    if result is None or result == {"CANCELLED"}:
+        return ("cancelled" if not changed else "silent_change"), message
+    if _non_finite_count() > nan_before:
+        return "nan_written", message
+    if _linked_state() != linked_before:
+        return "linked_changed", message
+    return "finished", message

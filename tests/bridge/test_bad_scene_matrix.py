@@ -13,31 +13,7 @@ import tempfile
 import numpy as np
 import pytest
 
-from support import ASSETS
-from blender_support import blend_fingerprint, bpy
-
-CSV = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
-
-#: operator name → keyword arguments for an EXEC_DEFAULT call (what a script would pass).
-OPERATORS = {
-    "check_rig": {}, "key_sliders": {},
-    "add_inbetween": {"primary": "K0", "weight": 0.5}, "add_combination": {"first": "K0", "second": "K1"},
-    "add_pin": {"vertices": (3, 0, 0)}, "remove_pin": {"index": 0}, "clear_pins": {},
-    "solve_pins": {"pin": 0, "target": (0.0, 0.0, 1.0)},
-    "psd_add_example": {}, "psd_apply_example": {}, "psd_remove_example": {}, "psd_update": {},
-    "psd_bake": {"frame_start": 1, "frame_end": 2}, "psd_bake_cache": {"frame_start": 1, "frame_end": 2},
-    "psd_move_example": {}, "psd_mirror_example": {}, "psd_add_target": {"data_path": '["x"]'},
-    "psd_record_targets": {}, "psd_confidence": {},
-    "retarget": {"filepath": CSV, "method": "copy"}, "discard_retarget": {},
-    "set_mapping": {"source": "JawOpen", "target": "K0"}, "remove_mapping": {"source": "JawOpen"},
-    "add_landmark": {"name": "chin", "vertex": 0}, "landmarks_from_shapes": {"source_object": "Other"},
-    "suggest_key_poses": {"filepath": CSV},
-    "analyse_rig": {}, "compression_report": {}, "convert_rig": {}, "make_convex": {},
-    "fill_between": {"frame_start": 1, "frame_end": 3}, "find_implausible_frames": {}, "go_to_frame": {"frame": 2},
-    "inpaint_gap": {"data_path": 'key_blocks["K0"].value', "frame_start": 2, "frame_end": 3},
-    "learn_face_prior": {},
-}
-
+from blender_support import OPERATOR_CALLS as OPERATORS, bpy, classify_operator_call
 
 def _sphere(keys=3, name="Face"):
     bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=6)
@@ -120,63 +96,11 @@ SCENES = {name[len("scene_"):]: fn for name, fn in globals().items() if name.sta
 OUTCOMES = []
 
 
-def _non_finite_count():
-    bad = 0
-    for ob in bpy.data.objects:
-        if ob.type != "MESH" or ob.data.shape_keys is None:
-            continue
-        for kb in ob.data.shape_keys.key_blocks:
-            co = np.empty(len(ob.data.vertices) * 3 if len(kb.data) == len(ob.data.vertices) else 0, np.float32)
-            if co.size:
-                kb.data.foreach_get("co", co)
-            bad += int((~np.isfinite(co)).sum()) + int(not np.isfinite(kb.value))
-    return bad
-
-
-def _linked_state():
-    out = []
-    for ob in bpy.data.objects:
-        if ob.library is None:
-            continue
-        pins = len(ob.shapespace.pins) if hasattr(ob, "shapespace") else 0
-        keys = [(kb.name, kb.value) for kb in ob.data.shape_keys.key_blocks] if ob.data.shape_keys else []
-        props = sorted(ob.data.shape_keys.keys()) if ob.data.shape_keys else []
-        action = None
-        if ob.data.shape_keys is not None and ob.data.shape_keys.animation_data is not None:
-            action = getattr(ob.data.shape_keys.animation_data.action, "name", None)
-        out.append((ob.name, pins, keys, props, action, len(ob.vertex_groups)))
-    return out
-
-
-def _classify(op_name, kwargs):
-    before, nan_before, linked_before = blend_fingerprint(), _non_finite_count(), _linked_state()
-    op = getattr(bpy.ops.shapespace, op_name)
-    try:
-        result = op("EXEC_DEFAULT", **kwargs)
-        message = ""
-    except RuntimeError as exc:
-        result, message = None, str(exc)
-    except TypeError as exc:                  # an operator property the test passed does not exist
-        pytest.fail(f"{op_name}: {exc}")
-    if "Traceback" in message or "Python:" in message:
-        return "traceback", message
-    if result is None and ".poll()" in message:
-        return ("refused" if "context is incorrect" not in message else "refused_without_message"), message
-    changed = blend_fingerprint() != before
-    if result is None or result == {"CANCELLED"}:
-        return ("cancelled" if not changed else "silent_change"), message
-    if _non_finite_count() > nan_before:
-        return "nan_written", message
-    if _linked_state() != linked_before:
-        return "linked_changed", message
-    return "finished", message
-
-
 @pytest.mark.parametrize("op_name", sorted(OPERATORS))
 @pytest.mark.parametrize("scene", sorted(SCENES))
 def test_operator_in_bad_scene(registered, scene, op_name):
     SCENES[scene]()
-    outcome, message = _classify(op_name, OPERATORS[op_name])
+    outcome, message = classify_operator_call(op_name, OPERATORS[op_name])
     OUTCOMES.append((scene, op_name, outcome))
     assert outcome in ("refused", "cancelled", "finished"), f"{scene} × {op_name}: {outcome}: {message}"
     if scene in ("edit_mode", "linked") and outcome == "finished":

@@ -79,7 +79,7 @@ def test_bad_csv_is_a_one_line_error(tmp_path, case):
         bad.write_text("Timecode,JawOpen\n00:00:00:01.0,0.5\n00:00:00:02.0,0.6\n")
     else:
         bad.write_text("Timecode,Foo\n00:00:00:01.0,0.5\n00:00:00:02.0,0.6\n00:00:00:03.0,0.6\n")
-    code, _, err = _cli(BLEND, "--", "retarget", "--source", str(bad), "--method", "copy")
+    code, _, err = _cli(BLEND, "--", "retarget", "--source", str(bad), "--method", "copy", "--dry-run")
     lines = [ln for ln in err.splitlines() if ln.startswith("shapespace: error:")]
     assert code == 1 and len(lines) == 1
     assert {"no_timecode": "no Timecode column", "two_frames": "at least 3 are needed",
@@ -87,9 +87,10 @@ def test_bad_csv_is_a_one_line_error(tmp_path, case):
 
 
 def test_unknown_method_and_ambiguous_target(tmp_path):
-    code, _, err = _cli(BLEND, "--", "retarget", "--source", CSV, "--method", "magic")
+    code, _, err = _cli(BLEND, "--", "retarget", "--source", CSV, "--method", "magic", "--dry-run")
     assert code == 2
-    code, _, err = _cli(shared("robot_expressive", "RobotExpressive.glb"), "--", "retarget", "--source", CSV)
+    code, _, err = _cli(shared("robot_expressive", "RobotExpressive.glb"), "--", "retarget", "--source", CSV,
+                        "--dry-run")
     assert code == 1 and "choose one with --object" in err
 
 
@@ -432,7 +433,7 @@ def test_learned_cloning_from_key_poses(registered, tmp_path):
     saved = tmp_path / "posed.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(saved), copy=True)
     code, _, err = _cli(str(saved), "--", "retarget", "--source", CSV, "--method", "learned", "--key-poses",
-                        poses.name, "--report", str(tmp_path / "rep.json"))
+                        poses.name, "--report", str(tmp_path / "rep.json"), "--dry-run")
     assert code == 0, err
     rep = json.loads((tmp_path / "rep.json").read_text())["results"][0]
     assert rep["ok"] and rep["key_poses"] == len(marks) and rep["learned_fit_rms"] < 1e-5   # poses keyed in float32

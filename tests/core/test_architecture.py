@@ -17,7 +17,7 @@ import pytest
 from core.errors import ErrorCode
 
 REPO_ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
-CAPABILITIES = ("manipulation", "posespace", "retarget", "facespace")
+CAPABILITIES = ("manipulation", "posespace", "retarget", "facespace", "live", "export")
 ADDON_DIRS = ("core", "bridge", "operators", "panels", "properties", "ui", "cli")
 
 
@@ -251,3 +251,25 @@ def test_public_core_signatures_are_annotated():
             if missing:
                 gaps.append(f"{rel}:{fn.lineno} {name}: {', '.join(missing)}")
     assert not gaps, "unannotated public core signatures:\n" + "\n".join(gaps)
+
+
+def test_property_groups_have_no_python_callbacks():
+    """``update=``/``poll=``/``get=``/``set=`` callbacks on PropertyGroup fields crash Blender 4.2 (as a Python
+    module) at exit; settings are validated where they are used instead."""
+    found = []
+    for rel, path in _sources("properties"):
+        for node in ast.walk(_tree(path)):
+            if isinstance(node, ast.Call) and getattr(node.func, "attr", "").endswith("Property"):
+                found += [(rel, node.lineno, kw.arg) for kw in node.keywords
+                          if kw.arg in ("update", "poll", "get", "set")]
+    assert not found, found
+
+
+def test_test_file_basenames_are_unique():
+    """pytest imports test files by basename (rootdir tests/, no packages): two ``test_x.py`` collide."""
+    seen = {}
+    for rel, _ in _sources("tests"):
+        name = rel.rsplit("/", 1)[-1]
+        if name.startswith("test_"):
+            seen.setdefault(name, []).append(rel)
+    assert not {k: v for k, v in seen.items() if len(v) > 1}

@@ -452,3 +452,32 @@ def test_dual_lsq_nonpositive_c_raises(c):
     R, m, b, lo, hi = lsq_problem(0)
     with pytest.raises(ShapeSpaceError):
         solve_box_lsq_dual(R, m, c, b, lo, hi)
+
+
+@pytest.mark.parametrize("kw, word", [({"tol": float("nan")}, "tol"), ({"tol": 0.0}, "tol"),
+                                      ({"max_iter": -1}, "max_iter"), ({"max_iter": 2.5}, "max_iter"),
+                                      ({"x0": np.full(6, np.nan)}, "x0")])
+def test_bad_stopping_rule_or_start_raises_naming_it(kw, word):
+    """Issue #10: a NaN tolerance used to run to max_iter silently; a NaN start is refused by name."""
+    V, s, g, lo, hi = _small()
+    with pytest.raises(ShapeSpaceError, match=word):
+        solve_box_qp(1.0, V, s, g, lo, hi, **kw)
+    if "x0" not in kw:
+        R, m, b, lo2, hi2 = lsq_problem(0)
+        with pytest.raises(ShapeSpaceError, match=word):
+            solve_box_lsq_dual(R, m, 1.0, b, lo2, hi2, **kw)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_non_finite_g_or_dual0_raises(bad):
+    V, s, g, lo, hi = _small()
+    g[1] = bad
+    with pytest.raises(ShapeSpaceError) as exc:
+        solve_box_qp(1.0, V, s, g, lo, hi)
+    assert exc.value.code == "non_finite"
+    R, m, b, lo2, hi2 = lsq_problem(0)
+    dual0 = np.zeros(R.shape[0])
+    dual0[0] = bad
+    with pytest.raises(ShapeSpaceError) as exc:
+        solve_box_lsq_dual(R, m, 1.0, b, lo2, hi2, dual0=dual0)
+    assert exc.value.code == "non_finite"

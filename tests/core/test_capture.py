@@ -432,3 +432,165 @@ def test_resample_non_positive_rate(fps, base):
     with pytest.raises(ShapeSpaceError) as exc:
         resample(np.arange(5) / 60.0, np.zeros((5, 2)), fps, fps_base=base)
     assert exc.value.code == "fps"
+
+
+# --------------------------------------------------------------------------- hardening (#10: r09, r13, r15, r24, r28)
+def _take(first_seconds, count, header=("Timecode", "JawOpen")):
+    """``count`` 60-fps rows from ``first_seconds`` of the day (wrapping at midnight, hand formatting)."""
+    rows = []
+    for k in range(count):
+        t = (first_seconds * 60 + k) % (86400 * 60)
+        sec, ff = divmod(t, 60)
+        rows.append([f"{sec // 3600:02d}:{sec // 60 % 60:02d}:{sec % 60:02d}:{ff:02d}.000", 0.01 * k])
+    return csv_text(header, rows)
+
+
+def test_take_crossing_midnight_continues_the_day():
+    s = read_live_link_csv(_take(86400 - 2, 300))               # 23:59:58 … 00:00:02.98
+    np.testing.assert_allclose(s.times, np.arange(300) / 60, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(s.weights[:, 0], 0.01 * np.arange(300), atol=1e-12)
+    assert s.start_timecode == "23:59:58:00.000"
+    assert "midnight" in codes(s) and "line 122" in issue(s, "midnight").message
+    assert "reversed_timecode" not in codes(s) and "timecode_gap" not in codes(s)
+
+
+@pytest.mark.parametrize("bad", ["25:32:09:07.000", "99999:00:00:00.000", "24:00:00:00"])
+def test_impossible_hour_is_refused_with_its_line(bad):
+    text = _take(9 * 60, 10).splitlines()
+    text[6] = bad + ",0.5"                                         # line 7
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_live_link_csv("\n".join(text) + "\n")
+    assert exc.value.code == "timecode" and str(exc.value).startswith("line 7: ") and bad in str(exc.value)
+
+
+def test_parse_timecode_hour_24_is_out_of_range():
+    with pytest.raises(ShapeSpaceError):
+        parse_timecode("24:00:00:00")
+    assert parse_timecode("23:59:59:59") == pytest.approx(86399 + 59 / 60)
+
+
+def test_one_row_hours_away_is_refused_naming_the_lines():
+    text = _take(9 * 60, 10).splitlines()
+    text[4] = "03:00:00:00.000,0.5"                                # line 5: hours after the take
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_live_link_csv("\n".join(text) + "\n")
+    assert exc.value.code == "timecode" and "line 5" in str(exc.value) and "2.8 h" in str(exc.value)
+
+
+def test_take_longer_than_the_limit_is_refused(monkeypatch):
+    import core.retarget.capture as capture
+    monkeypatch.setattr(capture, "MAX_TAKE_SECONDS", 2.0)
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_live_link_csv(_take(0, 200))
+    assert exc.value.code == "too_large" and "3.3 s" in str(exc.value)
+
+
+@pytest.mark.parametrize("ending", ["\r", "\r\n", "\n"])
+def test_any_line_ending_is_read(ending):
+    text = _take(60, 5).replace("\n", ending)
+    s = read_live_link_csv(text if ending != "\r" else text + "\n")
+    np.testing.assert_allclose(s.weights[:, 0], 0.01 * np.arange(5), atol=1e-12)
+
+
+def test_cr_only_file_is_read(tmp_path):
+    path = tmp_path / "cr.csv"
+    path.write_bytes(_take(60, 5).replace("\n", "\r").encode())
+    assert read_live_link_csv(path).times.size == 5
+
+
+@pytest.mark.parametrize("body, line", [
+    ('"' + _take(60, 6000), 1),                                           # a stray quote at the top
+    ("Timecode,JawOpen\n00:00:00:00.000," + "1" * 200000 + "\n", 2),      # a 200 KB cell
+])
+def test_malformed_csv_is_a_shapespace_error_naming_file_and_line(tmp_path, body, line):
+    path = tmp_path / "bad.csv"
+    path.write_text(body, newline="")
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_live_link_csv(path)
+    assert str(exc.value).startswith(f"{path}: line {line}: ") and exc.value.code == "corrupt_file"
+
+
+def test_content_errors_from_a_file_name_the_file(tmp_path):
+    path = tmp_path / "take.csv"
+    path.write_text(csv_text(["Timecode", "JawOpen"], [[tc(0), 0.1], [tc(1), "x"], [tc(2), 0.1]]))
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_live_link_csv(path)
+    assert str(exc.value).startswith(f"{path}: line 3, column 'JawOpen'")
+
+
+def test_not_utf8_names_the_line(tmp_path):
+    path = tmp_path / "latin1.csv"
+    path.write_bytes(_take(60, 5).encode() + b"00:01:00:09.000,caf\xe9\n")
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_live_link_csv(path)
+    assert exc.value.code == "corrupt_file" and "line 7: not UTF-8" in str(exc.value)
+
+
+def test_huge_weight_is_refused_naming_line_and_column():
+    text = csv_text(["Timecode", "JawOpen", "TongueOut"], [[tc(k), 0.1, "1e308" if k == 2 else 0.2]
+                                                           for k in range(5)])
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_live_link_csv(text)
+    assert exc.value.code == "range" and str(exc.value).startswith("line 4, column 'TongueOut': 1e308")
+
+
+def test_weights_outside_zero_one_are_reported_by_channel():
+    text = csv_text(["Timecode", "JawOpen", "TongueOut", "EyeBlinkLeft"],
+                    [[tc(k), 0.1 * k, 3.0 if k == 1 else 0.2, -0.5 if k == 2 else 0.0] for k in range(5)])
+    s = read_live_link_csv(text)
+    out = issue(s, "weights_out_of_range")
+    assert out is not None and out.items == ("TongueOut", "EyeBlinkLeft")
+    assert "TongueOut (0.2 … 3)" in out.message and "EyeBlinkLeft (-0.5 … 0)" in out.message
+    assert "weights_out_of_range" not in codes(read_live_link_csv(str(LLF_CSV)))
+
+
+def test_directory_fifo_and_device_are_refused_without_blocking(tmp_path):
+    import os
+    folder = tmp_path / "dir.csv"
+    folder.mkdir()
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_live_link_csv(folder)
+    assert exc.value.code == "not_a_file" and "is a directory" in str(exc.value)
+    if hasattr(os, "mkfifo"):
+        fifo = tmp_path / "fifo.csv"
+        os.mkfifo(fifo)
+        with pytest.raises(ShapeSpaceError) as exc:          # returns at once: opened without blocking
+            read_live_link_csv(str(fifo))
+        assert exc.value.code == "not_a_file" and "not a regular file" in str(exc.value)
+    if os.path.exists("/dev/zero"):
+        with pytest.raises(ShapeSpaceError) as exc:
+            read_live_link_csv("/dev/zero")
+        assert exc.value.code == "not_a_file"
+
+
+def test_file_larger_than_the_limit_is_refused(tmp_path, monkeypatch):
+    import core.retarget.capture as capture
+    monkeypatch.setattr(capture, "MAX_FILE_BYTES", 100)
+    path = tmp_path / "big.csv"
+    path.write_text(_take(60, 20))
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_live_link_csv(path)
+    assert exc.value.code == "too_large" and str(path) in str(exc.value)
+
+
+def test_path_with_a_line_break_is_a_path(tmp_path):
+    path = tmp_path / "take\none.csv"
+    path.write_text(_take(60, 5))
+    assert read_live_link_csv(str(path)).times.size == 5
+
+
+def test_resample_refuses_more_than_the_memory_budget(monkeypatch):
+    import core.retarget.capture as capture
+    monkeypatch.setattr(capture, "MAX_RESAMPLE_BYTES", 1000)
+    t = np.arange(61) / 60.0
+    frames, _ = resample(t, np.zeros((61, 2)), 30.0)              # 31 frames × 2 × 8 = 496 bytes
+    assert frames.size == 31
+    with pytest.raises(ShapeSpaceError) as exc:
+        resample(t, np.zeros((61, 5)), 30.0)
+    assert exc.value.code == "too_large"
+
+
+@pytest.mark.parametrize("times", [[0.0, np.nan, 1.0], [0.0, 2.0, 1.0], [0.0, 0.0, 1.0]])
+def test_resample_refuses_bad_times(times):
+    with pytest.raises(ShapeSpaceError):
+        resample(np.array(times), np.zeros((3, 1)), 30.0)

@@ -545,3 +545,16 @@ def test_mirror_partners_refuse_an_asymmetric_mesh_within_tolerance():
     with pytest.raises(ShapeSpaceError) as e:
         mirror_displacements(np.zeros((4, 3)), np.arange(3))
     assert e.value.code == "shape"
+
+
+def test_readers_name_themselves_when_refusing_a_scale_or_rotation():
+    """Issue #10: a NaN reader scale or bone rotation is refused naming the reader."""
+    with pytest.raises(ShapeSpaceError, match="rotation 'arm.L'.*got nan") as e:
+        PoseReader("rotation", "arm.L", scale=float("nan"))
+    assert e.value.code == "range"
+    with pytest.raises(ShapeSpaceError, match="twist 'arm.L'.*positive") as e:
+        PoseReader("twist", "arm.L", scale=0.0)
+    assert e.value.code == "range"
+    with pytest.raises(ShapeSpaceError, match="swing reader 'forearm.R'") as e:
+        reader_features(PoseReader("swing", "forearm.R"), [np.nan, 0.0, 0.0, 1.0])
+    assert e.value.code == "non_finite"

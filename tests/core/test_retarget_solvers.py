@@ -230,3 +230,71 @@ def test_learned_cloning_recovers_a_linear_map_from_suggested_key_frames():
     np.testing.assert_allclose(learned.weights, src[:, :ns] @ learned.matrix, rtol=0, atol=1e-12)
     # RMS of Ws (Ê − E) ≤ max row norm of Ws (≤ √ns here: entries in [0, 1]) × ‖Ê − E‖₂
     assert learned.fit_rms <= np.sqrt(ns) * (1.01 * bound + 1e-12)
+
+
+# --------------------------------------------------------------------------- hardening (#10)
+def _model_with_empty_key(rng, p=20):
+    neutral = rng.standard_normal((p, 3))
+    deltas = rng.standard_normal((3, p, 3)) * 0.2
+    deltas[1] = 0.0                                             # k1 moves nothing (like facecap's tongueOut)
+    return BlendshapeModel(neutral, deltas, ["k0", "k1", "k2"])
+
+
+@pytest.mark.parametrize("method", ["perframe", "spacetime"])
+def test_sliders_of_empty_keys_keep_the_copied_value(method):
+    rng = np.random.default_rng(21)
+    model = _model_with_empty_key(rng)
+    ideal = 0.5 + 0.4 * np.sin(np.linspace(0, 4, 40)[:, None] + np.arange(3))
+    ideal[5, 1] = 1.7                                           # beyond the range: clipped, as copy keys it
+    fit = retarget_weights(model, ideal, method, lam=1e-9)
+    np.testing.assert_array_equal(fit.weights[:, 1], np.clip(ideal[:, 1], 0, 1))
+    np.testing.assert_allclose(fit.weights[:, [0, 2]], np.clip(ideal[:, [0, 2]], 0, 1), atol=1e-4)
+    dense = retarget_positions(model, model.neutral.ravel() + ideal @ model.delta_matrix.T, method)
+    np.testing.assert_array_equal(dense.weights[:, 1], 0.0)     # a mesh performance: at rest
+
+
+def test_copy_errors_need_no_dense_residual_and_match_it():
+    from core.retarget.metrics import weight_errors
+    rng = np.random.default_rng(22)
+    model = _tiny_model(rng, p=50)
+    dW = rng.standard_normal((3000, 3))
+    R = dW @ model.delta_matrix.T
+    pos, vel = weight_errors(dW, model.delta_matrix, model.scale)
+    assert pos == pytest.approx(position_error_rms(R, model.scale), rel=1e-13)
+    assert vel == pytest.approx(velocity_error_rms(R, model.scale), rel=1e-13)
+
+
+def test_geometric_fit_beyond_the_memory_budget_is_refused(monkeypatch):
+    import core.retarget.performance as performance
+    rng = np.random.default_rng(23)
+    model = _tiny_model(rng)
+    ideal = np.full((100, 3), 0.5)
+    monkeypatch.setattr(performance, "MAX_DENSE_BYTES", 100 * 3 * 20 * 8 - 1)
+    with pytest.raises(ShapeSpaceError) as exc:
+        retarget_weights(model, ideal, "spacetime")
+    assert exc.value.code == "too_large" and "100 frames on 20 vertices" in str(exc.value)
+    assert retarget_weights(model, ideal, "copy").weights.shape == (100, 3)    # copy builds nothing dense
+
+
+@pytest.mark.parametrize("lam", [float("nan"), 0.0, -1.0, float("inf")])
+def test_bad_lambda_is_refused_naming_it(lam):
+    model = _tiny_model(np.random.default_rng(24))
+    with pytest.raises(ShapeSpaceError, match="^lam must be"):
+        retarget_weights(model, np.full((10, 3), 0.5), "spacetime", lam=lam)
+
+
+def test_non_finite_fit_is_refused_naming_the_slider():
+    from core.retarget.performance import check_finite_weights
+    W = np.zeros((5, 3))
+    W[3, 2] = np.nan
+    with pytest.raises(ShapeSpaceError, match="slider 'eyeLookUp_R' \\(first at frame index 3"):
+        check_finite_weights(W, ["jawOpen", "eyeLookUp_L", "eyeLookUp_R"])
+
+
+def test_spacetime_messages_name_the_sliders():
+    rng = np.random.default_rng(25)
+    B = rng.standard_normal((9, 3))
+    S = rng.standard_normal((6, 9))
+    with pytest.raises(ShapeSpaceError, match="lo exceeds hi for sliders eyeLookUp_L, eyeLookUp_R"):
+        spacetime(B, np.zeros(9), S, np.ones(3), 1e-3, lo=[0, 1, 1], hi=[1, 0, 0],
+                  names=["jawOpen", "eyeLookUp_L", "eyeLookUp_R"])

@@ -33,10 +33,13 @@ def test_four_platform_zips_each_with_its_own_wheels(built_zips):
     for plat, path in built_zips.items():
         with zipfile.ZipFile(path) as z:
             names = z.namelist()
-            wheels = sorted(n for n in names if n.endswith(".whl"))
+            wheels = sorted(n for n in names if n.endswith(".whl") and "python_osc" not in n)
             # one SciPy wheel per Blender Python: 3.11 (Blender 4.2-5.0) and 3.13 (Blender 5.1+)
             assert [w.split("-")[2] for w in wheels] == ["cp311", "cp313"], wheels
             assert all(tags[plat] in w and "scipy" in w for w in wheels), wheels
+            # and python-osc (Face Cap live capture), pure Python, in every platform's zip
+            assert [os.path.basename(n) for n in names if "python_osc" in n] == \
+                ["python_osc-1.10.2-py3-none-any.whl"], names
             manifest = z.read("blender_manifest.toml").decode()
             assert f'platforms = ["{plat}"]' in manifest
             assert "__init__.py" in names and "core/blendshape.py" in names and "LICENSE" in names

@@ -1,0 +1,157 @@
+"""The command-line commands: ``info`` and ``retarget``.
+
+Each takes the parsed arguments and the files already opened for it (``tools/run_cli.py FILE``), checks
+every output before any work (:mod:`.outputs`), and returns ``(exit code, JSON text for stdout or None)``.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+
+import bpy
+
+from ..core.errors import ErrorCode
+from ..core.result import ShapeSpaceError
+from .outputs import check_output, same_file
+
+__all__ = ["info", "retarget", "COMMANDS"]
+
+
+def _say(text: str) -> None:
+    print(f"shapespace: {text}", file=sys.stderr, flush=True)
+
+
+def info(args, inputs: list) -> tuple:
+    """``info``: describe the rigs of the open file or of each file given."""
+    from ..bridge import assets, inventory
+    out = check_output("--out", args.out, "json", [*args.files, *inputs, bpy.data.filepath], args.overwrite)
+    reports = []
+    if args.files:
+        for path in args.files:
+            assets.load(path)
+            rep = inventory.describe_file()
+            rep.file = path
+            reports.append(rep)
+    else:
+        reports.append(inventory.describe_file())
+    for rep in reports:
+        rep.require_rigs()
+    payload = reports[0].to_json() if len(reports) == 1 else [rep.to_json() for rep in reports]
+    text = json.dumps(payload, indent=2)
+    if out is None:
+        return 0, text
+    out.stage_text(text + "\n")
+    out.commit()
+    return 0, None
+
+
+def _target_object(name, where: str):
+    meshes = [ob for ob in bpy.data.objects if ob.type == "MESH" and ob.data.shape_keys is not None
+              and len(ob.data.shape_keys.key_blocks) > 1]
+    if name:
+        ob = bpy.data.objects.get(name)
+        if ob is None or ob not in meshes:
+            raise ShapeSpaceError(f"no mesh with shape keys named {name!r}", ErrorCode.MISSING_OBJECT)
+        return ob
+    if not meshes:
+        raise ShapeSpaceError(f"no mesh with shape keys in {where or 'the open file'}: nothing to retarget onto",
+                              ErrorCode.NO_SHAPE_KEYS)
+    if len(meshes) > 1:
+        names = ", ".join(ob.name for ob in meshes[:6]) + (" …" if len(meshes) > 6 else "")
+        raise ShapeSpaceError(f"{len(meshes)} meshes have shape keys ({names}); choose one with --object",
+                              ErrorCode.AMBIGUOUS_OBJECT)
+    return meshes[0]
+
+
+def _one_source(obj, src: str, args) -> dict:
+    """Retarget one source; its report as JSON (``ok`` true), or its one-line error (``ok`` false)."""
+    from ..bridge import retarget as bridge
+    try:
+        name = f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}"
+        source_obj = bpy.data.objects.get(src)
+        if source_obj is not None and source_obj.type == "MESH":   # a mesh performance
+            rep = bridge.retarget_dense(obj, source_obj, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
+                                        action_name=name, key_shape=args.key_shape)
+        else:
+            rep = bridge.retarget(obj, src, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
+                                  action_name=name, key_shape=args.key_shape, key_pose_action=args.key_poses)
+        for issue in rep.issues:
+            _say(f"warning: {src}: {issue}")
+        return {**rep.to_json(), "ok": True}
+    except MemoryError:
+        message = "not enough memory for this source (split the take, or use --method copy)"
+    except ShapeSpaceError as exc:
+        message = str(exc)
+    except Exception as exc:  # one bad source never aborts the batch; SHAPESPACE_TRACEBACK=1 shows it
+        if os.environ.get("SHAPESPACE_TRACEBACK"):
+            raise
+        message = f"unexpected {type(exc).__name__}: {(str(exc).strip().splitlines() or [''])[-1]}"
+    if not message.startswith(src):
+        message = f"{src}: {message}"
+    print(f"shapespace: error: {message}", file=sys.stderr, flush=True)
+    return {"source": src, "ok": False, "error": message}
+
+
+def _progress_line(src: str, frames, seconds: float) -> str:
+    """``SOURCE: F frames in T s (R frames/s)`` after each source of the batch (#11)."""
+    if not frames:
+        return f"{src}: done in {seconds:.1f} s"
+    return f"{src}: {int(frames)} frames in {seconds:.1f} s ({int(frames) / max(seconds, 1e-9):.0f} frames/s)"
+
+
+def retarget(args, inputs: list) -> tuple:
+    """``retarget``: every source onto one rig, each into its own action (kept with a fake user)."""
+    from ..bridge import assets
+    if bool(args.out) == bool(args.dry_run):
+        raise ShapeSpaceError("retarget: give --out FILE.blend to save the results, or --dry-run to only report "
+                              "them" if not args.out else "retarget: --out and --dry-run exclude each other",
+                              ErrorCode.USAGE)
+    opened = args.target or bpy.data.filepath or (inputs[0] if inputs else "")
+    sources = [s for s in args.source if os.path.isfile(s)]
+    read = [p for p in (bpy.data.filepath, args.target, *inputs, *sources) if p]
+    out = check_output("--out", args.out, "blend", read, args.overwrite, opened)
+    if args.out and args.report and same_file(args.out, args.report):
+        raise ShapeSpaceError(f"--report {args.report}: is also the --out file; give two files", ErrorCode.OVERWRITE)
+    report = check_output("--report", args.report, "json", read, args.overwrite)
+    if args.target:
+        assets.load(args.target)
+    obj = _target_object(args.object, opened)
+    results = []
+    for k, src in enumerate(args.source, start=1):
+        _say(f"[{k}/{len(args.source)}] {src} → {obj.name} ({args.method})")
+        start = time.perf_counter()
+        results.append(_one_source(obj, src, args))
+        if results[-1]["ok"]:
+            _say(_progress_line(src, results[-1].get("frames"), time.perf_counter() - start))
+    done = sum(r["ok"] for r in results)
+    payload = {"target": obj.name, "method": args.method, "results": results,
+               "saved": out.path if out is not None and done else None}
+    text = json.dumps(payload, indent=2)
+    if report is not None:
+        report.stage_text(text + "\n")
+    try:
+        if out is not None and done:
+            _save(out)
+        if report is not None:
+            report.commit()
+    finally:
+        if report is not None:
+            report.discard()
+    if out is not None and not done:
+        _say(f"nothing retargeted: {out.path} not written")
+    return (1 if done < len(results) else 0), (text if report is None else None)
+
+
+def _save(out) -> None:
+    """Save the open file as ``out`` (every result action has a fake user, so all of them are kept)."""
+    try:
+        bpy.ops.wm.save_as_mainfile(filepath=out.abspath, check_existing=False)
+    except RuntimeError as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip() and not ln.startswith("Location:")]
+        raise out.fail(f"cannot be saved ({lines[-1] if lines else exc})") from None
+    _say(f"saved {out.path}")
+
+
+COMMANDS = {"info": info, "retarget": retarget}

@@ -1,0 +1,147 @@
+"""Where the command line writes: checked before any work, written without half-files, never onto an input.
+
+Rules (``--help`` and the README say the same):
+
+- an output (``--out``, ``--report``) is checked before anything is loaded or computed: its folder must
+  exist and be writable, it must not be a folder, and it must not be one of the command's inputs (the
+  opened or ``--target`` .blend, an ``info`` file, a ``--source`` file) — the one exception is
+  ``retarget --out`` onto the opened .blend with ``--overwrite`` (Blender keeps the old one as ``.blend1``);
+- an existing regular file is replaced only if it is of the same kind (a JSON report for JSON, a .blend
+  for ``--out``), or with ``--overwrite``;
+- JSON goes to a temporary file beside the destination, moved into place only when everything else
+  (the .blend) is saved; any write failure is one ``shapespace: error:`` line.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import stat
+import tempfile
+
+from ..core.errors import ErrorCode
+from ..core.result import ShapeSpaceError
+
+__all__ = ["Output", "check_output", "same_file"]
+
+_BLEND_MAGIC = (b"BLENDER", b"\x28\xb5\x2f\xfd", b"\x1f\x8b")     # plain, zstd- and gzip-compressed
+
+
+def same_file(a: str, b: str) -> bool:
+    """Whether two paths name the same file (or the same absolute path when either does not exist)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.normcase(os.path.abspath(a)) == os.path.normcase(os.path.abspath(b))
+
+
+def _looks_like(path: str, kind: str) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+    except OSError:
+        return False
+    if not head.strip():
+        return True                                   # an empty file holds nothing to lose
+    if kind == "json":
+        return head.lstrip()[:1] in (b"{", b"[")
+    return head.startswith(_BLEND_MAGIC)
+
+
+class Output:
+    """One checked destination: ``flag`` (for messages), ``path`` as given, ``kind`` (``json`` or ``blend``)."""
+
+    def __init__(self, flag: str, path: str, kind: str):
+        self.flag, self.path, self.kind = flag, path, kind
+        self.abspath = os.path.abspath(path)
+        self.regular = not os.path.exists(self.abspath) or stat.S_ISREG(os.stat(self.abspath).st_mode)
+        self._pending = None                          # a written temporary JSON file, not yet in place
+
+    def fail(self, what: str, code: ErrorCode = ErrorCode.UNWRITABLE) -> ShapeSpaceError:
+        return ShapeSpaceError(f"{self.flag} {self.path}: {what}", code)
+
+    def probe(self) -> None:
+        """Prove the destination writable now, before any work: create and remove a file beside it (or open
+        a device for appending)."""
+        try:
+            if self.regular:
+                fd, tmp = tempfile.mkstemp(dir=os.path.dirname(self.abspath), prefix=".shapespace-", suffix=".tmp")
+                os.close(fd)
+                os.remove(tmp)
+            else:
+                with open(self.abspath, "ab"):
+                    pass
+        except OSError as exc:
+            raise self.fail(f"cannot be written ({exc.strerror or exc})") from None
+
+    def stage_text(self, text: str) -> None:
+        """Write ``text`` to a temporary file beside the destination (a device is written at :meth:`commit`)."""
+        if not self.regular:
+            self._pending = text
+            return
+        try:
+            fd, tmp = tempfile.mkstemp(dir=os.path.dirname(self.abspath), prefix=".shapespace-", suffix=".tmp")
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                fh.write(text)
+        except OSError as exc:
+            raise self.fail(f"cannot be written ({exc.strerror or exc})") from None
+        self._pending = tmp
+
+    def commit(self) -> None:
+        """Move the staged JSON into place."""
+        try:
+            if self.regular:
+                os.replace(self._pending, self.abspath)
+            else:
+                with open(self.abspath, "w", encoding="utf-8") as fh:
+                    fh.write(self._pending)
+        except OSError as exc:
+            raise self.fail(f"cannot be written ({exc.strerror or exc})") from None
+        finally:
+            self._pending = None
+
+    def discard(self) -> None:
+        """Remove a staged file that will not be committed."""
+        if self.regular and self._pending:
+            with contextlib.suppress(OSError):
+                os.remove(self._pending)
+        self._pending = None
+
+
+def check_output(flag: str, path: str | None, kind: str, inputs: list, overwrite: bool = False,
+                 opened_blend: str = "") -> Output | None:
+    """The destination of ``flag`` checked against the rules of this module (``None`` when not given).
+
+    Parameters
+    ----------
+    flag : str
+        ``--out`` or ``--report`` (named in messages).
+    path : str or None
+    kind : {"json", "blend"}
+    inputs : list of str
+        Files the command reads.
+    overwrite : bool
+        ``--overwrite``: replace a file of another kind, or save a .blend onto ``opened_blend``.
+    opened_blend : str
+        The .blend the command works on (may be saved in place with ``overwrite``).
+    """
+    if path is None:
+        return None
+    if not path:
+        raise ShapeSpaceError(f"{flag}: give a file name", ErrorCode.USAGE)
+    out = Output(flag, path, kind)
+    if os.path.isdir(out.abspath):
+        raise out.fail("is a folder; give a file name")
+    folder = os.path.dirname(out.abspath)
+    if not os.path.isdir(folder):
+        raise out.fail(f"the folder {folder} does not exist")
+    for source in inputs:
+        if source and same_file(out.abspath, source):
+            in_place = overwrite and kind == "blend" and opened_blend and same_file(source, opened_blend)
+            if not in_place:
+                hint = " (give --overwrite to save into it)" if kind == "blend" and source == opened_blend else ""
+                raise out.fail(f"would overwrite the input {source}{hint}", ErrorCode.OVERWRITE)
+    if out.regular and os.path.exists(out.abspath) and not overwrite and not _looks_like(out.abspath, kind):
+        what = "a JSON report" if kind == "json" else "a .blend file"
+        raise out.fail(f"exists and is not {what}; give --overwrite to replace it", ErrorCode.OVERWRITE)
+    out.probe()
+    return out

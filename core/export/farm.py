@@ -1,0 +1,116 @@
+"""Farm jobs: splitting a batch into tasks and merging the per-take reports into one.
+
+A farm (Deadline Cloud through Open Job Description, Flamenco) runs ``shapespace retarget`` once per take
+(or per chunk of takes), each writing ``<stem>.json`` (the command's ``--report``) and ``<stem>.blend``;
+a final task merges the reports.  A take whose task failed before writing its report — or whose report is
+unreadable — is reported as failed, so the merged report always names every take.
+"""
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from ..errors import ErrorCode
+from ..result import Report, ShapeSpaceError
+
+__all__ = ["FarmSummary", "chunk", "merge_take_reports", "read_take_report", "take_stem"]
+
+
+def take_stem(take: str) -> str:
+    """The name a take's outputs are written under: its file name without the extension (``take1.csv`` →
+    ``take1``), or an action name as it is."""
+    stem = os.path.splitext(os.path.basename(str(take)))[0]
+    if not stem:
+        raise ShapeSpaceError(f"take {take!r} has no file name", ErrorCode.USAGE)
+    return stem
+
+
+def chunk(takes: Sequence[str], size: int) -> list[list[str]]:
+    """``takes`` in chunks of at most ``size`` (one task each), order kept; duplicate stems refused (their
+    outputs would overwrite each other)."""
+    if int(size) < 1:
+        raise ShapeSpaceError(f"chunk size must be at least 1, got {size}", ErrorCode.RANGE)
+    seen = {}
+    for t in takes:
+        stem = take_stem(t)
+        if stem in seen:
+            raise ShapeSpaceError(f"takes {seen[stem]!r} and {t!r} would both write {stem}.json: rename one",
+                                  ErrorCode.USAGE)
+        seen[stem] = t
+    items = list(takes)
+    return [items[i:i + int(size)] for i in range(0, len(items), int(size))]
+
+
+def read_take_report(path: str) -> dict | None:
+    """A per-take report (the retarget command's ``--report`` JSON), or None when missing or unreadable."""
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and isinstance(data.get("results"), list) else None
+
+
+@dataclass
+class FarmSummary(Report):
+    """The merged report of a farm batch.
+
+    Attributes
+    ----------
+    takes : int
+        Takes in the batch.
+    succeeded : list of str
+        Takes retargeted (their ``results`` entries are in ``results``).
+    failed : list of dict
+        ``{"take", "error"}`` for each take that failed or left no report.
+    results : list of dict
+        Every per-take result, ``take`` and ``blend`` (the task's output file) added.
+    target, method : str
+        From the first report that names them.
+    """
+
+    takes: int = 0
+    succeeded: list = field(default_factory=list)
+    failed: list = field(default_factory=list)
+    results: list = field(default_factory=list)
+    target: str = ""
+    method: str = ""
+
+    @property
+    def ok(self) -> bool:
+        """Every take succeeded."""
+        return not self.failed
+
+
+def merge_take_reports(takes: Sequence[str], report_dir: str) -> FarmSummary:
+    """Merge ``<report_dir>/<stem>.json`` of every take into one :class:`FarmSummary`.
+
+    Parameters
+    ----------
+    takes : sequence of str
+        The batch's takes, as given to the job (paths or action names).
+    report_dir : str
+        Where the per-take tasks wrote ``<stem>.json`` and ``<stem>.blend``.
+    """
+    summary = FarmSummary(takes=len(takes))
+    for take in takes:
+        stem = take_stem(take)
+        rep = read_take_report(os.path.join(report_dir, f"{stem}.json"))
+        if rep is None:
+            summary.failed.append({"take": take, "error": f"no report: the task for {stem} did not finish"})
+            continue
+        summary.target = summary.target or str(rep.get("target", ""))
+        summary.method = summary.method or str(rep.get("method", ""))
+        blend = os.path.join(report_dir, f"{stem}.blend")
+        for res in rep["results"]:
+            entry = {**res, "take": take, "blend": blend if os.path.isfile(blend) else None}
+            summary.results.append(entry)
+            if not res.get("ok", False):
+                summary.failed.append({"take": take, "error": str(res.get("error", "failed"))})
+        if all(r.get("ok", False) for r in rep["results"]) and rep["results"]:
+            summary.succeeded.append(take)
+        elif not rep["results"]:
+            summary.failed.append({"take": take, "error": "the report lists no result"})
+    return summary

@@ -1,0 +1,33 @@
+"""Live capture: decode a phone's face capture per packet and solve it onto any rig (issue #14).
+
+- :mod:`.frames` — the decoded frame and the sources' channel orders (mapped by name, never by index);
+- :mod:`.packets` — Live Link Face v6 and iFacialMocap decoders (and encoders for replays), the Face Cap
+  message assembler (its OSC parsing is python-osc's, in the bridge);
+- :mod:`.filter` — the One-Euro filter;
+- :mod:`.calibration` — the rest face and head pose as zero, head / neck / eye bone rotations;
+- :mod:`.solvers` — copy, learned matrix and the bounded geometric fit through a template, precomputed;
+- :mod:`.take` — a stream resampled onto scene frames as it arrives (what Record keys).
+
+Pure numpy/scipy and the standard library: the bridge runs the sockets, threads and Blender writes.
+"""
+from .calibration import (FACE_TO_ARMATURE, Neutral, bone_local, calibrate, euler_matrix, face_to_armature,
+                          matrix_euler, matrix_quaternion, rotation_power)
+from .filter import OneEuroFilter
+from .frames import FACECAP_52, LLF_BLENDSHAPES, LLF_CURVES, LLF_ROTATIONS, LiveFrame, format_timecode
+from .packets import (FACECAP_PORT, IFM_PORT, LLF_PORT, LLF_VERSION, MAX_DATAGRAM, FaceCapAssembler,
+                      decode_ifacialmocap, decode_llf, encode_ifacialmocap, encode_llf, quaternion_to_yaw_pitch_roll)
+from .solvers import CopySolver, GeometricSolver, LearnedSolver, dense_box_qp
+from .take import SceneResampler
+
+__all__ = [
+    # frames and sources
+    "LiveFrame", "LLF_CURVES", "LLF_BLENDSHAPES", "LLF_ROTATIONS", "FACECAP_52", "format_timecode",
+    "LLF_PORT", "LLF_VERSION", "IFM_PORT", "FACECAP_PORT", "MAX_DATAGRAM",
+    "encode_llf", "decode_llf", "encode_ifacialmocap", "decode_ifacialmocap", "FaceCapAssembler",
+    "quaternion_to_yaw_pitch_roll",
+    # filtering and calibration
+    "OneEuroFilter", "Neutral", "calibrate", "euler_matrix", "matrix_euler", "matrix_quaternion", "rotation_power",
+    "face_to_armature", "bone_local", "FACE_TO_ARMATURE",
+    # solvers and takes
+    "CopySolver", "LearnedSolver", "GeometricSolver", "dense_box_qp", "SceneResampler",
+]

@@ -1,0 +1,122 @@
+// SPDX-License-Identifier: GPL-3.0-or-later
+//
+// ShapeSpace batch retarget as a Flamenco job type (Blender Studio's render farm manager).
+//
+// Install: copy this file into the Manager's `scripts/` folder (next to flamenco-manager) and restart it;
+// the job type "ShapeSpace Retarget" then shows in the Flamenco add-on's job types.  Submit it from Blender
+// with the rig file open: `blendfile` (set by the add-on) is the rig.
+//
+// Tasks: one per take (or per chunk of `chunk_size` takes), each running, for every take of its chunk,
+//     {blender} {blenderArgs} RIG --command shapespace retarget --source TAKE [--object OBJ] --method M
+//         --key-tolerance T --out OUTPUT_DIR/<take>.blend --report OUTPUT_DIR/<take>.json
+// — the batch command with one --source — then a merge task (depends on all of them):
+//     {blender} {blenderArgs} RIG --command shapespace merge-reports --takes TAKE… --reports-dir OUTPUT_DIR
+//         --out OUTPUT_DIR/merged.json
+// `{blender}` and `{blenderArgs}` are the Manager's two-way variables (as in Flamenco's own job types).
+//
+// ShapeSpace on the worker: with `extension_zip` set, every task first installs it with Blender's own
+// command, `{blender} -b RIG --command extension install-file -r user_default -e ZIP` (idempotent, same worker as
+// the take); leave it empty when the workers share an extensions repository where ShapeSpace is installed.
+
+const JOB_TYPE = {
+    label: "ShapeSpace Retarget",
+    description: "Retarget Live Link Face takes onto the shape-key rig of this file, one task per take, then " +
+        "merge the per-take reports",
+    settings: [
+        { key: "takes", type: "string", required: true, visible: "submission",
+          description: "Takes to retarget: Live Link Face CSV paths (or action names), separated by ';'" },
+        { key: "chunk_size", type: "int32", default: 1, propargs: { min: 1 }, visible: "submission",
+          description: "Takes per task" },
+        { key: "output_dir", type: "string", subtype: "dir_path", required: true, visible: "submission",
+          description: "Where each take's .blend and .json and the merged report go" },
+        { key: "method", type: "string", default: "spacetime", visible: "submission",
+          choices: ["copy", "learned", "perframe", "spacetime"], description: "Retarget method" },
+        { key: "key_tolerance", type: "float", default: 0.0, propargs: { min: 0.0 }, visible: "submission",
+          description: "Reduce keys to this max slider error (0 keeps every frame)" },
+        { key: "target_object", type: "string", default: "", visible: "submission",
+          description: "Target mesh when the rig file has several meshes with shape keys" },
+        { key: "extension_zip", type: "string", subtype: "file_path", default: "", visible: "submission",
+          description: "ShapeSpace zip to install on the worker first (empty: already installed there)" },
+        { key: "blendfile", type: "string", required: true, visible: "web",
+          description: "The rig: the .blend the job was submitted from" },
+    ],
+};
+
+function compileJob(job) {
+    print("ShapeSpace Retarget job submitted");
+    const settings = job.settings;
+    const takes = splitTakes(settings.takes);
+    if (takes.length === 0) {
+        throw "no takes given: list the take files in 'takes', separated by ';'";
+    }
+    const stems = takes.map(takeStem);
+    const seen = {};
+    stems.forEach((stem, i) => {
+        if (seen[stem] !== undefined) {
+            throw `takes ${takes[seen[stem]]} and ${takes[i]} would both write ${stem}.json: rename one`;
+        }
+        seen[stem] = i;
+    });
+    const chunkSize = Math.max(1, settings.chunk_size || 1);
+    const retargetTasks = [];
+    for (let start = 0; start < takes.length; start += chunkSize) {
+        const chunk = takes.slice(start, start + chunkSize);
+        const task = author.Task(`retarget-${chunk.map(takeStem).join("+")}`, "blender");
+        if (settings.extension_zip) {
+            task.addCommand(blenderCommand(settings.blendfile, installArgs(settings.extension_zip)));
+        }
+        for (const take of chunk) {
+            task.addCommand(blenderCommand(settings.blendfile, retargetArgs(settings, take)));
+        }
+        job.addTask(task);
+        retargetTasks.push(task);
+    }
+    const merge = author.Task("merge-reports", "blender");
+    if (settings.extension_zip) {
+        merge.addCommand(blenderCommand(settings.blendfile, installArgs(settings.extension_zip)));
+    }
+    merge.addCommand(blenderCommand(settings.blendfile, ["--command", "shapespace", "merge-reports", "--takes"].concat(takes, [
+        "--reports-dir", settings.output_dir, "--out", path.join(settings.output_dir, "merged.json")])));
+    for (const task of retargetTasks) {
+        merge.addDependency(task);
+    }
+    job.addTask(merge);
+}
+
+function splitTakes(text) {
+    return (text || "").split(";").map((t) => t.trim()).filter((t) => t.length > 0);
+}
+
+function takeStem(take) {
+    return path.basename(take).replace(/\.[^.]*$/, "");
+}
+
+function installArgs(zip) {
+    return ["--command", "extension", "install-file", "-r", "user_default", "-e", zip];
+}
+
+function retargetArgs(settings, take) {
+    const stem = takeStem(take);
+    let args = ["--command", "shapespace", "retarget", "--source", take];
+    if (settings.target_object) {
+        args = args.concat(["--object", settings.target_object]);
+    }
+    return args.concat([
+        "--method", settings.method,
+        "--key-tolerance", String(settings.key_tolerance),
+        "--out", path.join(settings.output_dir, `${stem}.blend`),
+        "--report", path.join(settings.output_dir, `${stem}.json`),
+    ]);
+}
+
+// Flamenco's Blender command: {blender} {blenderArgs} [argsBefore…] blendfile [args…].  The worker requires a
+// blend file, so the install and merge commands open the rig too (harmless: they do not touch it).
+function blenderCommand(blendfile, args) {
+    return author.Command("blender-render", {
+        exe: "{blender}",
+        exeArgs: "{blenderArgs}",
+        argsBefore: [],
+        blendfile: blendfile,
+        args: args,
+    });
+}
