@@ -324,47 +324,66 @@ def chebyshev_fit(A: ArrayLike, y: ArrayLike, stop_above: float = np.inf, max_it
     return None, np.inf
 
 
-def _hermite_errors(t: np.ndarray, v: np.ndarray, m: np.ndarray, i: int, js: np.ndarray,
-                    ks: np.ndarray) -> np.ndarray:
-    """Max error over samples ``ks`` of the Hermite segments from sample i to each end in ``js``, shape (L,)
-    (samples at or beyond an end do not count)."""
-    h = t[js] - t[i]
-    s = (t[ks][None, :] - t[i]) / h[:, None]                         # (L, K)
-    inside = s < 1.0 - 1e-12
+def _valid_segments(t: np.ndarray, v: np.ndarray, m: np.ndarray, tol: float, max_span: int) -> np.ndarray:
+    """``ok[i, d]``: the Hermite from sample i to i + d (sample values and slopes) stays within ``tol`` of
+    every sample between, shape (f, max_span + 1).  Vectorised over i for each span d; a span is accepted at
+    once when a bound proves it, long spans are first tested on 4 then every 8th interior sample (failing
+    there is failing), and only the survivors on all."""
+    n = t.size
+    ok = np.zeros((n, max_span + 1), dtype=bool)
+    top, bottom = v.copy(), v.copy()                                 # range of the samples in [i, i + d]
+    for d in range(1, min(max_span, n - 1) + 1):
+        np.maximum(top[:n - d], v[d:], out=top[:n - d])
+        np.minimum(bottom[:n - d], v[d:], out=bottom[:n - d])
+        i = np.arange(n - d)
+        # accepted without evaluation: h00 + h01 = 1 (both ≥ 0) and |h10|, |h11| ≤ 4/27 on [0, 1], so the
+        # curve stays within the samples' range widened by 4/27 · h · (|m_i| + |m_j|)
+        bound = top[i] - bottom[i] + 4.0 / 27.0 * (t[i + d] - t[i]) * (np.abs(m[i]) + np.abs(m[i + d]))
+        sure = bound <= tol
+        ok[i[sure], d] = True
+        i = i[~sure]
+        if d > 1:
+            subsets = (np.arange(1, d, 1),) if d <= 12 else (np.arange(1, 5) * d // 5, np.arange(1, d, 8),
+                                                              np.arange(1, d, 1))
+            for e in subsets:
+                if i.size == 0:
+                    break
+                i = i[_span_errors(t, v, m, i, d, e) <= tol]
+        ok[i, d] = True
+    return ok
+
+
+def _span_errors(t: np.ndarray, v: np.ndarray, m: np.ndarray, i: np.ndarray, d: int, e: np.ndarray) -> np.ndarray:
+    """Max error at samples i + e of the Hermite segments from i to i + d, shape (len(i),)."""
+    j, k = i + d, i[:, None] + e[None, :]
+    h = (t[j] - t[i])[:, None]
+    s = (t[k] - t[i][:, None]) / h
     h00, h10 = (1 + 2 * s) * (1 - s) ** 2, s * (1 - s) ** 2
     h01, h11 = s * s * (3 - 2 * s), s * s * (s - 1)
-    curve = h00 * v[i] + h10 * (h * m[i])[:, None] + h01 * v[js][:, None] + h11 * (h * m[js])[:, None]
-    return np.where(inside, np.abs(curve - v[ks][None, :]), 0.0).max(axis=1)
+    curve = h00 * v[i][:, None] + h10 * h * m[i][:, None] + h01 * v[j][:, None] + h11 * h * m[j][:, None]
+    return np.abs(curve - v[k]).max(axis=1)
 
 
 def _interpolating_keys(t: np.ndarray, v: np.ndarray, m: np.ndarray, tol: float, max_span: int) -> list:
     """Stage 1 of :func:`reduce_keys_bezier`: the fewest samples whose Hermite (sample values and slopes)
-    stays within ``tol``, by a shortest path over the valid segments up to ``max_span`` samples long.
-
-    Exact, with two prunings that never change the answer: only ends the path could still improve are
-    tested, and a segment is first tested on a sparse subset of its samples (failing there is failing)."""
+    stays within ``tol``, by a shortest path over the valid segments up to ``max_span`` samples long (ties:
+    the earliest previous key)."""
     n = t.size
-    best = np.full(n, np.iinfo(np.int64).max)
+    ok = _valid_segments(t, v, m, tol, max_span)
+    spans = np.arange(ok.shape[1])
+    big = np.iinfo(np.int64).max
+    best = np.full(n, big)
     prev = np.full(n, -1)
     best[0] = 1
-    offs = np.arange(1, max_span + 1)
-    for i in range(n - 1):
-        if best[i] == np.iinfo(np.int64).max:
-            continue
-        js = i + offs[offs < n - i]                                  # candidate ends (L,)
-        js = js[best[i] + 1 < best[js]]
-        if js.size == 0:
-            continue
-        ks = np.arange(i + 1, js[-1])                                # interior samples of the longest
-        if ks.size > 16:                                             # sparse test first, exact after
-            js = js[_hermite_errors(t, v, m, i, js, ks[::ks.size // 8]) <= tol]
-            ks = np.arange(i + 1, js[-1]) if js.size else ks[:0]
-        if js.size == 0:
-            continue
-        err = _hermite_errors(t, v, m, i, js, ks) if ks.size else np.zeros(js.size)
-        ok = js[err <= tol]
-        best[ok] = best[i] + 1
-        prev[ok] = i
+    for j in range(1, n):
+        d = spans[: min(j, max_span) + 1]
+        starts = j - d[ok[j - d, d]]                                  # valid segments ending at j
+        if starts.size:
+            b = best[starts]
+            low = b.min()
+            if low < big:
+                best[j] = low + 1
+                prev[j] = starts[b == low].min()
     return _shortest_path(prev)
 
 

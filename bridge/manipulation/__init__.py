@@ -130,8 +130,9 @@ def solve_pins(obj, x0=None, model: BlendshapeModel | None = None, prior: Weight
     solve belongs to (its pin rows, previous sliders and duals warm-start the solve); ``None`` for a
     one-off solve.  ``move`` is ``(pin index, target in shape-key space)``: that pin's new target, stored
     with the sliders.  ``state``: the pins as already read.  Nothing is written when anything is refused,
-    and never a non-finite slider value; the sliders go in with one bulk write and one depsgraph update
-    (:func:`write_sliders`).
+    and never a non-finite slider value.  The sliders go in with one bulk write and one depsgraph update,
+    ShapeSpace's own (:func:`write_sliders`), so the cached rig stays trusted: a drag's one update per mouse
+    move; for the Solve Pins operator it is the update its undo step would make anyway.
     """
     model = model or RIGS.model(obj)
     state = check_pins(obj, state)

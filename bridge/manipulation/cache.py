@@ -2,7 +2,7 @@
 
 Reading a production face's shape keys is the expensive part of a drag — every
 coordinate of every key, float64 deltas for the solve (26,719 vertices × 58 keys
-on ICT FaceKit: ~60 ms; 105,569 × 151 on its subdivided variant: ~1 s) — while
+on ICT FaceKit: 45 ms; 105,569 × 151 on its subdivided variant: 1.3 s) — while
 a solve and the slider write take well under a millisecond.
 So the model is read once and kept in :data:`RIGS`, a :class:`RigCache`: one
 :class:`RigEntry` per object, keyed by the object's ``session_uid`` (stable
@@ -22,7 +22,7 @@ that Python can read, so the cache combines three checks:
   coordinates read with the bulk ``ShapeKey.points`` accessor into one reused
   buffer, summed as 64-bit words — exact for any change of any bit — and a
   CRC of the reference key, which also catches a reordering of the vertices;
-  ~4 ms at 27k vertices × 58 keys, ~35 ms at 105k × 151), which a sample of
+  1.7 ms at 27k vertices × 58 keys, 16 ms at 105k × 151), which a sample of
   coordinates could not replace: an edit of one vertex of one key must be seen;
 - the depsgraph: :meth:`RigCache.on_depsgraph_update` (a
   ``depsgraph_update_post`` handler) marks an entry *suspect* when its Key or
@@ -38,9 +38,10 @@ only ShapeSpace touched the rig, a slider moved by hand costs one checksum at
 the next use, and an edited, added, deleted, renamed, re-ranged or muted key
 — by the UI, an operator or a script — is never missed.  While the handlers
 are not installed (:attr:`RigCache.tracking` false, e.g. the bridge used
-without registering the add-on), and for an object outside the active view
-layer (whose edits no evaluated depsgraph reports), every use verifies the
-checksum.  Undo, redo
+without registering the add-on), for an object outside the active view layer
+(whose edits no evaluated depsgraph reports), and on Blender before 4.5
+(:data:`EDITS_REPORTED`: a script's ``foreach_set`` of key coordinates tags
+nothing there), every use — each mouse move included — verifies the checksum.  Undo, redo
 and loading a file empty the cache (:meth:`RigCache.clear`).  Deform weights
 are not in the checksum: a rig whose keys use vertex-group masks is read again
 instead of checksummed, and what is derived from the mesh for the deformers
@@ -61,7 +62,11 @@ import numpy as np
 from ...core.blendshape import BlendshapeModel
 from .. import driven, shapekeys
 
-__all__ = ["RigCache", "RigEntry", "RIGS", "structure", "coordinate_checksum", "write_sliders"]
+__all__ = ["RigCache", "RigEntry", "RIGS", "EDITS_REPORTED", "structure", "coordinate_checksum", "write_sliders"]
+
+#: Whether this Blender reports every edit of key coordinates to the depsgraph: from 4.5 a ``foreach_set`` on
+#: ``ShapeKey.data``/``points`` tags the Key as a single-point edit always did; 4.2 tags nothing for it.
+EDITS_REPORTED = bpy.app.version >= (4, 5, 0)
 
 
 def _ids(obj) -> tuple:
@@ -278,7 +283,7 @@ class RigCache:
 
     def _tracked(self, obj) -> bool:
         """The depsgraph handler would have reported an edit of ``obj`` (installed, object in the view layer)."""
-        return self.tracking and bpy.context.view_layer.objects.get(obj.name) == obj
+        return self.tracking and EDITS_REPORTED and bpy.context.view_layer.objects.get(obj.name) == obj
 
     def _read(self, obj) -> RigEntry:
         model = shapekeys.read_blendshape_model(obj)            # refuses a bad rig before anything is kept
