@@ -23,30 +23,19 @@ vendored Face Cap capture sampled on integer frames (weights).
 from __future__ import annotations
 
 import os
-import sys
 import time
 
 import numpy as np
 
 import env
 
-SHARED = os.path.join(os.path.dirname(env.ROOT), "shared", "data")
-ASSETS = os.path.join(env.ROOT, "assets")
+from bench_support import ASSETS, SHARED, shared_data  # noqa: E402
 MOCAP = os.path.join(SHARED, "cmu_mocap", "131_01.bvh")
 FACECAP = os.path.join(env.ROOT, "assets", "facecap", "facecap_decoded.glb")
 KNEE_GAPS = (10, 20, 40)
 FACE_GAPS = (6, 12)
 
 
-def shared_data(rel: str, what: str):
-    """Path of ``rel`` in the vendored ``assets/`` or in ``../shared/data``; ``None`` (with a message on
-    stderr: that case is skipped) when neither has it."""
-    for base in (ASSETS, SHARED):
-        path = os.path.join(base, rel)
-        if os.path.exists(path):
-            return path
-    print(f"bench: skipping {what}: {rel} is in neither assets/ nor {SHARED}", file=sys.stderr)
-    return None
 # knee, hip bone names as the BVH importer names them (CMU / cgspeed and the common "Leg/UpLeg" style)
 KNEE_NAMES = {"Left": ("LeftKnee", "LeftLeg"), "Right": ("RightKnee", "RightLeg")}
 HIP_NAMES = {"Left": ("LeftHip", "LeftUpLeg"), "Right": ("RightHip", "RightUpLeg")}

@@ -1,16 +1,12 @@
 """Pose-space corrective benchmark (issue #4): quality vs examples, inversion round trip, speed."""
 from __future__ import annotations
 
-import os
-import sys
 import time
 
 import numpy as np
 
-import env
 
-SHARED = os.path.join(os.path.dirname(env.ROOT), "shared", "data")
-ASSETS = os.path.join(env.ROOT, "assets")
+from bench_support import shared_data  # noqa: E402
 
 REGIONS = {  # region: (asset, mesh, joints) — rpm_brunette is read from shared/ only (non-commercial)
     "cesium_arm": ("cesium_man/CesiumMan.glb", "Cesium_Man",
@@ -23,17 +19,6 @@ REGIONS = {  # region: (asset, mesh, joints) — rpm_brunette is read from share
                   "LeftHandPinky2"]),
 }
 KS = (2, 4, 8, 16, 32)
-
-
-def shared_data(rel: str, what: str):
-    """Path of ``rel`` in the vendored ``assets/`` or in ``../shared/data``; ``None`` (with a message on
-    stderr: that case is skipped) when neither has it."""
-    for base in (ASSETS, SHARED):
-        path = os.path.join(base, rel)
-        if os.path.exists(path):
-            return path
-    print(f"bench: skipping {what}: {rel} is in neither assets/ nor {SHARED}", file=sys.stderr)
-    return None
 
 
 def _rig(asset, mesh_name):

@@ -3,27 +3,12 @@ velocity error on real captures, key reduction."""
 from __future__ import annotations
 
 import os
-import sys
 import time
 import tracemalloc
 
 import numpy as np
 
-import env
-
-ASSETS = os.path.join(env.ROOT, "assets")
-SHARED = os.path.join(os.path.dirname(env.ROOT), "shared", "data")
-
-
-def shared_data(rel: str, what: str):
-    """Path of ``rel`` in the vendored ``assets/`` or in ``../shared/data``; ``None`` (with a message on
-    stderr: that case is skipped) when neither has it."""
-    for base in (ASSETS, SHARED):
-        path = os.path.join(base, rel)
-        if os.path.exists(path):
-            return path
-    print(f"bench: skipping {what}: {rel} is in neither assets/ nor {SHARED}", file=sys.stderr)
-    return None
+from bench_support import ASSETS, shared_data
 
 
 def _problem(F, n, m3, seed=0, dtype=np.float64):

@@ -58,6 +58,8 @@ def resolve_objects(names=None, scene_if_none_selected: bool = False) -> tuple:
         if ob.mode == "EDIT":
             raise ShapeSpaceError(f"{ob.name!r} is in Edit Mode: leave Edit Mode first (its mesh data is not up "
                                   "to date until then)", ErrorCode.MODE)
+        if ob.type == "MESH" and len(ob.data.vertices) == 0:
+            raise ShapeSpaceError(f"mesh {ob.name!r} has no vertices: nothing to export", ErrorCode.EMPTY)
     return usable, notes
 
 

@@ -1,6 +1,7 @@
 """Helpers for the Blender tiers (import after tests/conftest.py set the user folder)."""
 import hashlib
 import os
+import tempfile
 
 import numpy as np
 import bpy
@@ -11,6 +12,23 @@ SS = package.load()
 from shapespace.bridge import meshes  # noqa: E402
 from shapespace.core.blendshape import bounding_box_diagonal  # noqa: E402
 from support import ASSETS  # noqa: E402
+
+
+def sphere_rig(keys: int = 3, name: str = "Face"):
+    """A 12×6 UV sphere named ``name`` with a Basis and ``keys`` shape keys K0, K1, … (each the basis plus
+    normal noise of 0.05, seed 0), active; ``keys=0`` gives a sphere without shape keys."""
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=6)
+    ob = bpy.context.active_object
+    ob.name = name
+    if keys:
+        ob.shape_key_add(name="Basis")
+        base = np.empty(len(ob.data.vertices) * 3, np.float32)
+        ob.data.vertices.foreach_get("co", base)
+        rng = np.random.default_rng(0)
+        for k in range(keys):
+            kb = ob.shape_key_add(name=f"K{k}")
+            kb.data.foreach_set("co", (base + rng.normal(0, 0.05, base.size)).astype(np.float32))
+    return ob
 
 
 def import_file(path):
@@ -81,6 +99,8 @@ OPERATOR_CALLS = {
     # live capture (live_start opens a socket: it has its own loopback tests in test_live_stream.py)
     "live_stop": {}, "live_calibrate": {}, "live_record": {}, "live_stop_recording": {}, "live_play_take": {},
     "live_remove_take": {},
+    "export_for_engines": {"filepath": os.path.join(tempfile.mkdtemp(prefix="ss-export-"), "face.fbx"),
+                           "format": "FBX"},
 }
 
 

@@ -3,25 +3,14 @@ import numpy as np
 import pytest
 
 from support import shared
-from blender_support import blend_fingerprint, bpy, import_file
+from blender_support import blend_fingerprint, bpy, import_file, sphere_rig
 from shapespace.bridge import inventory, shapekeys, skin
 from shapespace.core.blendshape import diagnose_model
 from shapespace.core.result import ShapeSpaceError
 
 
 def _sphere(keys=0, name="Face"):
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=6)
-    ob = bpy.context.active_object
-    ob.name = name
-    if keys:
-        ob.shape_key_add(name="Basis")
-        base = np.empty(len(ob.data.vertices) * 3, np.float32)
-        ob.data.vertices.foreach_get("co", base)
-        rng = np.random.default_rng(0)
-        for k in range(keys):
-            kb = ob.shape_key_add(name=f"K{k}")
-            kb.data.foreach_set("co", (base + rng.normal(0, 0.05, base.size)).astype(np.float32))
-    return ob
+    return sphere_rig(keys, name)
 
 
 def _set_key(ob, name, coords):

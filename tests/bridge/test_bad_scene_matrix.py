@@ -13,21 +13,10 @@ import tempfile
 import numpy as np
 import pytest
 
-from blender_support import OPERATOR_CALLS as OPERATORS, bpy, classify_operator_call
+from blender_support import OPERATOR_CALLS as OPERATORS, bpy, classify_operator_call, sphere_rig
 
 def _sphere(keys=3, name="Face"):
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=6)
-    ob = bpy.context.active_object
-    ob.name = name
-    if keys:
-        ob.shape_key_add(name="Basis")
-        base = np.empty(len(ob.data.vertices) * 3, np.float32)
-        ob.data.vertices.foreach_get("co", base)
-        rng = np.random.default_rng(0)
-        for k in range(keys):
-            kb = ob.shape_key_add(name=f"K{k}")
-            kb.data.foreach_set("co", (base + rng.normal(0, 0.05, base.size)).astype(np.float32))
-    return ob
+    return sphere_rig(keys, name)
 
 
 def _activate(ob):
@@ -104,7 +93,8 @@ def test_operator_in_bad_scene(registered, scene, op_name):
     OUTCOMES.append((scene, op_name, outcome))
     assert outcome in ("refused", "cancelled", "finished"), f"{scene} × {op_name}: {outcome}: {message}"
     if scene in ("edit_mode", "linked") and outcome == "finished":
-        assert op_name in ("check_rig", "convert_rig", "go_to_frame", "analyse_rig", "compression_report"), \
+        assert op_name in ("check_rig", "convert_rig", "go_to_frame", "analyse_rig", "compression_report",
+                           "export_for_engines"), \
             f"{scene} × {op_name} finished: it must be refused ({message})"
 
 

@@ -2,23 +2,14 @@
 import numpy as np
 import pytest
 
-from blender_support import bpy, evaluated, rel_error
+from blender_support import bpy, evaluated, rel_error, sphere_rig
 from shapespace.bridge import driven, shapekeys
 
 HOSTILE = 'b*__import__("os").system("x") \\ "q"'
 
 
 def _rig():
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=6)
-    ob = bpy.context.active_object
-    ob.name = "Face"
-    ob.shape_key_add(name="Basis")
-    base = np.empty(len(ob.data.vertices) * 3, np.float32)
-    ob.data.vertices.foreach_get("co", base)
-    rng = np.random.default_rng(0)
-    for k in range(5):
-        kb = ob.shape_key_add(name=f"K{k}")
-        kb.data.foreach_set("co", (base + rng.normal(0, 0.05, base.size)).astype(np.float32))
+    ob = sphere_rig(keys=5)
     bpy.context.view_layer.objects.active = ob
     return ob
 

@@ -16,6 +16,9 @@ from shapespace.bridge.export import roundtrip as rt
 from shapespace.core.result import ShapeSpaceError
 
 RUN_CLI = os.path.join(ROOT, "tools", "run_cli.py")
+#: See tests/bridge/test_export_roundtrip.py: bpy < 5.0 cannot exit after a glTF export once SciPy is loaded.
+gltf_exits = pytest.mark.skipif(bpy.app.version < (5, 0, 0),
+                                reason="bpy < 5.0 cannot exit after a glTF export with SciPy")
 BLEND = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")
 CSV = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
 
@@ -68,7 +71,7 @@ def test_nothing_exportable_selected_is_refused(registered, tmp_path):
     assert not os.listdir(tmp_path)
 
 
-@pytest.mark.parametrize("fmt", ["gltf", "fbx", "abc"])
+@pytest.mark.parametrize("fmt", [pytest.param("gltf", marks=gltf_exits), "fbx", "abc"])
 def test_shape_keys_without_animation_export_as_a_still(registered, tmp_path, fmt):
     ob = _face()
     _select(ob)
@@ -141,8 +144,8 @@ def test_linked_object_exports_and_stays_linked(registered, tmp_path):
     bpy.context.scene.collection.objects.link(ob)
     _select(ob)
     before = blend_fingerprint()
-    rep = export("gltf", str(tmp_path / "linked.glb"))
-    assert rep.objects == ["Face"] and (tmp_path / "linked.glb").stat().st_size > 0
+    rep = export("fbx", str(tmp_path / "linked.fbx"))
+    assert rep.objects == ["Face"] and (tmp_path / "linked.fbx").stat().st_size > 0
     assert blend_fingerprint() == before and ob.library is not None
     assert len(bpy.data.objects) == 1 and len(bpy.data.scenes) == 1
 
@@ -207,6 +210,7 @@ def test_merge_reports_command(tmp_path):
     assert merged["succeeded"] == ["a.csv"] and not merged["ok"] and merged["takes"] == 2
 
 
+@gltf_exits
 def test_weights_beyond_unit_range_are_split_and_survive_a_clamping_importer(registered, tmp_path):
     """A key animated −1.36…1.72 (as baked PSD weights run on CesiumMan) leaves the glTF as two keys weighted in
     [0, 1] that add up to it; an importer that clamps weights to [0, 1] still gets the same mesh."""

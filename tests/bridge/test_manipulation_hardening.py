@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from support import ASSETS, shared
-from blender_support import blend_fingerprint, bpy, classify_operator_call, evaluated, import_file
+from blender_support import blend_fingerprint, bpy, classify_operator_call, evaluated, import_file, sphere_rig
 from shapespace.bridge import actions, manipulation, meshes, shapekeys, skin
 from shapespace.core.manipulation import DragResult, DragSession, Pin, pin_positions
 from shapespace.core.result import ShapeSpaceError, Status
@@ -16,16 +16,9 @@ FACECAP = os.path.join(ASSETS, "facecap", "facecap_decoded.glb")
 
 
 def _sphere(keys=4, name="Face"):
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=6)
-    ob = bpy.context.active_object
-    ob.name = name
-    ob.shape_key_add(name="Basis")
-    base = np.empty(len(ob.data.vertices) * 3, np.float32)
-    ob.data.vertices.foreach_get("co", base)
-    rng = np.random.default_rng(0)
+    ob = sphere_rig(keys, name)
     for k in range(keys):
-        kb = ob.shape_key_add(name=f"K{k}")
-        kb.data.foreach_set("co", (base + rng.normal(0, 0.05, base.size)).astype(np.float32))
+        kb = ob.data.shape_keys.key_blocks[f"K{k}"]
         kb.value = 0.0
     ob.shapespace.mode = "DIRECT"
     bpy.context.view_layer.objects.active = ob

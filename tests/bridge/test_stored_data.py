@@ -6,10 +6,9 @@ traceback — and every panel still draws.  Saving upgrades only readable blobs;
 """
 import json
 
-import numpy as np
 import pytest
 
-from blender_support import OPERATOR_CALLS, bpy, classify_operator_call
+from blender_support import OPERATOR_CALLS, bpy, classify_operator_call, sphere_rig
 from shapespace.bridge import inventory
 
 KEY_BLOBS = ("shapespace_driven", "shapespace_mapping", "shapespace_last_retarget", "shapespace_representation",
@@ -26,16 +25,7 @@ DAMAGE = {
 
 
 def _rig():
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=12, ring_count=6)
-    ob = bpy.context.active_object
-    ob.name = "Face"
-    ob.shape_key_add(name="Basis")
-    base = np.empty(len(ob.data.vertices) * 3, np.float32)
-    ob.data.vertices.foreach_get("co", base)
-    rng = np.random.default_rng(0)
-    for k in range(3):
-        kb = ob.shape_key_add(name=f"K{k}")
-        kb.data.foreach_set("co", (base + rng.normal(0, 0.05, base.size)).astype(np.float32))
+    ob = sphere_rig()
     for f in (1, 10, 20):
         for kb in ob.data.shape_keys.key_blocks[1:]:
             kb.value = f / 20
