@@ -58,19 +58,25 @@ def fetch_wheels(wheels) -> None:
         if os.path.isfile(path):
             continue
         name = os.path.basename(path)
-        m = WHEEL_NAME.match(name)
-        if not m:
-            raise SystemExit(f"build: cannot parse wheel name {name}")
-        cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--only-binary=:all:",
-               "-d", os.path.dirname(path), f"{m['dist']}=={m['ver']}"]
-        if not pure_python(name):
-            plat = PLATFORM_TAG.get(m["plat"], m["plat"].split(".")[0])
-            cmd[-2:-2] = ["--python-version", m["py"][2:3] + "." + m["py"][3:], "--implementation", "cp",
-                          "--platform", plat]
+        cmd = pip_download_command(name, os.path.dirname(path))
         print("build: fetching", name, file=sys.stderr)
         subprocess.run(cmd, check=True)
         if not os.path.isfile(path):
             raise SystemExit(f"build: pip did not produce {name}")
+
+
+def pip_download_command(name: str, dest: str) -> list:
+    """The ``pip download`` command that fetches wheel file *name* (for its own Python and platform) into *dest*."""
+    m = WHEEL_NAME.match(name)
+    if not m:
+        raise SystemExit(f"build: cannot parse wheel name {name}")
+    cmd = [sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--only-binary=:all:", "-d", dest]
+    if not pure_python(name):
+        plat = PLATFORM_TAG.get(m["plat"], m["plat"].split(".")[0])
+        cmd += ["--python-version", m["py"][2:3] + "." + m["py"][3:], "--implementation", "cp",
+                "--platform", plat]
+    cmd.append(f"{m['dist']}=={m['ver']}")
+    return cmd
 
 
 def pure_python(wheel: str) -> bool:
