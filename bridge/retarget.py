@@ -20,13 +20,17 @@ from __future__ import annotations
 import math
 import os
 import pathlib
+from dataclasses import dataclass
 
 import bpy
 import numpy as np
 
-from ..core.animation import reduce_keys, reduce_keys_bezier
+from ..core.animation import reduce_keys, reduce_keys_bezier_curves
+from ..core.blendshape import BlendshapeModel
 from ..core.errors import ErrorCode
+from ..core.jobs import BackgroundJob
 from ..core.names import match_channels
+from ..core.progress import notify, scaled
 from ..core.result import ShapeSpaceError
 from ..core.retarget import (GEOMETRIC_METHODS, METHODS, LearnedCloning, RetargetReport, copy_weights,
                              key_frames_in_span, learned_cloning, peak_landmarks, read_live_link_csv, resample,
@@ -38,7 +42,9 @@ from ..core.validate import choice, non_negative, positive
 from . import actions, shapekeys, storage
 
 __all__ = ["METHODS", "KEY_SHAPES", "read_source", "channel_mapping", "resolve_mapping", "suggest_key_poses",
-           "retarget", "retarget_dense", "reduce_action_keys", "last_report", "has_result", "discard_last",
+           "retarget", "retarget_dense", "RetargetPlan", "RetargetOutcome", "read_retarget", "read_retarget_dense",
+           "compute_retarget", "write_retarget", "start_retarget_job", "finish_retarget_job",
+           "reduce_action_keys", "last_report", "has_result", "discard_last",
            "stored_mapping", "set_mapping", "remove_mapping", "landmark_pairs", "mesh_sequence",
            "dense_source_positions", "add_landmark", "landmarks_from_shapes", "selected_vertex"]
 
@@ -57,14 +63,16 @@ MAX_MAPPING_VALUE = 100.0
 #: Key custom property: the last retarget's report (the keys of :data:`REPORT_KEYS` that apply).
 LAST_PROP = "shapespace_last_retarget"
 REPORT_KEYS = ("source", "method", "frames", "mapped_channels", "position_error_rms", "velocity_error_rms",
-               "clipping_frames", "keys_kept_frac", "converged", "action", "previous_action", "previous_fake_user")
+               "clipping_frames", "clipped_frames", "frame_range", "scene_range_extended", "scene_range_before",
+               "keys_kept_frac", "converged", "action", "previous_action", "previous_fake_user")
 LAST_SCHEMA = Schema(
     "last retarget result", 1,
     fields={"source": "string", "method": "string", "frames": "int", "position_error_rms": "number?",
             "velocity_error_rms": "number?", "clipping_frames": "int", "action": "string",
             "previous_action": "string"},
     optional={"mapped_channels": "int", "keys_kept_frac": "number?", "converged": "bool",
-              "previous_fake_user": "bool"})
+              "previous_fake_user": "bool", "clipped_frames": "list", "frame_range": "list",
+              "scene_range_extended": "bool", "scene_range_before": "list"})
 
 LANDMARK_PREFIX = "lm_"
 STABLE_GROUP = "stable"
@@ -195,12 +203,62 @@ def _learned(obj, model, frames, src, key_pose_action) -> LearnedCloning:
 
 
 # ------------------------------------------------------------------ retarget
-def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e-7, key_tolerance: float = 0.0,
-             action_name: str = None, key_shape: str = "BEZIER", key_pose_action=None) -> RetargetReport:
-    """Retarget ``source`` (CSV path or action) onto ``obj``'s sliders and write a new action.
+# Three steps, so a modal operator can run the middle one in a worker thread (core.jobs.BackgroundJob):
+#   read_retarget (main thread: everything from Blender) → compute_retarget (pure numerics, no Blender data,
+#   progress + Cancelled) → write_retarget (main thread: one step, nothing written before it).
 
-    Everything is validated and computed before the first write; on any failure the file is as before.
+@dataclass
+class RetargetPlan:
+    """Everything a retarget needs, read from Blender (:func:`read_retarget`); no Blender references.
+
+    ``raw`` is the unbounded weight performance on the target's sliders when it is already known (learned);
+    ``pairs``/``gain``/``offset`` with ``source_weights`` give it by copying (copy and the fits of a weight
+    source); ``dense`` holds a mesh performance's transfer inputs.
     """
+
+    obj_name: str
+    method: str
+    lam: float
+    key_tolerance: float
+    key_shape: str
+    action_name: str
+    extend_scene_range: bool
+    model: BlendshapeModel
+    paths: list
+    frames: np.ndarray
+    report: RetargetReport
+    rig: tuple
+    raw: np.ndarray | None = None
+    source_weights: np.ndarray | None = None
+    pairs: list | None = None
+    gain: np.ndarray | None = None
+    offset: np.ndarray | None = None
+    dense: dict | None = None
+
+
+@dataclass
+class RetargetOutcome:
+    """A computed retarget (:func:`compute_retarget`): the report and every curve to write, checked finite."""
+
+    plan: RetargetPlan
+    weights: np.ndarray
+    curves: list
+    report: RetargetReport
+
+
+def _rig_signature(obj) -> tuple:
+    """What the computed result depends on and a user could change while it computes: the mode, the vertex
+    count, and the shape keys' names and slider ranges."""
+    key = obj.data.shape_keys
+    blocks = [] if key is None else key.key_blocks
+    return (obj.mode, len(obj.data.vertices), tuple((kb.name, kb.slider_min, kb.slider_max) for kb in blocks))
+
+
+def read_retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e-7,
+                  key_tolerance: float = 0.0, action_name: str = None, key_shape: str = "BEZIER",
+                  key_pose_action=None, extend_scene_range: bool = True) -> RetargetPlan:
+    """Step 1 of :func:`retarget` (main thread): validate the settings and read the rig and ``source`` (CSV path
+    or action), the channel mapping or the learned map.  Changes nothing."""
     choice(method, "method", METHODS)
     lam, key_tolerance = _settings(lam, key_tolerance, key_shape)
     scene = scene or bpy.context.scene
@@ -210,27 +268,29 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
     names, frames, src, issues = read_source(source, scene)
     report = RetargetReport(source=str(source), method=method, frames=int(frames.size),
                             issues=[i.message for i in issues])
+    plan = RetargetPlan(obj.name, method, lam, key_tolerance, key_shape, action_name or f"{obj.name}_{method}",
+                        bool(extend_scene_range), model, [actions.shape_key_path(n) for n in model.names],
+                        np.asarray(frames, dtype=np.float64), report, _rig_signature(obj))
     if method == "learned":     # the artist's key poses define the map: no channel names needed
         learned = _learned(obj, model, frames, src, key_pose_action)
-        raw = learned.weights                                                     # unbounded ideal
+        plan.raw = learned.weights                                                # unbounded ideal
         report.key_poses, report.learned_fit_rms = learned.key_poses, learned.fit_rms
         report.mapped_channels = learned.mapped_channels
     else:
         mapping, warnings = resolve_mapping(obj, names, model.names)
         report.issues += warnings
-        pairs, gain, offset = split_mapping(mapping, model.n_targets)
-        raw = copy_weights(src, pairs, model.n_targets, gain, offset)             # unbounded ideal
-        report.mapped_channels = len(pairs)
-    check_finite_weights(raw, model.names, "the mapped source")
-    fit = retarget_weights(model, raw, method, lam)
-    report.record(fit)
-    return _write_result(obj, model.names, frames, fit.weights, action_name or f"{obj.name}_{method}",
-                         key_tolerance, key_shape, report)
+        plan.pairs, plan.gain, plan.offset = split_mapping(mapping, model.n_targets)
+        plan.source_weights = src
+        report.mapped_channels = len(plan.pairs)
+    return plan
 
 
-def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: float = 1e-7,
-                   key_tolerance: float = 0.0, action_name: str = None, key_shape: str = "BEZIER") -> RetargetReport:
-    """Retarget an animated mesh (any deformation) onto ``obj``'s sliders by geometric fitting."""
+def read_retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: float = 1e-7,
+                        key_tolerance: float = 0.0, action_name: str = None, key_shape: str = "BEZIER",
+                        extend_scene_range: bool = True, progress=None) -> RetargetPlan:
+    """Step 1 of :func:`retarget_dense` (main thread): validate, read the rig and the mesh performance's
+    evaluated positions over the scene range (``progress`` per frame).  Gives the scene its current frame
+    back; changes nothing else."""
     if method not in GEOMETRIC_METHODS:
         raise ShapeSpaceError("a mesh performance needs a geometric method: perframe or spacetime", "method")
     lam, key_tolerance = _settings(lam, key_tolerance, key_shape)
@@ -242,11 +302,110 @@ def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: 
     if frames.size < 3:
         raise ShapeSpaceError(f"the scene range has {frames.size} frames; at least 3 are needed", "too_short")
     check_dense_budget(frames.size, max(len(source_obj.data.vertices), model.n_vertices), "a mesh performance")
-    fit = retarget_positions(model, dense_source_positions(source_obj, model, obj, scene, frames), method, lam)
     report = RetargetReport(source=source_obj.name, method=method, frames=int(frames.size), issues=[])
-    report.record(fit)
-    return _write_result(obj, model.names, frames, fit.weights, action_name or f"{obj.name}_{source_obj.name}",
-                         key_tolerance, key_shape, report)
+    plan = RetargetPlan(obj.name, method, lam, key_tolerance, key_shape,
+                        action_name or f"{obj.name}_{source_obj.name}", bool(extend_scene_range), model,
+                        [actions.shape_key_path(n) for n in model.names], frames, report, _rig_signature(obj))
+    plan.dense = _dense_inputs(source_obj, model, obj, scene, frames, progress)
+    return plan
+
+
+def _shares(plan: RetargetPlan) -> tuple:
+    """Fractions of the progress bar at which compute_retarget's stages end: (copy, transfer, fit)."""
+    keys = 0.0 if plan.key_tolerance <= 0 else (0.3 if plan.method in GEOMETRIC_METHODS else 0.85)
+    if plan.dense is not None:
+        return 0.0, 0.15, 1.0 - keys
+    return 0.02, 0.02, 1.0 - keys
+
+
+def compute_retarget(plan: RetargetPlan, progress=None) -> RetargetOutcome:
+    """Step 2 of :func:`retarget` (any thread; touches no Blender data): the fit and every curve to write.
+
+    ``progress(fraction)`` (:mod:`core.progress`) is called through the copy, the fit (by the solver) and the
+    key reduction (per curve); raising :class:`~core.progress.Cancelled` from it stops the work.
+    """
+    copy_end, transfer_end, fit_end = _shares(plan)
+    model, report = plan.model, plan.report
+    if plan.dense is not None:
+        positions = _dense_positions(plan.dense, model)
+        notify(progress, transfer_end)
+        fit = retarget_positions(model, positions, plan.method, plan.lam,
+                                 progress=scaled(progress, transfer_end, fit_end))
+    else:
+        raw = plan.raw
+        if raw is None:
+            raw = copy_weights(plan.source_weights, plan.pairs, model.n_targets, plan.gain, plan.offset,
+                               progress=scaled(progress, 0.0, copy_end))
+        check_finite_weights(raw, model.names, "the mapped source")
+        fit = retarget_weights(model, raw, plan.method, plan.lam, progress=scaled(progress, copy_end, fit_end))
+    report.record(fit, plan.frames)
+    check_finite_weights(fit.weights, model.names, "the retarget")
+    curves, kept = _plan_curves(model.names, plan.paths, plan.frames, fit.weights, plan.key_tolerance,
+                                plan.key_shape, scaled(progress, fit_end, 1.0))
+    if plan.key_tolerance > 0:
+        report.keys_kept_frac = kept
+    notify(progress, 1.0)
+    return RetargetOutcome(plan, fit.weights, curves, report)
+
+
+def write_retarget(outcome: RetargetOutcome, scene=None) -> RetargetReport:
+    """Step 3 of :func:`retarget` (main thread): write the result in one step.
+
+    Refused, with nothing written, when the rig is gone or changed (mode, vertices, shape keys or slider
+    ranges) since :func:`read_retarget`.  Widens the scene's frame range to the frames written unless the plan
+    says not to."""
+    plan = outcome.plan
+    obj = bpy.data.objects.get(plan.obj_name)
+    if obj is None or obj.type != "MESH" or _rig_signature(obj) != plan.rig:
+        raise ShapeSpaceError(f"{plan.obj_name!r} changed while the retarget computed (mode, mesh, shape keys or "
+                              "slider ranges): nothing was written; retarget again", ErrorCode.RIG_CHANGED)
+    return _write_result(obj, outcome.curves, plan.action_name, outcome.report,
+                         scene or bpy.context.scene, plan.extend_scene_range)
+
+
+def start_retarget_job(plan: RetargetPlan) -> BackgroundJob:
+    """Start :func:`compute_retarget` of ``plan`` in a worker thread (a modal operator polls the job, and
+    cancels it on Esc); :func:`finish_retarget_job` writes its outcome once it is done."""
+    return BackgroundJob(lambda progress: compute_retarget(plan, progress), name="ShapeSpace retarget").start()
+
+
+def finish_retarget_job(job: BackgroundJob, scene=None) -> RetargetReport:
+    """Write a finished job's outcome (main thread, one step) and return its report.
+
+    Re-raises what stopped the job (:class:`~core.progress.Cancelled` when it was cancelled, its
+    :class:`ShapeSpaceError`); nothing is written then."""
+    try:
+        outcome = job.result()
+    except MemoryError:
+        raise ShapeSpaceError("not enough memory for this retarget (split the take, or use the copy method)",
+                              ErrorCode.TOO_LARGE) from None
+    return write_retarget(outcome, scene)
+
+
+def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e-7, key_tolerance: float = 0.0,
+             action_name: str = None, key_shape: str = "BEZIER", key_pose_action=None,
+             extend_scene_range: bool = True, progress=None) -> RetargetReport:
+    """Retarget ``source`` (CSV path or action) onto ``obj``'s sliders and write a new action.
+
+    Everything is validated and computed before the first write; on any failure (or
+    :class:`~core.progress.Cancelled` from ``progress``) the file is as before.  The scene's frame range is
+    widened to the frames written unless ``extend_scene_range`` is false.
+    """
+    scene = scene or bpy.context.scene
+    plan = read_retarget(obj, source, method, scene, lam, key_tolerance, action_name, key_shape, key_pose_action,
+                         extend_scene_range)
+    return write_retarget(compute_retarget(plan, progress), scene)
+
+
+def retarget_dense(obj, source_obj, method: str = "spacetime", scene=None, lam: float = 1e-7,
+                   key_tolerance: float = 0.0, action_name: str = None, key_shape: str = "BEZIER",
+                   extend_scene_range: bool = True, progress=None) -> RetargetReport:
+    """Retarget an animated mesh (any deformation) onto ``obj``'s sliders by geometric fitting (the scene
+    range's frames; reading them is the first tenth of ``progress``)."""
+    scene = scene or bpy.context.scene
+    plan = read_retarget_dense(obj, source_obj, method, scene, lam, key_tolerance, action_name, key_shape,
+                               extend_scene_range, scaled(progress, 0.0, 0.1))
+    return write_retarget(compute_retarget(plan, scaled(progress, 0.1, 1.0)), scene)
 
 
 def _settings(lam, key_tolerance, key_shape) -> tuple:
@@ -255,16 +414,19 @@ def _settings(lam, key_tolerance, key_shape) -> tuple:
     return positive(lam, "lam"), non_negative(key_tolerance, "key tolerance")
 
 
-def _plan_curves(names, frames, W, key_tolerance: float, key_shape: str) -> tuple:
-    """Every curve to write, computed and checked before anything is written:
-    ``([(data path, frames, values, slopes or None)], fraction of the keys kept)``."""
+def _plan_curves(names, paths, frames, W, key_tolerance: float, key_shape: str, progress=None) -> tuple:
+    """Every curve to write, computed and checked before anything is written (no Blender data; any thread):
+    ``([(data path, frames, values, slopes or None)], fraction of the keys kept)``; ``progress`` per curve."""
+    choice(key_shape, "key shape", KEY_SHAPES, ErrorCode.KEY_SHAPE)
     plan, kept = [], 0
-    for j, name in enumerate(names):
-        path = actions.shape_key_path(name)
+    # smooth keys: every curve reduced in one vectorised call (progress inside); linear keys: per curve
+    reduced = (reduce_keys_bezier_curves(frames, W, key_tolerance, progress=progress)
+               if key_tolerance > 0 and key_shape == "BEZIER" else None)
+    for j, (name, path) in enumerate(zip(names, paths)):
         if key_tolerance <= 0:
             plan.append((path, frames, W[:, j], None))
-        elif key_shape == "BEZIER":
-            idx, key_values, slopes = reduce_keys_bezier(frames, W[:, j], key_tolerance)
+        elif reduced is not None:
+            idx, key_values, slopes = reduced[j]
             plan.append((path, frames[idx], key_values, slopes))
         else:
             idx = reduce_keys(frames, W[:, j], key_tolerance)
@@ -273,6 +435,9 @@ def _plan_curves(names, frames, W, key_tolerance: float, key_shape: str) -> tupl
         if not all(np.isfinite(a).all() for a in plan[-1][1:] if a is not None):
             raise ShapeSpaceError(f"the keys of {name!r} came out NaN or infinite; nothing was written",
                                   ErrorCode.NON_FINITE)
+        if reduced is None:
+            notify(progress, (j + 1) / max(len(names), 1))
+    notify(progress, 1.0)
     return plan, kept / max(len(frames) * len(names), 1)
 
 
@@ -284,27 +449,50 @@ def _write_plan(key, plan) -> None:
             actions.write_bezier_curve(key, path, x, y, slopes)
 
 
-def _write_result(obj, names, frames, W, action_name, key_tolerance, key_shape, report) -> RetargetReport:
-    """Key ``W`` (f, n) into a new action on ``obj`` — every frame, or the fewest keys within
-    ``key_tolerance`` — and remember the report and the action it replaces (for Discard Result).
+def _written_range(curves) -> tuple | None:
+    """(first, last) frame keyed by the curves, or None when they key nothing."""
+    firsts = [float(c[1][0]) for c in curves if len(c[1])]
+    lasts = [float(c[1][-1]) for c in curves if len(c[1])]
+    return (min(firsts), max(lasts)) if firsts else None
 
-    All keys are computed and checked first; a failure while writing removes the new action and gives the
-    rig back the action (and slot) it played, so the file is as before.  The new action gets a fake user;
-    the displaced one too (the report remembers whether it had one)."""
-    choice(key_shape, "key shape", KEY_SHAPES, ErrorCode.KEY_SHAPE)             # before anything is written
-    check_finite_weights(W, names, "the retarget")
-    plan, kept = _plan_curves(names, np.asarray(frames, dtype=np.float64), W, key_tolerance, key_shape)
-    if key_tolerance > 0:
-        report.keys_kept_frac = kept
+
+def _extend_scene(scene, first: float, last: float) -> bool:
+    """Widen ``scene``'s frame range to include ``[first, last]`` (whole frames); whether it changed."""
+    start, end = math.floor(first), math.ceil(last)
+    changed = False
+    if end > scene.frame_end:
+        scene.frame_end = end
+        changed = True
+    if start < scene.frame_start:
+        scene.frame_start = start
+        changed = True
+    return changed
+
+
+def _write_result(obj, curves, action_name, report, scene, extend_scene_range: bool) -> RetargetReport:
+    """Key the planned ``curves`` into a new action on ``obj``, widen the scene's frame range (when asked) and
+    remember the report and the action it replaces (for Discard Result).
+
+    A failure while writing removes the new action and gives the rig back the action (and slot) it played, so
+    the file is as before.  The new action gets a fake user; the displaced one too (the report remembers
+    whether it had one)."""
     key = obj.data.shape_keys
     ad = key.animation_data
     previous = ad.action if ad is not None else None
     previous_slot = getattr(ad, "action_slot", None) if ad is not None else None
     previous_fake = bool(previous.use_fake_user) if previous is not None else None
+    written = _written_range(curves)
+    if written is not None:
+        report.frame_range = [int(v) if float(v).is_integer() else v for v in written]
+    widen = bool(extend_scene_range and written is not None and scene is not None)
+    report.scene_range_extended = widen and (math.floor(written[0]) < scene.frame_start
+                                             or math.ceil(written[1]) > scene.frame_end)
+    if report.scene_range_extended:
+        report.scene_range_before = [scene.frame_start, scene.frame_end]
     action = None
     try:
         action = actions.new_action(key, action_name)
-        _write_plan(key, plan)
+        _write_plan(key, curves)
         report.action = action.name
         report.previous_action = previous.name if previous is not None else ""
         report.previous_fake_user = previous_fake
@@ -316,6 +504,8 @@ def _write_result(obj, names, frames, W, action_name, key_tolerance, key_shape, 
     action.use_fake_user = True               # every result survives saving (a batch keeps them all)
     if previous is not None:
         previous.use_fake_user = True         # the displaced action too (Discard Result restores the flag)
+    if widen:
+        _extend_scene(scene, *written)
     return report
 
 
@@ -338,7 +528,8 @@ def reduce_action_keys(obj, names, frames, W, tolerance: float, key_shape: str =
     All keys are computed before the first curve is rewritten."""
     choice(key_shape, "key shape", KEY_SHAPES, ErrorCode.KEY_SHAPE)
     tolerance = positive(tolerance, "key tolerance")
-    plan, kept = _plan_curves(names, np.asarray(frames, dtype=np.float64), np.asarray(W, dtype=np.float64),
+    plan, kept = _plan_curves(names, [actions.shape_key_path(n) for n in names],
+                              np.asarray(frames, dtype=np.float64), np.asarray(W, dtype=np.float64),
                               tolerance, key_shape)
     _write_plan(obj.data.shape_keys, plan)
     return kept
@@ -364,10 +555,23 @@ def last_report(obj) -> RetargetReport | None:
     return RetargetReport.from_json(data)
 
 
-def discard_last(obj) -> str:
+def _restore_scene_range(rep: RetargetReport, scene) -> None:
+    """Give ``scene`` the frame range it had before the retarget widened it — only when the range is still
+    exactly what the retarget made it (a range the artist changed since is theirs)."""
+    if not rep.scene_range_extended or not rep.scene_range_before or not rep.frame_range or scene is None:
+        return
+    start, end = (int(v) for v in rep.scene_range_before)
+    made = (min(start, math.floor(rep.frame_range[0])), max(end, math.ceil(rep.frame_range[1])))
+    if (scene.frame_start, scene.frame_end) == made:
+        scene.frame_start = start
+        scene.frame_end = end
+
+
+def discard_last(obj, scene=None) -> str:
     """Undo the last retarget's result: give the rig back the action it played before (with its fake-user
-    flag as it was) and delete the retargeted action if nothing else uses it.  Returns the restored action's
-    name ('' for none).
+    flag as it was), delete the retargeted action if nothing else uses it, and give ``scene`` (default: the
+    current one) the frame range it had if the retarget widened it and it is unchanged since.  Returns the
+    restored action's name ('' for none).
 
     Only ever restores: refused (nothing changed) when the rig no longer plays the result, or when the
     action to restore is no longer in the file (e.g. a file saved by ShapeSpace 0.1.0 that lost it).
@@ -393,6 +597,7 @@ def discard_last(obj) -> str:
         key.animation_data.action = None
     if made is not None and made != previous and made.users - int(made.use_fake_user) == 0:
         bpy.data.actions.remove(made)
+    _restore_scene_range(rep, scene or bpy.context.scene)
     del key[LAST_PROP]
     return previous.name if previous is not None else ""
 
@@ -468,43 +673,61 @@ def landmark_pairs(source, target):
     return np.array(src, dtype=int), np.array(dst, dtype=int)
 
 
-def mesh_sequence(source, scene, frames) -> np.ndarray:
-    """Evaluated (object-space) positions of ``source`` at each frame, (f, p, 3)."""
+def mesh_sequence(source, scene, frames, progress=None) -> np.ndarray:
+    """Evaluated (object-space) positions of ``source`` at each frame, (f, p, 3); ``progress`` per frame.
+    The scene gets its current frame back however this ends."""
     from .meshes import evaluated_positions
     current = scene.frame_current
     depsgraph = bpy.context.evaluated_depsgraph_get()
     out = []
     try:
-        for f in frames:
+        for k, f in enumerate(frames, start=1):
             scene.frame_set(int(f))
             out.append(evaluated_positions(source, depsgraph).astype(np.float64))
+            notify(progress, k / len(frames))
     finally:
         scene.frame_set(current)
     return np.stack(out)
 
 
-def dense_source_positions(source, target_model, target, scene, frames):
-    """The source performance transferred onto the target's vertices: (f, p_t·3) positions.
-
-    Reads the source's evaluated mesh at every frame, its neutral (reference shape key, else its mesh
-    vertices — for a cache, as imported), its ``stable`` group (head motion removed per frame) and the
-    ``lm_*`` landmark pairs; :func:`core.retarget.transfer_motion` does the rest (vertex to vertex for
-    the same topology, else landmark warp and closest points).
-    """
+def _dense_inputs(source, target_model, target, scene, frames, progress=None) -> dict:
+    """What :func:`core.retarget.transfer_motion` needs, read from Blender: the source's evaluated mesh at every
+    frame, its neutral (reference shape key, else its mesh vertices — for a cache, as imported), its ``stable``
+    group (head motion removed per frame) and the ``lm_*`` landmark pairs; checked before any work."""
     from .arrays import read_float
-    from .meshes import vertex_positions
-    seq = mesh_sequence(source, scene, frames)
+    from .meshes import evaluated_positions, vertex_positions
+    src_lm, dst_lm = landmark_pairs(source, target)
+    n_source = len(evaluated_positions(source, bpy.context.evaluated_depsgraph_get()))   # before a long read
+    same_topology = n_source == target_model.neutral.shape[0] and not src_lm.size
+    if not same_topology and src_lm.size < 3:
+        raise ShapeSpaceError(f"different meshes need at least 3 landmark pairs (vertex groups named "
+                              f"'{LANDMARK_PREFIX}…' on both); found {src_lm.size}", "too_few_landmarks")
     key = source.data.shape_keys
     rest = (read_float(key.reference_key.data, "co", 3) if key is not None else
             vertex_positions(source.data)).astype(np.float64)
-    stabilise(seq, rest, _group_vertices(source, STABLE_GROUP))
-    src_lm, dst_lm = landmark_pairs(source, target)
+    seq = mesh_sequence(source, scene, frames, progress)
+    return {"seq": seq, "rest": rest, "stable": _group_vertices(source, STABLE_GROUP), "src_lm": src_lm,
+            "dst_lm": dst_lm}
+
+
+def _dense_positions(inputs: dict, target_model) -> np.ndarray:
+    """The read performance transferred onto the target's vertices, (f, p_t·3) (no Blender data)."""
+    seq = inputs["seq"]
+    stabilise(seq, inputs["rest"], inputs["stable"])
+    src_lm, dst_lm = inputs["src_lm"], inputs["dst_lm"]
     same_topology = seq.shape[1] == target_model.neutral.shape[0] and not src_lm.size
     if not same_topology and src_lm.size < 3:
         raise ShapeSpaceError(f"different meshes need at least 3 landmark pairs (vertex groups named "
                               f"'{LANDMARK_PREFIX}…' on both); found {src_lm.size}", "too_few_landmarks")
-    return transfer_motion(seq, rest, target_model.neutral, target_model.deltas, target_model.scale,
+    return transfer_motion(seq, inputs["rest"], target_model.neutral, target_model.deltas, target_model.scale,
                            src_lm, dst_lm)
+
+
+def dense_source_positions(source, target_model, target, scene, frames):
+    """The source performance transferred onto the target's vertices: (f, p_t·3) positions
+    (:func:`_dense_inputs` then :func:`core.retarget.transfer_motion`: vertex to vertex for the same topology,
+    else landmark warp and closest points)."""
+    return _dense_positions(_dense_inputs(source, target_model, target, scene, frames), target_model)
 
 
 # ------------------------------------------------------------------ landmarks

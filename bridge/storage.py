@@ -100,7 +100,8 @@ def upgrade_file(data) -> int:
 def damaged_blobs(obj) -> list:
     """``core.Issue`` errors (code ``corrupt_metadata``) for every stored blob of ``obj`` that does not read.
 
-    Covers the blobs on the object's shape keys and its pose-space examples' strings; used by Check Rig.
+    Covers the blobs on the object's shape keys, its pose-space examples' strings and its mesh's mirror map
+    (which must also be a mirror table of the mesh's vertices; a stale map is not damage); used by Check Rig.
     """
     from ..core.result import Issue, ShapeSpaceError
     found = []
@@ -118,4 +119,15 @@ def damaged_blobs(obj) -> list:
             _schema.loads(text, schema, place)
         except ShapeSpaceError as exc:
             found.append(Issue("error", "corrupt_metadata", str(exc)))
+    if obj is not None and obj.type == "MESH":
+        from . import symmetry
+        if symmetry.PROP in obj.data:
+            try:
+                symmetry.load_map(obj)
+            except ShapeSpaceError as exc:
+                if exc.code == "corrupt_metadata":
+                    found.append(Issue("error", "corrupt_metadata", str(exc)))
+                elif exc.code == "no_mirror_map":          # the blob reads but holds no table
+                    found.append(Issue("error", "corrupt_metadata", f"damaged ShapeSpace data in "
+                                       f"{where(obj.data, symmetry.PROP)}: {exc}"))
     return found

@@ -32,6 +32,10 @@ Safety: outputs are checked before any work. --out/--report never overwrite an i
 .blend, a --source file) and replace an existing file only if it is of the same kind (a .blend, a JSON
 report); --overwrite allows replacing a file of another kind and saving into the opened .blend (Blender keeps
 the old one as .blend1). A source that fails is reported (one line) and the batch goes on; exit code 1.
+Scene range: the scene's frame range is widened to include every frame a result keys (saved with --out), so
+playback and exporters see the whole take; --keep-scene-range leaves it as it is. Each report gives the
+frame_range written and the clipped_frames (scene frames where the source leaves the slider ranges) as
+[first, last] runs.
 stdout carries only the JSON (without --report); progress and log lines go to stderr."""
 
 
@@ -79,10 +83,14 @@ def build_parser() -> argparse.ArgumentParser:
     rt.add_argument("--out", help="save the result as this .blend (every result action is kept: fake user)")
     rt.add_argument("--dry-run", action="store_true", help="compute and report only; save nothing (instead of --out)")
     rt.add_argument("--report", help="write the JSON report here instead of stdout")
+    rt.add_argument("--keep-scene-range", action="store_true",
+                    help="leave the scene's frame range as it is (default: widen it to every frame written)")
     rt.add_argument("--overwrite", action="store_true",
                     help="allow --out onto the opened .blend, and replacing a file of another kind")
     from .export import add_parsers
     add_parsers(sub)
+    from .transfer import add_parser as add_transfer_parser
+    add_transfer_parser(sub)
     return parser
 
 
@@ -94,7 +102,8 @@ def main(argv, inputs=()) -> int:
     from ..bridge.assets import redirected_fd
     from .commands import COMMANDS as BASE_COMMANDS
     from .export import COMMANDS as EXPORT_COMMANDS
-    COMMANDS = {**BASE_COMMANDS, **EXPORT_COMMANDS}
+    from .transfer import COMMANDS as TRANSFER_COMMANDS
+    COMMANDS = {**BASE_COMMANDS, **EXPORT_COMMANDS, **TRANSFER_COMMANDS}
     try:
         args = build_parser().parse_args(list(argv))
     except ShapeSpaceError as exc:

@@ -71,12 +71,12 @@ def _one_source(obj, src: str, args) -> dict:
     try:
         name = f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}"
         source_obj = bpy.data.objects.get(src)
+        settings = dict(lam=args.lam, key_tolerance=args.key_tolerance, action_name=name, key_shape=args.key_shape,
+                        extend_scene_range=not args.keep_scene_range, progress=_ProgressLines(src))
         if source_obj is not None and source_obj.type == "MESH":   # a mesh performance
-            rep = bridge.retarget_dense(obj, source_obj, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
-                                        action_name=name, key_shape=args.key_shape)
+            rep = bridge.retarget_dense(obj, source_obj, args.method, **settings)
         else:
-            rep = bridge.retarget(obj, src, args.method, lam=args.lam, key_tolerance=args.key_tolerance,
-                                  action_name=name, key_shape=args.key_shape, key_pose_action=args.key_poses)
+            rep = bridge.retarget(obj, src, args.method, key_pose_action=args.key_poses, **settings)
         for issue in rep.issues:
             _say(f"warning: {src}: {issue}")
         return {**rep.to_json(), "ok": True}
@@ -92,6 +92,22 @@ def _one_source(obj, src: str, args) -> dict:
         message = f"{src}: {message}"
     print(f"shapespace: error: {message}", file=sys.stderr, flush=True)
     return {"source": src, "ok": False, "error": message}
+
+
+class _ProgressLines:
+    """A ``progress(fraction)`` callable that prints ``SOURCE: NN %`` on stderr for a source that takes a while
+    (a line per tenth, at most one a second, the first after a second)."""
+
+    def __init__(self, src: str, interval: float = 1.0):
+        self.src, self.interval = src, interval
+        self.start = self.last = time.perf_counter()
+        self.tenth = 0
+
+    def __call__(self, fraction: float) -> None:
+        now, tenth = time.perf_counter(), int(10 * fraction)
+        if tenth > self.tenth and now - self.last >= self.interval and fraction < 1:
+            self.tenth, self.last = tenth, now
+            _say(f"{self.src}: {100 * fraction:.0f} % ({now - self.start:.0f} s)")
 
 
 def _progress_line(src: str, frames, seconds: float) -> str:

@@ -19,7 +19,12 @@ solution) usually identify the active set at once.
 Stopping test: the natural residual ``‖x − clip(x − ∇f(x))‖∞ ≤ tol ·
 max(1, ‖g‖∞)``, which is zero exactly at the KKT point; or, when no step
 decreases the objective measurably any more (the rounding limit of an
-ill-conditioned problem), a residual ≤ 1e-8 · max(1, ‖g‖∞).
+ill-conditioned problem) nor halves the natural residual, a residual ≤
+1e-8 · max(1, ‖g‖∞).  (A step whose decrease the rounding of ``f`` hides is
+still taken when it halves the natural residual: on ill-conditioned fits the
+exact Newton step on the right face does that.  When the ε-active set flips
+between two faces instead, a dense problem settles the face by a primal–dual
+active set from there.)
 
 The small symmetric positive definite systems of both solvers are solved by
 Cholesky factorisation (:func:`_spd_solve`), not a general LU solve: besides
@@ -197,10 +202,27 @@ def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.n
                 break
             t *= 0.5
         if f - ft <= 4 * np.finfo(float).eps * max(abs(f), 1e-300):
-            # no measurable decrease: at the optimum to rounding, or stalled
+            # no measurable decrease of f (its rounding hides the last digits of an ill-conditioned problem):
+            # keep going while the step still lowers the natural residual, which the rounding of f does not hide
+            x1 = np.clip(x + d, lo, hi)                                # the full step
+            vx1 = V.T @ x1
+            grad_1 = a * x1 + V @ (s * vx1) - g
+            if float(np.abs(x1 - np.clip(x1 - grad_1, lo, hi)).max(initial=0.0)) < 0.5 * res:
+                x, vx = x1, vx1
+                f = 0.5 * (a * (x @ x) + (s * vx) @ vx) - g @ x
+                continue
+            # at the optimum to rounding, or stalled
             if res <= 1e-8 * scale:
                 return BoxQPResult(x if ft > f else xt, iterations=it, status=Status.OK, residual=res,
                                    message="converged (rounding limit)")
+            if dense:       # the ε-active set flips between two faces: settle the face by a primal–dual active set
+                xp, k = _pdas_dense(H, g, lo, hi, x, active & (grad > 0), active & (grad < 0))
+                if xp is not None:
+                    gp = H @ xp - g
+                    rp = float(np.abs(xp - np.clip(xp - gp, lo, hi)).max(initial=0.0))
+                    if rp <= max(tol, 1e-8) * scale:
+                        return BoxQPResult(xp, iterations=it + k, status=Status.OK, residual=rp,
+                                           message="converged (active set)")
             return BoxQPResult(x, iterations=it, status=Status.NOT_CONVERGED, residual=res,
                                message="stalled: no decrease possible")
         x, f, vx = xt, ft, vxt
@@ -209,6 +231,33 @@ def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.n
     status = Status.OK if res <= tol * scale else Status.NOT_CONVERGED
     return BoxQPResult(x, iterations=max_iter, status=status, residual=res,
                        message="converged" if status == Status.OK else "iteration limit reached")
+
+
+def _pdas_dense(H, g, lo, hi, x, lower, upper, max_iter=50):
+    """Primal–dual active set (Hintermüller–Ito–Kunisch) for ``½xᵀHx − gᵀx`` on ``[lo, hi]``, dense ``H``.
+
+    Starts from the given held sets; each iteration solves the free block exactly and re-reads the sets from the
+    multipliers' signs.  Returns ``(x, iterations)`` when the sets repeat (the KKT point), ``(None, iterations)``
+    when they cycle or the iteration limit is reached.
+    """
+    seen = set()
+    for it in range(1, max_iter + 1):
+        held = lower | upper
+        xn = np.where(upper, hi, np.where(lower, lo, x))
+        free = np.flatnonzero(~held)
+        if free.size:
+            xn[free] = _spd_solve(H[np.ix_(free, free)], g[free] - H[np.ix_(free, np.flatnonzero(held))] @ xn[held])
+        mult = g - H @ xn                                           # −∇f: > 0 pushes up, < 0 pushes down
+        new_upper = np.where(held, upper & (mult > 0), xn > hi)
+        new_lower = np.where(held, lower & (mult < 0), xn < lo)
+        if np.array_equal(new_upper, upper) and np.array_equal(new_lower, lower):
+            return np.clip(xn, lo, hi), it
+        key = np.packbits(new_upper).tobytes() + np.packbits(new_lower).tobytes()
+        if key in seen:
+            break
+        seen.add(key)
+        lower, upper, x = new_lower, new_upper, xn
+    return None, it
 
 
 @dataclass(kw_only=True)

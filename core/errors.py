@@ -59,6 +59,8 @@ class ErrorCode(str, enum.Enum):
     MISSING_SOURCE = "missing_source"
     MISSING_TARGET = "missing_target"
     MISSING_EXAMPLE = "missing_example"
+    MISSING_GROUP = "missing_group"
+    UNCOVERED = "uncovered"
     SAME_KEY = "same_key"
     DUPLICATE_INBETWEEN = "duplicate_inbetween"
     DRIVEN_PRIMARY = "driven_primary"
@@ -118,6 +120,12 @@ class ErrorCode(str, enum.Enum):
     NOTHING_TO_EXPORT = "nothing_to_export"
     RESERVED_NAME = "reserved_name"
     DUPLICATE_NAME = "duplicate_name"
+    CENTRE_EDGE = "centre_edge"
+    NO_MIRROR_MAP = "no_mirror_map"
+    STALE_MIRROR_MAP = "stale_mirror_map"
+    STALE_LANDMARKS = "stale_landmarks"
+    LINKED = "linked"
+    RIG_CHANGED = "rig_changed"
 
     def __str__(self) -> str:
         return self.value
@@ -170,6 +178,8 @@ DESCRIPTIONS = {
     ErrorCode.MISSING_SOURCE: "a retarget source that does not exist",
     ErrorCode.MISSING_TARGET: "a retarget or driven target that does not exist",
     ErrorCode.MISSING_EXAMPLE: "a pose-space example that does not exist",
+    ErrorCode.MISSING_GROUP: "a named vertex group does not exist",
+    ErrorCode.UNCOVERED: "sculpted vertices that no mask covers",
     ErrorCode.SAME_KEY: "an operation that needs two different keys got the same one",
     ErrorCode.DUPLICATE_INBETWEEN: "an in-between at a weight that already has one",
     ErrorCode.DRIVEN_PRIMARY: "the primary key of an in-between or combination is itself driven",
@@ -232,4 +242,14 @@ DESCRIPTIONS = {
     ErrorCode.RESERVED_NAME: "a shape key named like a key ShapeSpace must create (e.g. a whole-face copy's Zero "
                              "or Neutral)",
     ErrorCode.DUPLICATE_NAME: "a list of names that must be distinct repeats one",
+    ErrorCode.CENTRE_EDGE: "a symmetry centre edge that is not an edge of the mesh or has no face on "
+                           "each side",
+    ErrorCode.NO_MIRROR_MAP: "a mesh without a stored mirror map (Build Mirror Map first)",
+    ErrorCode.STALE_MIRROR_MAP: "a stored mirror map built for a different topology (vertex, edge or face "
+                                "counts or the edge list changed): rebuild it",
+    ErrorCode.RIG_CHANGED: "a rig changed (mode, mesh, shape keys or slider ranges) while a long computation for "
+                           "it ran in the background, so its result no longer applies",
+    ErrorCode.STALE_LANDMARKS: "landmark pairs placed on meshes whose vertex count has changed since: place them "
+                               "again",
+    ErrorCode.LINKED: "data linked from a library that would have to be changed (the change would be lost on save)",
 }

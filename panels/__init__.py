@@ -1,6 +1,7 @@
 """Sidebar panels (View3D ▸ Sidebar ▸ ShapeSpace), one module per capability, registered in sidebar order."""
 import bpy
 
+from .authoring import SHAPESPACE_PT_transfer_shapes
 from .export import SHAPESPACE_PT_export
 from .facespace import SHAPESPACE_PT_face_space, SHAPESPACE_UL_flagged_frames
 from .live import SHAPESPACE_PT_live, SHAPESPACE_UL_live_takes
@@ -9,7 +10,8 @@ from .posespace import SHAPESPACE_PT_correctives, SHAPESPACE_UL_examples, SHAPES
 from .retarget import SHAPESPACE_PT_retarget
 from .rig import SHAPESPACE_PT_rig
 
-classes = (SHAPESPACE_PT_rig, SHAPESPACE_UL_pins, SHAPESPACE_PT_direct, SHAPESPACE_UL_examples,
+classes = (SHAPESPACE_PT_rig, SHAPESPACE_PT_transfer_shapes, SHAPESPACE_UL_pins, SHAPESPACE_PT_direct,
+           SHAPESPACE_UL_examples,
            SHAPESPACE_UL_readers, SHAPESPACE_PT_correctives, SHAPESPACE_PT_retarget,
            SHAPESPACE_UL_flagged_frames, SHAPESPACE_PT_face_space, SHAPESPACE_UL_live_takes, SHAPESPACE_PT_live,
            SHAPESPACE_PT_export)

@@ -8,7 +8,9 @@ class SHAPESPACE_UL_pins(bpy.types.UIList):
 
     def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index):
         kind = "Stationary" if item.stationary else "Pin"
-        layout.label(text=f"{kind} {index}: vertex {item.vertices[0]}",
+        link = item.mirror_of
+        mirror = "" if link < 0 else (" · centre" if link == index else f" ↔ {link}")
+        layout.label(text=f"{kind} {index}: vertex {item.vertices[0]}{mirror}",
                      icon="PINNED" if item.stationary else "UNPINNED")
 
 
@@ -40,6 +42,9 @@ class SHAPESPACE_PT_direct(ShapeSpaceSidebar, bpy.types.Panel):
             row.prop(st, "prior_end")
             box.prop(st, "prior_form")
             box.prop(st, "snap")
+        row = layout.row(align=True)
+        row.prop(st, "symmetric", icon="MOD_MIRROR")
+        row.operator("shapespace.mirror_pins", icon="MOD_MIRROR", text="Mirror Pins")
         layout.label(text="Pin tool: click and drag on the face", icon="RESTRICT_SELECT_OFF")
         layout.template_list("SHAPESPACE_UL_pins", "", st, "pins", st, "active_pin", rows=3)
         row = layout.row(align=True)

@@ -1,6 +1,7 @@
 import bpy
 
 from ..bridge import posespace
+from ..bridge.posespace import finalshape
 from .base import ShapeSpaceSidebar
 
 
@@ -19,6 +20,8 @@ class SHAPESPACE_UL_examples(bpy.types.UIList):
         row = layout.row(align=True)
         row.prop(item, "mute", text="", icon="HIDE_ON" if item.mute else "HIDE_OFF", emboss=False)
         row.label(text=item.name, icon="SHAPEKEY_DATA")
+        if item.post_deform:
+            row.label(text="", icon="MOD_NORMALEDIT")     # applied after the armature
         if item.flags:
             row.label(text=item.flags, icon="ERROR")
 
@@ -31,6 +34,25 @@ class SHAPESPACE_UL_readers(bpy.types.UIList):
         row.prop(item, "kind", text="")
         row.prop(item, "source", text="")
         row.prop(item, "scale", text="")
+
+
+def _draw_final_shapes(layout, ob) -> None:
+    """Stale examples by name (an input of their corrective changed) with Re-invert; 0.1.0 ones with Capture."""
+    found = finalshape.stale_examples_cached(ob)
+    if not found:
+        return
+    box = layout.box()
+    stale = False
+    for name, code, message in found:
+        row = box.row(align=True)
+        row.label(text=message, icon="ERROR" if code != "no_final_shape" else "INFO")
+        if code == "stale_example":
+            row.operator("shapespace.reinvert_example", text="", icon="FILE_REFRESH").example = name
+            stale = True
+        elif code == "no_final_shape":
+            row.operator("shapespace.capture_final_shape", text="", icon="REC").example = name
+    if stale:
+        box.operator("shapespace.reinvert_all", icon="FILE_REFRESH")
 
 
 class SHAPESPACE_PT_correctives(ShapeSpaceSidebar, bpy.types.Panel):
@@ -49,6 +71,8 @@ class SHAPESPACE_PT_correctives(ShapeSpaceSidebar, bpy.types.Panel):
         ob = context.active_object
         st = ob.shapespace_psd
         layout.prop(st, "method")
+        if st.method == "WPSD":
+            layout.prop(st, "wpsd_distance")
         layout.prop(st, "live_preview")
         message = _problem(ob)
         if message:
@@ -60,10 +84,16 @@ class SHAPESPACE_PT_correctives(ShapeSpaceSidebar, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("shapespace.psd_add_example", icon="ADD")
         row.operator("shapespace.psd_apply_example", icon="CHECKMARK")
+        row.operator("shapespace.apply_post_deform", icon="MOD_NORMALEDIT", text="")
         row.operator("shapespace.psd_remove_example", icon="REMOVE", text="")
         row = layout.row(align=True)
         row.operator("shapespace.psd_move_example", icon="EMPTY_ARROWS")
         row.operator("shapespace.psd_mirror_example", icon="MOD_MIRROR")
+        layout.operator("shapespace.push_sculpt_masked", icon="MOD_MASK")
+        if st.method == "WPSD" and any(ex.post_deform for ex in st.examples):
+            layout.label(text="Post-deformation examples need PSD or Shape by Example (they stay off)",
+                         icon="ERROR")
+        _draw_final_shapes(layout, ob)
         box = layout.box()
         box.label(text=f"Driven targets: {len(st.targets)}", icon="DRIVER")
         for t in st.targets:

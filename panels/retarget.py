@@ -2,6 +2,7 @@ import bpy
 
 from ..bridge import retarget
 from ..core.result import ShapeSpaceError
+from ..core.retarget.report import format_ranges
 from .base import ShapeKeyPanel
 
 
@@ -29,8 +30,10 @@ class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
         col.prop(st, "key_tolerance")
         if st.key_tolerance > 0:
             col.prop(st, "key_shape", text="Keys")
+        col.prop(st, "extend_scene_range")
         op = layout.operator("shapespace.retarget", icon="ACTION")
         op.method, op.key_tolerance, op.key_shape = st.method, st.key_tolerance, st.key_shape
+        op.extend_scene_range = st.extend_scene_range
         op.filepath = bpy.path.abspath(st.csv_path) if st.source_kind == "CSV" else ""
         op.action = st.action.name if st.source_kind == "ACTION" and st.action else ""
         op.source_object = st.source_object.name if st.source_kind == "MESH" and st.source_object else ""
@@ -50,12 +53,15 @@ def _draw_result(layout, ob):
     if rep is not None:
         box = layout.box()
         col = box.column(align=True)
-        col.label(text=f"{rep.action}: {rep.method}, {rep.frames} frames", icon="ACTION")
+        span = f" ({rep.frame_range[0]:g}–{rep.frame_range[1]:g})" if rep.frame_range else ""
+        col.label(text=f"{rep.action}: {rep.method}, {rep.frames} frames{span}", icon="ACTION")
         if rep.velocity_error_rms is not None and rep.position_error_rms is not None:
             col.label(text=f"error: position {rep.position_error_rms:.3g}, velocity "
                            f"{rep.velocity_error_rms:.3g} (of the head size)")
         if rep.clipping_frames:
             col.label(text=f"{rep.clipping_frames} frames beyond the slider ranges", icon="ERROR")
+            if rep.clipped_frames:
+                col.label(text=f"at {format_ranges(rep.clipped_frames, 4)}")
         if rep.keys_kept_frac is not None:
             col.label(text=f"{100 * rep.keys_kept_frac:.1f} % of the keys kept")
         box.operator("shapespace.discard_retarget", icon="LOOP_BACK")

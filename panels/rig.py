@@ -1,5 +1,6 @@
 import bpy
 
+from ..bridge import symmetry
 from .base import ShapeSpaceSidebar
 
 
@@ -27,3 +28,22 @@ class SHAPESPACE_PT_rig(ShapeSpaceSidebar, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("shapespace.check_rig", icon="CHECKMARK")
         row.operator("shapespace.key_sliders", icon="KEY_HLT")
+        _draw_symmetry(layout, ob)
+
+
+def _draw_symmetry(layout, ob):
+    """Rig ▸ Symmetry: the stored mirror map's state and the symmetry tools."""
+    box = layout.box()
+    box.label(text="Symmetry", icon="MOD_MIRROR")
+    status = symmetry.map_status(ob)
+    icon = {"ok": "CHECKMARK", "none": "INFO"}.get(status["state"], "ERROR")
+    box.label(text=status["message"], icon=icon)
+    box.operator("shapespace.build_mirror_map",
+                 text="Rebuild Mirror Map" if status["state"] != "none" else "Build Mirror Map", icon="MOD_MIRROR")
+    col = box.column(align=True)
+    row = col.row(align=True)
+    row.operator("shapespace.mirror_shape", icon="MOD_MIRROR")
+    row.operator("shapespace.update_mirrored", icon="FILE_REFRESH")
+    row = col.row(align=True)
+    row.operator("shapespace.split_shape", icon="MOD_EDGESPLIT")
+    row.operator("shapespace.combine_shapes", icon="AUTOMERGE_ON")

@@ -11,6 +11,7 @@ from bpy.app.handlers import persistent
 from ..bridge import storage
 from ..bridge.live import session as live_session
 
+from .authoring import SHAPESPACE_PG_authoring
 from .facespace import SHAPESPACE_PG_face, SHAPESPACE_PG_flagged_frame
 from .live import SHAPESPACE_PG_live
 from .manipulation import SHAPESPACE_PG_pin, SHAPESPACE_PG_settings
@@ -21,7 +22,8 @@ __all__ = ["KEY_SHAPES", "RETARGET_METHODS", "classes", "register", "unregister"
 
 classes = (SHAPESPACE_PG_pin, SHAPESPACE_PG_settings, SHAPESPACE_PG_reader, SHAPESPACE_PG_target,
            SHAPESPACE_PG_example, SHAPESPACE_PG_psd, SHAPESPACE_PG_retarget,
-           SHAPESPACE_PG_flagged_frame, SHAPESPACE_PG_face, SHAPESPACE_PG_live)
+           SHAPESPACE_PG_flagged_frame, SHAPESPACE_PG_face, SHAPESPACE_PG_live,
+           SHAPESPACE_PG_authoring)
 
 
 @persistent
@@ -39,6 +41,7 @@ def register():
     bpy.types.Object.shapespace_retarget = bpy.props.PointerProperty(type=SHAPESPACE_PG_retarget)
     bpy.types.Object.shapespace_face = bpy.props.PointerProperty(type=SHAPESPACE_PG_face)
     bpy.types.Scene.shapespace_live = bpy.props.PointerProperty(type=SHAPESPACE_PG_live)
+    bpy.types.Object.shapespace_authoring = bpy.props.PointerProperty(type=SHAPESPACE_PG_authoring)
     live_session.register()
 
 
@@ -46,6 +49,7 @@ def unregister():
     live_session.unregister()    # receivers stopped: takes finished, sockets closed, threads joined, timer off
     if _upgrade_before_save in bpy.app.handlers.save_pre:
         bpy.app.handlers.save_pre.remove(_upgrade_before_save)
+    del bpy.types.Object.shapespace_authoring
     del bpy.types.Scene.shapespace_live
     del bpy.types.Object.shapespace_face
     del bpy.types.Object.shapespace_retarget

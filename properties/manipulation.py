@@ -12,6 +12,10 @@ class SHAPESPACE_PG_pin(bpy.types.PropertyGroup):
         description="Where the pin should be, in the mesh's shape-key (undeformed object) space")
     stationary: bpy.props.BoolProperty(
         name="Stationary", description="Keep this point where it was when it was pinned")
+    mirror_of: bpy.props.IntProperty(
+        name="Mirror Pin", default=-1, min=-1,
+        description="Index of this pin's mirror pin (itself for a pin on the centre line, -1 for none); "
+                    "with Symmetric on, the two move together")
 
 
 class SHAPESPACE_PG_settings(bpy.types.PropertyGroup):
@@ -42,3 +46,7 @@ class SHAPESPACE_PG_settings(bpy.types.PropertyGroup):
         default="COVARIANCE")
     snap: bpy.props.BoolProperty(
         name="Mode Snapping", description="Pull toward nearby training expressions (thesis Eq. 4.9)")
+    symmetric: bpy.props.BoolProperty(
+        name="Symmetric",
+        description="A new pin also pins its mirror point (through the mesh's stored mirror map) and a dragged "
+                    "pin's mirror pin follows to the mirror image of its target")

@@ -44,6 +44,14 @@ class SHAPESPACE_PG_example(bpy.types.PropertyGroup):
                                       description="Posed copy to sculpt the wanted shape on")
     target_values: bpy.props.StringProperty(name="Target Values", options={"HIDDEN"},
                                             description="Values of the driven targets at this example")
+    post_deform: bpy.props.BoolProperty(
+        name="Post-Deformation", options={"HIDDEN"},
+        description="Applied after the armature, in a frame of the deformed surface (generated Geometry Nodes "
+                    "modifier); its shape key is muted and drives the weight")
+    final_shape: bpy.props.StringProperty(
+        name="Final Shape", options={"HIDDEN"},
+        description="The sculpted posed shape, the rig pose and the inputs the corrective was inverted from "
+                    "(versioned JSON; empty for examples made by ShapeSpace 0.1.0)")
 
 
 class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
@@ -57,6 +65,15 @@ class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
                ("SBE", "Shape by Example", "One set of weights from linear + radial cardinal interpolation"),
                ("WPSD", "Weighted PSD", "Per-vertex pose distance weighted by skinning weights")],
         default="SBE")
+    wpsd_distance: bpy.props.EnumProperty(
+        name="Distance",
+        items=[("SKIN", "Skin Weighted", "Weighted PSD as published: each vertex sees its own joints' part of the "
+                "pose"),
+               ("BLEND", "Blended", "Per region, a blend of the skin-weighted and the whole-pose distance chosen by "
+                "leave-one-out cross validation over the examples (for correctives that depend on joints a "
+                "vertex is not skinned to)")],
+        default="SKIN",
+        description="Weighted PSD's pose distance (files made before this option use Skin Weighted)")
     readers: bpy.props.CollectionProperty(type=SHAPESPACE_PG_reader)
     active_reader: bpy.props.IntProperty(name="Active Reader")
     examples: bpy.props.CollectionProperty(type=SHAPESPACE_PG_example)

@@ -29,3 +29,6 @@ class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
     key_tolerance: bpy.props.FloatProperty(name="Key Tolerance", default=0.01, min=0.0, max=0.1,
                                            description="Keep the fewest keys within this slider error (0: all)")
     key_shape: bpy.props.EnumProperty(name="Key Shape", items=KEY_SHAPES, default="BEZIER")
+    extend_scene_range: bpy.props.BoolProperty(
+        name="Extend Scene Range", default=True,
+        description="Widen the scene's frame range to include every frame the result keys")

@@ -7,7 +7,8 @@ issue #4), ``retarget`` (expression cloning, issue #5), ``facespace`` (covarianc
 held-out gaps in real curves vs Blender's own interpolation, thesis 9.3), ``live`` (live capture
 per packet, issue #14); psd, retarget and
 facespace also write a PNG plot next to the JSON; ``export`` (glTF/FBX/Alembic round trips through
-Blender's importers and bake + export speed, issue #12).  Every goal metric named in
+Blender's importers and bake + export speed, issue #12); ``transfer`` (model transfer between the shared
+ARKit heads and symmetry, issue #13).  Every goal metric named in
 the issue is computed in ``--quick`` mode too, with fewer repetitions.
 Reference solvers are measured in the same run, on the same machine.
 Creates ``.venv/bpy50`` on first use (Blender is needed to read the real rigs).
@@ -23,7 +24,7 @@ TOOLS = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, TOOLS)
 import env  # noqa: E402
 
-SUITES = ("dm", "psd", "retarget", "facespace", "live", "export")
+SUITES = ("dm", "psd", "retarget", "facespace", "live", "export", "transfer")
 
 
 def main(argv) -> int:
@@ -48,6 +49,9 @@ def main(argv) -> int:
     elif args.suite == "export":
         import bench_export
         metrics = bench_export.run(quick=args.quick)
+    elif args.suite == "transfer":
+        import bench_transfer
+        metrics = bench_transfer.run(quick=args.quick)
     else:
         import bench_psd
         metrics = bench_psd.run(quick=args.quick, plot_path=os.path.splitext(args.json)[0] + ".png")

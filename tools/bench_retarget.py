@@ -275,25 +275,112 @@ def _position_mm(D, model):
     return float(np.sqrt(sq / (D.shape[0] * model.n_vertices))) * mm
 
 
+def _tiled_csv(folder: str, frames: int, fps: float) -> str:
+    """The shipped Live Link Face CSV looped to cover ``frames`` scene frames at ``fps`` (continuous 60 fps
+    timecode, rows taken cyclically: 1,640 frames at 30 fps is the take tiled 10×)."""
+    src = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+    with open(src, encoding="utf-8") as fh:
+        lines = fh.read().splitlines()
+    head, rows = lines[0], [ln.split(",", 1)[1] for ln in lines[1:] if ln.strip()]
+    count = int(np.ceil((frames - 1) * 60.0 / fps)) + 1
+    path = os.path.join(folder, f"take_{frames}_{fps:g}fps.csv")
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(head + "\n")
+        for k in range(count):
+            t = k / 60.0
+            h, rem = divmod(t, 3600.0)
+            m, rem = divmod(rem, 60.0)
+            s = int(rem)
+            fh.write(f"{int(h):02d}:{int(m):02d}:{s:02d}:{(rem - s) * 60:06.3f},{rows[k % len(rows)]}\n")
+    return path
+
+
+#: Runs the batch command as a child and reports its wall time, exit code, peak RSS and JSON (``--timeout``).
+_CHILD = """
+import json, resource, subprocess, sys, time
+limit = float(sys.argv[1])
+t = time.perf_counter()
+try:
+    p = subprocess.run(sys.argv[2:], capture_output=True, text=True, timeout=limit)
+    rc, out, err, timed_out = p.returncode, p.stdout, p.stderr, False
+except subprocess.TimeoutExpired as exc:
+    rc, out, err, timed_out = None, "", (exc.stderr or b"").decode(errors="replace"), True
+print(json.dumps({"s": time.perf_counter() - t, "rc": rc, "timed_out": timed_out, "out": out, "err": err[-3000:],
+                  "peak_gb": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 / 1e9}))
+"""
+
+
+def _batch(target: str, csv: str, method: str, obj: str = None, timeout: float = 1800.0) -> dict:
+    """``tools/run_cli.py TARGET -- retarget --source CSV --method M --key-tolerance 0.01 --dry-run``, the whole
+    command (Blender start-up, file load, read, solve, key reduction, writing the action) in a child process:
+    ``{s, rc, timed_out, peak_gb, result (the source's JSON report or None), source_s (its progress line)}``."""
+    import json
+    import re
+    import subprocess
+    import sys
+    cmd = [sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)), "run_cli.py"), target, "--",
+           "retarget", "--source", csv, "--method", method, "--key-tolerance", "0.01", "--dry-run"]
+    if obj:
+        cmd += ["--object", obj]
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(timeout), *cmd], capture_output=True, text=True)
+    run = json.loads(proc.stdout.strip().splitlines()[-1])
+    run["result"] = None
+    if run["rc"] == 0:
+        run["result"] = json.loads(run["out"][run["out"].index("{"):])["results"][0]
+    line = re.search(r": (\d+) frames in ([\d.]+) s \(", run["err"])
+    run["source_s"] = float(line.group(2)) if line else None
+    if run["rc"] != 0:
+        print(f"bench: batch {method} on {os.path.basename(target)} failed: {run['err'][-400:]}", file=sys.stderr)
+    return run
+
+
 def longtake(quick):
-    """The 1,640-frame take (Live Link Face CSV tiled) onto FBHead with every method, wall time including
-    key reduction (tolerance 0.005); the same take with nothing to clip (sliders widened) for drift and
-    per-vertex position error; key reduction alone; the 124-key redundant rig (synthetic, see
-    tests/core/test_retarget_redundant.py)."""
+    """Production scale (#11).  The batch command, timed whole in a child process (start-up and file load
+    included; ``…_source_s`` is its own per-source time), on the shipped Live Link Face take looped to 1,640
+    frames, each method onto FBHead (30 fps) and ICT FaceKit (27k vertices, 24 fps), key reduction at 0.01;
+    then 36,000 frames (10 minutes at 60 fps: 20 minutes of capture at FBHead's 30 fps) with spacetime, wall
+    time and peak RSS of the command.  In-process on the same 1,640 frames with nothing to clip (sliders
+    widened): the end-of-take drift of space-time and the position errors — ``position_err_<m>_longtake_noclip``
+    per vertex (RMS over vertices and frames, mm with the head scaled to a 30 cm bounding-box diagonal) and
+    ``position_err_total_<m>_longtake_noclip`` today's report figure (RMS over frames of the whole-mesh
+    distance ‖ΔW Bᵀ‖, over the head's size: it grows with the vertex count).  Key reduction alone: the 51
+    mapped curves of the take, all at once (as the batch command reduces them).  Plus the redundant rig."""
+    import tempfile
     from shapespace.bridge import retarget, shapekeys
-    from shapespace.core.animation import reduce_keys_bezier
+    from shapespace.core.animation import hermite, reduce_keys_bezier_curves
     from shapespace.core.blendshape import bounding_box_diagonal
     from shapespace.core.retarget import performance
     out = {}
-    ob, names, frames, src, issues = _tiled_llf(1640)
-    original = retarget.read_source
-    retarget.read_source = lambda *a: (names, frames, src, issues)
-    try:
+    folder = tempfile.mkdtemp(prefix="shapespace_longtake_")
+    fbhead = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")
+    ict = shared_data(os.path.join("ict_facekit", "ict_facekit_expressions.glb"), "the ICT FaceKit long take")
+    targets = [("fbhead", fbhead, None, 30.0)] + ([("ict", ict, "ICTFace", 24.0)] if ict else [])
+    for label, path, obj, fps in targets:
+        csv = _tiled_csv(folder, 1640, fps)
         for method in ("copy", "perframe", "spacetime"):
-            out[f"longtake_s_{method}_fbhead_{frames.size}"] = _timed(
-                lambda: retarget.retarget(ob, "take.csv", method, key_tolerance=0.005))
-    finally:
-        retarget.read_source = original
+            run = _batch(path, csv, method, obj, timeout=600.0)
+            key = f"longtake_s_{method}_{label}_1640"
+            out[key] = run["s"] if run["rc"] == 0 else None
+            out[f"{key}_source_s"] = run["source_s"]
+            out[f"longtake_peak_gb_{method}_{label}_1640"] = run["peak_gb"]
+            if run["result"]:
+                out[f"longtake_frames_{label}"] = run["result"]["frames"]
+                out[f"longtake_keys_kept_frac_{method}_{label}_1640"] = run["result"].get("keys_kept_frac")
+                if method == "spacetime":
+                    out[f"longtake_converged_spacetime_{label}_1640"] = run["result"].get("converged")
+    csv = _tiled_csv(folder, 36000, 30.0)
+    for method in ("spacetime",) if quick else ("copy", "perframe", "spacetime"):
+        run = _batch(fbhead, csv, method, timeout=240.0 if quick else 1800.0)     # a timeout is recorded, not hidden
+        out[f"longtake_s_{method}_fbhead_36000"] = run["s"] if run["rc"] == 0 else None
+        out[f"longtake_peak_gb_{method}_fbhead_36000" if method != "spacetime" else
+            "longtake_peak_gb_fbhead_36000"] = run["peak_gb"]
+        out[f"longtake_36000_{method}_timed_out"] = run["timed_out"]
+        if run["result"]:
+            out["longtake_frames_fbhead_36000"] = run["result"]["frames"]
+            if method == "spacetime":
+                out["longtake_converged_spacetime_fbhead_36000"] = run["result"].get("converged")
+    # in-process: no clipping, drift and position errors; key reduction alone
+    ob, names, frames, src, issues = _tiled_llf(1640)
     model = shapekeys.read_blendshape_model(ob)
     model.slider_min[:], model.slider_max[:] = -10.0, 10.0                 # nothing clips
     mapping, _ = retarget.resolve_mapping(ob, names, model.names)
@@ -301,16 +388,23 @@ def longtake(quick):
     raw = retarget.copy_weights(src, pairs, model.n_targets, gain, offset)
     diag = bounding_box_diagonal(model.neutral)
     for method in ("perframe", "spacetime"):
-        W = performance.retarget_weights(model, raw, method).weights
+        fit = performance.retarget_weights(model, raw, method)
+        W = fit.weights
         out[f"position_err_{method}_longtake_noclip"] = _position_mm(W - raw, model)
+        out[f"position_err_total_{method}_longtake_noclip"] = float(fit.position_error_rms)
         if method == "spacetime":
             tail = (W - raw)[-max(1, frames.size // 10):]
             E = (tail @ model.delta_matrix.T).reshape(tail.shape[0], model.n_vertices, 3)
             out["drift_end_rel_spacetime_noclip"] = float(np.linalg.norm(E, axis=2).max() / diag)
     dense = np.clip(raw[:, :51], 0, 1)
-    out["keyreduce_s_1640"] = _timed(lambda: [reduce_keys_bezier(frames, dense[:, j], 0.005)
-                                              for j in range(dense.shape[1])])
-    out["keyreduce_frames"], out["keyreduce_curves"] = int(frames.size), int(dense.shape[1])
+    tol = 0.01
+    start = time.perf_counter()
+    keys = reduce_keys_bezier_curves(frames, dense, tol)
+    out["keyreduce_s_1640"] = time.perf_counter() - start
+    out["keyreduce_keys_kept_frac_1640"] = sum(k[0].size for k in keys) / dense.size
+    out["keyreduce_max_err_1640"] = max(float(np.abs(hermite(frames[i], kv, km, frames) - dense[:, j]).max())
+                                        for j, (i, kv, km) in enumerate(keys))
+    out["keyreduce_frames"], out["keyreduce_curves"], out["keyreduce_tol"] = int(frames.size), int(dense.shape[1]), tol
     out.update(_redundant_rig(quick))
     return out
 
@@ -333,25 +427,84 @@ def _redundant_rig_problem(seed=0, m=400):
     return np.column_stack(cols), W, base
 
 
+def _spacetime_natural_residual(B, b0, S, sig, lam_abs, W, lo, hi):
+    """The KKT test of the anchored bounded space-time problem, rebuilt from its definition (not from the solver):
+    natural residual ‖y − clip(y − ∇f)‖∞ in the whitened weights y = W/σ, over max(1, ‖∇f(0)‖∞), for
+    ``f = ½‖D(W Bᵀ − S)‖² + ½λ‖(W − W⁰)/σ‖²`` (W⁰ the per-frame ridge fit), interior frames, ends fixed."""
+    W0 = np.linalg.solve(B.T @ B + lam_abs * np.diag(1.0 / sig ** 2), B.T @ (S - b0).T).T
+
+    def grad(Wi):
+        Wf = np.vstack([W[0], Wi, W[-1]])
+        E = Wf @ B.T - (S - b0)
+        second = 2 * E[1:-1] - E[:-2] - E[2:]
+        return sig * (second @ B + lam_abs * (Wi - W0[1:-1]) / sig ** 2)
+    y = W[1:-1] / sig
+    nat = np.abs(y - np.clip(y - grad(W[1:-1]), lo / sig, hi / sig)).max()
+    return float(nat / max(1.0, float(np.abs(grad(np.zeros_like(W[1:-1]))).max())))
+
+
 def _redundant_rig(quick):
+    """The 124-key redundant rig (rank ~75 of 124): per-frame and bounded space-time, each timed whole and checked
+    against its KKT conditions rebuilt here (``redundant_rig_converged_*``: natural residual ≤ the solver's
+    tolerance, and the solver says so).  The tie-break among equal-geometry answers is the ridge's minimum norm
+    (per-frame) / the anchor to the per-frame ridge fit (space-time): exact duplicates share a motion equally."""
     from shapespace.core.retarget import spacetime
     from shapespace.core.retarget.perframe import fit_frames
     B, Wsrc, base = _redundant_rig_problem()
     S = Wsrc @ base.T
-    lo, hi, b0 = np.zeros(B.shape[1]), np.ones(B.shape[1]), np.zeros(B.shape[0])
+    n = B.shape[1]
+    lo, hi, b0 = np.zeros(n), np.ones(n), np.zeros(B.shape[0])
     out = {"redundant_rig_s_perframe_131": _timed(lambda: fit_frames(B, b0, S, lo, hi))}
     G = B.T @ B
     W = fit_frames(B, b0, S, lo, hi)
-    grad = 2 * (W @ G - S @ B) + 2e-6 * np.trace(G) / B.shape[1] * W
+    grad = 2 * (W @ G - S @ B) + 2e-6 * np.trace(G) / n * W
     nat = float(np.abs(W - np.clip(W - grad, lo, hi)).max())
     out["redundant_rig_converged_perframe"] = bool(nat <= 1e-7 * max(1.0, float(np.abs(2 * S @ B).max())))
-    iters = 10 if quick else 100
+    out["redundant_rig_rank"] = int(np.linalg.matrix_rank(B))
+    sig = np.ones(n)
     t = time.perf_counter()
-    res = spacetime(B, b0, S, np.ones(B.shape[1]), 1e-7, lo=lo, hi=hi, relative=True, anchor=True, max_iter=iters)
+    res = spacetime(B, b0, S, sig, 1e-7, lo=lo, hi=hi, relative=True, anchor=True)
     out["redundant_rig_s_spacetime_131"] = time.perf_counter() - t
-    out["redundant_rig_converged_spacetime"] = bool(res.converged)
-    out["redundant_rig_spacetime_max_iter"] = iters
+    lam_abs = 1e-7 * float(np.linalg.eigvalsh(G).clip(0).mean())
+    nat = _spacetime_natural_residual(B, b0, S, sig, lam_abs, res.weights, lo, hi)
+    out["redundant_rig_natural_residual_spacetime"] = nat
+    out["redundant_rig_converged_spacetime"] = bool(res.converged and nat <= 1e-8)
+    out["redundant_rig_spacetime_iterations"] = res.iterations
+    out["redundant_rig_spacetime_solves"] = res.diagnostics.get("solves")
+    out.update(_bounded_longtake(quick))
     return out
+
+
+def _bounded_longtake(quick):
+    """Bounded over unbounded space-time on the 1,640-frame take onto FBHead (sliders [0, 1]): the retarget's
+    own solve (``performance.retarget_weights``), timed with and without the bounds, best of 2 (1 in quick)."""
+    from shapespace.bridge import retarget, shapekeys
+    from shapespace.core.retarget import performance
+    ob, names, frames, src, issues = _tiled_llf(1640)
+    model = shapekeys.read_blendshape_model(ob)
+    mapping, _ = retarget.resolve_mapping(ob, names, model.names)
+    pairs, gain, offset = retarget.split_mapping(mapping, model.n_targets)
+    raw = retarget.copy_weights(src, pairs, model.n_targets, gain, offset)
+    timed, original = {}, performance.spacetime
+    reps = 1 if quick else 2
+
+    def timing_spacetime(*args, **kwargs):
+        free = {k: v for k, v in kwargs.items() if k not in ("lo", "hi")}
+        timed["bounded"] = min(_timed(lambda: original(*args, **kwargs)) for _ in range(reps))
+        timed["unbounded"] = min(_timed(lambda: original(*args, **free)) for _ in range(reps))
+        res = original(*args, **kwargs)
+        timed["res"] = res
+        return res
+    performance.spacetime = timing_spacetime
+    try:
+        performance.retarget_weights(model, raw, "spacetime")
+    finally:
+        performance.spacetime = original
+    res = timed["res"]
+    return {"bounded_s_longtake": timed["bounded"], "unbounded_s_longtake": timed["unbounded"],
+            "bounded_over_unbounded_longtake": timed["bounded"] / timed["unbounded"],
+            "bounded_solves_longtake": res.diagnostics.get("solves"),
+            "bounded_converged_longtake": bool(res.converged)}
 
 
 def run(quick=False, plot_path=None) -> dict:

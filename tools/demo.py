@@ -6,8 +6,9 @@ Imports the vendored Face Cap head (52 ARKit shape keys and a real iPhone
 capture) with Blender's glTF importer, reads it through the bridge, checks
 that ShapeSpace's blendshape model reproduces Blender's own evaluated mesh at
 the captured frames, renders Workbench PNGs of the neutral and a captured
-frame, and writes ``DIR/demo.blend`` and ``DIR/report.json``.  Creates
-``.venv/bpy50`` on first use (tools/env.py).
+frame (and the pose-space and Transfer Shapes pictures of tools/pictures.py),
+and writes ``DIR/demo.blend`` and ``DIR/report.json``.  Creates ``.venv/bpy50``
+on first use (tools/env.py).
 """
 from __future__ import annotations
 
@@ -384,8 +385,11 @@ def _run(bpy, np, out_dir, size):
         "outputs": {"blend": blend_path, "neutral_png": neutral_png, "frame_png": frame_png},
     }
     report["pose_space_correctives"] = _corrective_demo(bpy, np, out_dir, size)   # loads another file
+    import pictures
+    report["pose_space_pictures"] = pictures.posespace_pictures(bpy, np, out_dir, size)   # re-invert, post-deform
     report["retargeting"] = _retarget_demo(bpy, np, out_dir, size)
     report["face_space"] = _facespace_demo(bpy, np, out_dir, size)
+    report["transfer_shapes"] = pictures.transfer_pictures(bpy, np, out_dir, size)   # Face Cap → FBHead
     report["seconds"] = round(time.perf_counter() - t0, 2)
     with open(os.path.join(out_dir, "report.json"), "w", encoding="utf-8") as fh:
         json.dump(report, fh, indent=2)
@@ -406,6 +410,9 @@ def main(argv) -> int:
     pc = report["pose_space_correctives"]
     print(f"demo: elbow at a held-out bend: LBS error {pc['max_error_rel_lbs']:.4f}, corrected "
           f"{pc['max_error_rel_corrected']:.4f} of the body size")
+    pp = report["pose_space_pictures"]["max_error_rel"]
+    print(f"demo: elbow example after a re-weight: {pp['stale']:.4f} of the body size from its sculpt (flagged), "
+          f"{pp['reinverted']:.1e} after Re-invert; post-deformation corrective {pp['post_deform_applied']:.1e}")
     rt = report["retargeting"]
     print(f"demo: retargeted the Live Link Face take onto facecap ({rt['llf_on_facecap']['frames']} frames) and "
           f"the Face Cap capture onto FBHead ({rt['facecap_on_fbhead']['frames']} frames); "
@@ -416,6 +423,9 @@ def main(argv) -> int:
           f"keep the capture within 1e-3 of the head; in-between norm linear {fsd['inbetween']['mid_norm_linear']:.2f} "
           f"vs shell {fsd['inbetween']['mid_norm_shell']:.2f} (ends {fsd['inbetween']['endpoint_norms'][0]:.2f}, "
           f"{fsd['inbetween']['endpoint_norms'][1]:.2f})")
+    tr = report["transfer_shapes"]
+    print(f"demo: transferred {tr['created']} Face Cap shapes onto FBHead's bare neutral ({tr['landmarks']} landmarks "
+          f"proposed from geometry, registration residual {tr['registration_residual_mm']:.2f} mm)")
     return 0
 
 

@@ -8,7 +8,8 @@ class SHAPESPACE_TL_pin(bpy.types.WorkSpaceTool):
     bl_idname = "shapespace.pin_tool"
     bl_label = "ShapeSpace Pin"
     bl_description = ("Click the face to pin a point and drag it; the shape-key sliders follow.\n"
-                      "Shift-click pins a point in place")
+                      "Shift-click pins a point in place. With Symmetric on (Direct Manipulation panel) a "
+                      "new pin also pins its mirror point and a pin's mirror follows it; cancel restores both")
     bl_icon = "ops.generic.cursor"
     bl_keymap = (
         ("shapespace.drag_pins", {"type": "LEFTMOUSE", "value": "PRESS"},

@@ -101,21 +101,21 @@ CACHE = PreviewCache()
 def _train(obj) -> TrainedPreview:
     st = obj.shapespace_psd
     deformer, names = posespace.trained_deformer(obj)
-    return TrainedPreview(st.revision, st.method, deformer, names, posespace.target_driver(obj),
+    return TrainedPreview(st.revision, posespace.model_method(obj), deformer, names, posespace.target_driver(obj),
                           posespace.confidence_model(deformer))
 
 
 def refresh(obj) -> bool:
     """Update ``obj``'s correctives if its pose changed; True when it wrote new values."""
     st = obj.shapespace_psd
-    entry = CACHE.get(obj.name, st.revision, st.method)
+    entry = CACHE.get(obj.name, st.revision, posespace.model_method(obj))
     if entry is None:
         entry = _train(obj)
         CACHE.put(obj.name, entry)
     pose = posespace.read_pose(obj)
     if entry.same_pose(pose):
         return False
-    posespace.preview(obj, entry.deformer, entry.names, entry.driver)
+    posespace.preview(obj, entry.deformer, entry.names, entry.driver, pose=pose)
     posespace.show_variance(obj, float(entry.confidence.variance(pose)))    # the panel's live confidence
     posespace.clear_preview_message(obj)
     entry.last_pose = pose

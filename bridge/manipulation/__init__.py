@@ -34,8 +34,9 @@ from ...core.result import ShapeSpaceError, Status
 from .. import actions, meshes, shapekeys
 from .cache import RIGS, RigCache, RigEntry, write_sliders
 from .pins import (SPACES, PinState, pin_index, add_pin, check_pins, clear_pins, deformed_pin_positions,
-                   deformed_to_shape_space, pin_target, read_pin_state, read_pins, remove_pin, set_active_pin,
-                   set_pin_target, settings, stored_pin, to_shape_space, undo_drag)
+                   deformed_to_shape_space, mirror_links, mirror_partner, mirror_pin, mirror_pins, mirror_plane,
+                   pin_target, read_pin_state, read_pins, reflect_point, remove_pin, set_active_pin, set_pin_target,
+                   settings, stored_pin, symmetric_target, to_shape_space, undo_drag)
 from .surface import (deform_map, evaluated_mesh, evaluated_vertices, finite_point, inverse_world,
                       pin_surface_positions, ray_hit, triangles, world_to_local)
 
@@ -44,7 +45,8 @@ __all__ = ["SPACES", "RIGS", "RigCache", "RigEntry", "PinState", "Drag", "rig_mo
            "clear_pins", "set_pin_target", "set_active_pin", "pin_target", "undo_drag", "to_shape_space",
            "world_to_local", "deformed_to_shape_space", "deformed_pin_positions", "overlay_points", "surface_pin",
            "prior_from_settings", "solve_pins", "drag_step", "solve_to_target",
-           "drag_status_line", "report_text", "current_sliders", "key_changed"]
+           "drag_status_line", "report_text", "current_sliders", "key_changed", "mirror_links", "mirror_partner",
+           "mirror_pin", "mirror_pins", "mirror_plane", "reflect_point", "symmetric_target", "symmetric_move"]
 
 
 def rig_model(obj) -> BlendshapeModel:
@@ -123,7 +125,7 @@ def prior_from_settings(obj, model: BlendshapeModel) -> WeightPrior | None:
 
 def solve_pins(obj, x0=None, model: BlendshapeModel | None = None, prior: WeightPrior | None = None, w0=None,
                session: DragSession | None = None, move: tuple | None = None,
-               state: PinState | None = None) -> DragResult:
+               state: PinState | None = None, plane: tuple | None = None) -> DragResult:
     """Solve for the sliders from the stored pins and the panel's settings, write them; return the DragResult.
 
     ``model`` defaults to the cached one (:func:`rig_model`).  ``session`` is the interactive drag this
@@ -133,14 +135,22 @@ def solve_pins(obj, x0=None, model: BlendshapeModel | None = None, prior: Weight
     and never a non-finite slider value.  The sliders go in with one bulk write and one depsgraph update,
     ShapeSpace's own (:func:`write_sliders`), so the cached rig stays trusted: a drag's one update per mouse
     move; for the Solve Pins operator it is the update its undo step would make anyway.
+
+    With the *Symmetric* setting on, the moved pin's mirror pin (``mirror_of``) gets the reflection of the new
+    target across the mirror map's plane (``plane``: ``(axis, offset)`` as already loaded, else read from the
+    stored map), stored with it; a pin on the centre line has its target moved onto the plane.  Both targets
+    are in shape-key space, where the map's plane lives, whatever space the caller's target came in.
     """
     model = model or RIGS.model(obj)
     state = check_pins(obj, state)
     pins, targets = state.pins(), state.targets.copy()
+    st = settings(obj)
+    moves = []
     if move is not None:
         index, target = pin_index(obj, move[0]), finite_point(move[1], f"the target of pin {move[0]}")
-        targets[index] = target
-    st = settings(obj)
+        moves = symmetric_move(obj, index, target, plane) if st.symmetric else [(index, target)]
+        for j, t in moves:
+            targets[j] = t
     if prior is None and st.mode == "LEARNED":
         prior = prior_from_settings(obj, model)
     w0 = model.values if w0 is None else w0
@@ -148,10 +158,23 @@ def solve_pins(obj, x0=None, model: BlendshapeModel | None = None, prior: Weight
                         prior_form="pca" if st.prior_form == "PCA" else "covariance", snap=st.snap, x0=x0,
                         session=session)
     _refuse_non_finite(obj, model.names, result.weights)
-    if move is not None:
-        set_pin_target(obj, index, target)
+    for j, t in moves:
+        set_pin_target(obj, j, t)
     write_sliders(obj, model.names, result.weights)
     return result
+
+
+def symmetric_move(obj, index: int, target, plane: tuple | None = None) -> list:
+    """``[(pin, target), …]`` a symmetric drag of pin ``index`` to ``target`` (shape-key space) sets: the pin's,
+    and its mirror pin's reflected target (a centre-line pin: its target moved onto the plane).  ``plane``:
+    the stored map's ``(axis, offset)`` (read when None and the pin has a mirror link)."""
+    j = mirror_partner(obj, index)
+    if j < 0:
+        return [(index, target)]
+    plane = mirror_plane(obj) if plane is None else plane
+    if j == index:
+        return [(index, symmetric_target(target, plane))]
+    return [(index, target), (j, finite_point(reflect_point(target, plane), f"the mirror of pin {index}'s target"))]
 
 
 def _refuse_non_finite(obj, names, values) -> None:
@@ -164,11 +187,12 @@ def _refuse_non_finite(obj, names, values) -> None:
 
 
 def drag_step(obj, depsgraph, index: int, world_point, model: BlendshapeModel, prior: WeightPrior | None,
-              w0, x0, session: DragSession) -> DragResult:
+              w0, x0, session: DragSession, plane: tuple | None = None) -> DragResult:
     """One mouse move of a drag: pin ``index`` follows ``world_point`` (3,) and the sliders are solved.
 
     ``model`` and ``prior`` are the drag's, ``w0`` the sliders when it started and ``x0`` the previous
-    move's.  The pin target and the sliders are written only when the solve succeeded (:func:`solve_pins`).
+    move's; ``plane`` the mirror plane of a symmetric drag.  The pin target and the sliders are written only
+    when the solve succeeded (:func:`solve_pins`).
     """
     state = check_pins(obj)
     pins = state.pins()
@@ -182,7 +206,7 @@ def drag_step(obj, depsgraph, index: int, world_point, model: BlendshapeModel, p
         shape_pos = shape_pos if np.isfinite(shape_pos).all() else None
     target = deformed_to_shape_space(obj, depsgraph, pin, model, x0, local, shape_pos)
     return solve_pins(obj, x0=x0, model=model, prior=prior, w0=w0, session=session, state=state,
-                      move=(index, finite_point(target, "the dragged target")))
+                      move=(index, finite_point(target, "the dragged target")), plane=plane)
 
 
 class Drag:
@@ -202,7 +226,12 @@ class Drag:
     index : int or None
         The dragged pin.
     created : bool
-        The pin was created by this drag (cancel removes it).
+        The pin was created by this drag (cancel removes it, and its mirror pin with it).
+    mirror : tuple or None
+        ``(index, start target)`` of the dragged pin's mirror pin when the drag is symmetric (the *Symmetric*
+        setting at mouse-down and a mirror link): it moves along and cancel puts it back too.
+    plane : tuple or None
+        The mirror plane ``(axis, offset)`` of a symmetric drag, read once at mouse-down.
     before : tuple
         ``(names, values)`` of the sliders at mouse-down.
     solution : ndarray, shape (n,)
@@ -220,11 +249,19 @@ class Drag:
         self.solution = self.w0.copy()
         self.session = DragSession()
         self.index, self.created, self.start_target, self.result = None, False, None, None
+        self.mirror, self.plane = None, None
 
     def grab(self, obj, index: int, created: bool = False) -> None:
-        """Drag pin ``index`` (``created``: this drag made it)."""
-        self.index, self.created = pin_index(obj, index), created
+        """Drag pin ``index`` (``created``: this drag made it, with its mirror pin in a symmetric drag).
+
+        A symmetric drag of a pin with a mirror link reads the mirror plane now (refused when the map is gone or
+        stale, before anything changes)."""
+        index = pin_index(obj, index)
+        j = mirror_partner(obj, index) if settings(obj).symmetric else -1
+        plane = mirror_plane(obj) if j >= 0 else None
+        self.index, self.created, self.plane = index, created, plane
         self.start_target = pin_target(obj, index)
+        self.mirror = (j, pin_target(obj, j)) if j >= 0 and j != index else None
 
     def _rebase(self, obj, model: BlendshapeModel) -> None:
         """The rig was read again mid-drag: carry the start and last sliders over by name."""
@@ -242,7 +279,7 @@ class Drag:
         if model is not self.model:
             self._rebase(obj, model)
         self.result = drag_step(obj, depsgraph, self.index, world_point, model, self.prior, self.w0,
-                                self.solution, self.session)
+                                self.solution, self.session, plane=self.plane)
         self.solution = self.result.weights
         return self.result
 
@@ -255,7 +292,7 @@ class Drag:
         names = [n for n in start if n in blocks]
         undo_drag(obj, (names, [start[n] for n in names]),
                   self.index if self.index is not None else len(settings(obj).pins), self.created,
-                  self.start_target)
+                  self.start_target, self.mirror)
 
     def key(self, obj, frame: int) -> int:
         """Key the sliders this drag changed at ``frame``; return how many."""

@@ -6,6 +6,12 @@ stationary flag.  :func:`read_pin_state` reads all of them with four bulk
 reads (no Python loop over the pins), as every mouse move and every redraw
 does; every write of pins, pin targets and the active pin goes through the
 verbs here.
+
+Mirrored pins (issue #13): a pin's ``mirror_of`` names its mirror pin (both ways; the pin itself for a pin on
+the centre line; −1 for none; old files load with −1).  Mirror pins are found through the mesh's stored mirror
+map (:mod:`..symmetry`): a surface point ``Σ bᵢ vᵢ`` mirrors to ``Σ bᵢ m(vᵢ)``, and a target in shape-key space
+(the mesh's rest object space, where the map's plane ``x_axis = offset`` lives) mirrors to its reflection
+across that plane.
 """
 from __future__ import annotations
 
@@ -19,12 +25,14 @@ from ...core.blendshape import BlendshapeModel
 from ...core.errors import ErrorCode
 from ...core.manipulation import Pin, pin_positions
 from ...core.result import ShapeSpaceError
+from .. import symmetry
 from .cache import RIGS, write_sliders
 from .surface import deform_map, evaluated_vertices, finite_point, pin_surface_positions, world_to_local
 
 __all__ = ["PinState", "settings", "stored_pin", "read_pin_state", "read_pins", "check_pins", "pin_index", "add_pin",
            "remove_pin", "clear_pins", "set_pin_target", "set_active_pin", "pin_target", "undo_drag",
-           "to_shape_space", "deformed_to_shape_space", "deformed_pin_positions", "SPACES"]
+           "to_shape_space", "deformed_to_shape_space", "deformed_pin_positions", "SPACES", "mirror_links",
+           "mirror_partner", "mirror_plane", "mirror_pin", "reflect_point", "symmetric_target", "mirror_pins"]
 
 #: Spaces a caller's target can be given in (see :func:`to_shape_space`).
 SPACES = ("WORLD", "LOCAL")
@@ -170,39 +178,78 @@ def deformed_pin_positions(obj, depsgraph, state: PinState | None = None) -> np.
 
 # ---------------------------------------------------------------------------- writes
 def add_pin(obj, pin: Pin, target=None, stationary: bool = False, model: BlendshapeModel | None = None,
-            space: str = "LOCAL", depsgraph=None) -> int:
+            space: str = "LOCAL", depsgraph=None, symmetric: bool | None = None) -> int:
     """Store a pin on the object, make it the active pin and return its index.
 
     ``target`` (3,) in ``space`` (:data:`SPACES`; ``"WORLD"`` needs ``depsgraph``); ``None`` pins the point
     where it is now (at the current sliders of ``model``, the cached model of ``obj`` when not given).
-    Nothing is stored when the pin, the rig or the target is refused.
+    ``symmetric`` (default: the object's *Symmetric* setting) also stores the mirror pin (:func:`mirror_pin`,
+    through the stored mirror map) right after it, linked both ways, with the reflected target (or, without a
+    target, where its point is now); a pin on the centre line is linked to itself.
+    Nothing is stored when the pin, the rig, the target or the mirror map is refused.
     """
     p = len(obj.data.vertices)
     if any(v < 0 or v >= p for v in pin.vertices):
         raise ShapeSpaceError(f"pin vertex out of range 0..{p - 1}", ErrorCode.PIN)
     model = model or RIGS.model(obj)
     here = pin_positions(model, [pin], model.values)[0]      # checks the pin and the rig (finite)
+    given = target is not None
     if target is None:
         target = finite_point(here, "the pin's position")
     else:
         target = to_shape_space(obj, depsgraph, pin, model, target, space)
+    symmetric = settings(obj).symmetric if symmetric is None else bool(symmetric)
+    twin = twin_target = None
+    if symmetric:
+        mmap = symmetry.load_map(obj)
+        twin = mirror_pin(pin, mmap, "the new pin")
+        if twin is not None:
+            if given:
+                twin_target = reflect_point(target, (mmap.axis, mmap.offset))
+            else:
+                twin_target = pin_positions(model, [twin], model.values)[0]
+            twin_target = finite_point(twin_target, "the mirror pin's position")
+    index = _store(obj, pin, target, stationary)
+    if symmetric:
+        if twin is None:
+            settings(obj).pins[index].mirror_of = index
+        else:
+            other = _store(obj, twin, twin_target, stationary)
+            settings(obj).pins[index].mirror_of = other
+            settings(obj).pins[other].mirror_of = index
+    settings(obj).active_pin = index
+    return index
+
+
+def _store(obj, pin: Pin, target, stationary: bool) -> int:
     item = settings(obj).pins.add()
     v = list(pin.vertices) + [pin.vertices[0]] * (3 - len(pin.vertices))
     w = list(pin.weights) + [0.0] * (3 - len(pin.weights))
     item.vertices, item.weights = v, w
     item.target = tuple(float(x) for x in target)
     item.stationary = stationary
-    settings(obj).active_pin = len(settings(obj).pins) - 1
-    return settings(obj).active_pin
+    item.mirror_of = -1
+    return len(settings(obj).pins) - 1
 
 
 def remove_pin(obj, index: int = -1) -> int:
-    """Remove pin ``index`` (``-1``: the active pin); return the index removed."""
+    """Remove pin ``index`` (``-1``: the active pin); return the index removed.  Its mirror pin stays (unlinked)
+    and the other pins' mirror links follow the renumbering."""
     st = settings(obj)
     index = pin_index(obj, st.active_pin if index < 0 else index)
-    st.pins.remove(index)
+    _remove(st, index)
     st.active_pin = min(st.active_pin, len(st.pins) - 1)
     return index
+
+
+def _remove(st, index: int) -> None:
+    """Remove pin ``index`` and renumber the mirror links (a link to it becomes −1)."""
+    links = _links(st.pins)
+    st.pins.remove(index)
+    links = np.delete(links, index)
+    links = np.where(links == index, -1, np.where(links > index, links - 1, links))
+    if len(links):
+        st.pins.foreach_set("mirror_of", links.astype(np.int32))
 
 
 def clear_pins(obj) -> None:
@@ -227,18 +274,152 @@ def pin_target(obj, index: int) -> tuple:
     return tuple(settings(obj).pins[pin_index(obj, index)].target)
 
 
-def undo_drag(obj, before, index: int, created: bool, start_target) -> None:
+def undo_drag(obj, before, index: int, created: bool, start_target, mirror: tuple | None = None) -> None:
     """Put back what a cancelled drag changed.
 
     ``before`` is ``(names, values)`` of the sliders when the drag started; the
     pin the drag created is removed, the pin it moved gets ``start_target`` back.
+    ``mirror`` is ``(index, start target)`` of the dragged pin's mirror pin when it moved along (a symmetric
+    drag): it is removed with a pin the drag created, otherwise its target is put back too.
     """
     write_sliders(obj, *before)
     st = settings(obj)
     if index >= len(st.pins):
         return
+    j = mirror[0] if mirror is not None and 0 <= mirror[0] < len(st.pins) and mirror[0] != index else None
     if created:
-        st.pins.remove(index)
+        for i in sorted({index} | ({j} if j is not None else set()), reverse=True):
+            _remove(st, i)
         st.active_pin = max(0, len(st.pins) - 1)
     else:
         st.pins[index].target = start_target
+        if j is not None:
+            st.pins[j].target = mirror[1]
+
+
+# ---------------------------------------------------------------------------- mirrored pins
+def _links(items) -> np.ndarray:
+    links = np.empty(len(items), dtype=np.int32)
+    if len(items):
+        items.foreach_get("mirror_of", links)
+    return links.astype(np.int64)
+
+
+def mirror_links(obj) -> np.ndarray:
+    """Each stored pin's mirror pin, int64 (k,): its own index on the centre line, −1 for none (a damaged link,
+    out of range, reads as −1)."""
+    links = _links(settings(obj).pins)
+    links[(links < -1) | (links >= len(links))] = -1
+    return links
+
+
+def mirror_partner(obj, index: int) -> int:
+    """Pin ``index``'s mirror pin (−1: none; ``index``: on the centre line)."""
+    links = mirror_links(obj)
+    return int(links[index]) if 0 <= index < len(links) else -1
+
+
+def mirror_plane(obj) -> tuple:
+    """``(axis, offset)`` of the object's stored mirror map (refused when there is none or it is stale)."""
+    mmap = symmetry.load_map(obj)
+    return mmap.axis, mmap.offset
+
+
+def reflect_point(point, plane: tuple) -> np.ndarray:
+    """The reflection (3,) of a point (shape-key / rest object space) across ``x_axis = offset``:
+    ``x_axis' = 2·offset − x_axis``."""
+    out = np.array(point, dtype=np.float64).reshape(3)
+    axis, offset = plane
+    out[axis] = 2.0 * offset - out[axis]
+    return out
+
+
+def symmetric_target(target, plane: tuple) -> np.ndarray:
+    """A centre-line pin's target in a symmetric drag: the closest point to both the target and its reflection
+    (``(t + R t) / 2``: the target moved onto the mirror plane)."""
+    out = np.array(target, dtype=np.float64).reshape(3)
+    out[plane[0]] = plane[1]
+    return out
+
+
+def mirror_pin(pin: Pin, mmap, what: str = "the pin") -> Pin | None:
+    """The mirror of a surface point: ``Σ bᵢ m(vᵢ)`` (the same weights on the mirror vertices).
+
+    Returns None when the point is its own mirror (on the centre line: the same vertices with the same
+    weights).  Refused (code ``no_mirror``) when one of its vertices has no mirror in ``mmap``.
+    """
+    mirror = mmap.mirror
+    verts = [int(v) for v in pin.vertices]
+    if any(v < 0 or v >= len(mirror) for v in verts):
+        raise ShapeSpaceError(f"{what} names a vertex outside the mirror map's {len(mirror)} vertices: rebuild the "
+                              "mirror map", ErrorCode.STALE_MIRROR_MAP)
+    unmapped = [v for v in verts if mirror[v] < 0]
+    if unmapped:
+        raise ShapeSpaceError(f"{what} sits on vertex {unmapped[0]}, which has no mirror in the mirror map: pin "
+                              "elsewhere, or rebuild the map (Topology from a centre edge, or a larger tolerance)",
+                              ErrorCode.NO_MIRROR)
+    twin = Pin(tuple(int(mirror[v]) for v in verts), tuple(float(b) for b in pin.weights))
+
+    def spread(p):
+        out = {}
+        for v, b in zip(p.vertices, p.weights):
+            if b != 0.0:
+                out[v] = out.get(v, 0.0) + b
+        return out
+
+    a, b = spread(pin), spread(twin)
+    if a.keys() == b.keys() and all(abs(a[v] - b[v]) <= 1e-6 for v in a):
+        return None
+    return twin
+
+
+def mirror_pins(obj, model: BlendshapeModel | None = None) -> dict:
+    """Give every pin without a mirror link its mirror pin (the Mirror Pins operator).
+
+    A pin whose mirror point already carries an unlinked pin is linked to it; a pin on the centre line is linked
+    to itself; otherwise a mirror pin is added with the reflected target and the same stationary flag.  Every
+    pin is checked before anything is written (refused: no map, a stale map, an unmapped vertex).
+
+    Returns
+    -------
+    dict
+        ``{"added": int, "linked": int, "centre": int}``.
+    """
+    mmap = symmetry.load_map(obj)
+    plane = (mmap.axis, mmap.offset)
+    state = check_pins(obj)
+    pins = state.pins()
+    links = mirror_links(obj)
+    model = model or RIGS.model(obj)
+    keys = {(p.vertices, tuple(round(b, 6) for b in p.weights)): j for j, p in enumerate(pins) if links[j] < 0}
+    plan = []                                   # (pin, ("centre" | "link" | "add"), other pin or new Pin, target)
+    claimed = set()
+    for j, pin in enumerate(pins):
+        if links[j] >= 0 or j in claimed:
+            continue
+        twin = mirror_pin(pin, mmap, f"pin {j}")
+        if twin is None:
+            plan.append((j, "centre", None, None))
+            continue
+        other = keys.get((twin.vertices, tuple(round(b, 6) for b in twin.weights)))
+        if other is not None and other != j and other not in claimed:
+            claimed.update((j, other))
+            plan.append((j, "link", other, None))
+            continue
+        target = finite_point(reflect_point(state.targets[j], plane), f"the mirror of pin {j}'s target")
+        pin_positions(model, [twin], model.values)              # checks the mirror pin against the rig
+        plan.append((j, "add", twin, target))
+    st = settings(obj)
+    counts = {"added": 0, "linked": 0, "centre": 0}
+    for j, kind, other, target in plan:
+        if kind == "centre":
+            st.pins[j].mirror_of = j
+            counts["centre"] += 1
+        elif kind == "link":
+            st.pins[j].mirror_of, st.pins[other].mirror_of = other, j
+            counts["linked"] += 2
+        else:
+            new = _store(obj, other, target, bool(state.stationary[j]))
+            st.pins[j].mirror_of, st.pins[new].mirror_of = new, j
+            counts["added"] += 1
+    return counts

@@ -11,14 +11,16 @@
 - :mod:`.bake` — bake to shape-key animation or a PC2 point cache;
 - :mod:`.confidence` — Gaussian-process confidence and its heat map (9.1–9.2).
 """
-from .bake import MESH_CACHE_NAME, bake_point_cache, bake_weights, cache_path, default_cache_name
+from .bake import (MESH_CACHE_NAME, bake_point_cache, bake_weights, cache_path, default_cache_name,
+                   stored_cache_path)
 from .confidence import CONFIDENCE_ATTRIBUTE, confidence, confidence_model, show_variance
 from .examples import (add_example, check_not_editing, check_topology, example_correctives,
                        example_keys, move_example, posed_copy, pre_armature_positions, problem, remove_example,
                        remove_sculpt_copy)
 from .mirror import mirror_example
 from .pose import add_default_readers, armature_of, default_readers, read_pose, readers, settings
-from .preview import clear_preview_message, preview, stop_live_preview, write_wpsd_preview
+from .preview import (cached_model, clear_preview_message, forget_models, model_method, preview, stop_live_preview,
+                      write_wpsd_preview)
 from .sculpt import TEMP_KEY, apply_example, modelled_exactly
 from .stored import (POSE_SCHEMA, PSEUDO_POSE_SCHEMA, SCULPT_SUFFIX, TARGET_VALUES_SCHEMA, WPSD_KEY, check_examples,
                      example_pose, find_example, interpolation_pose, pseudo_pose, target_values)
@@ -34,9 +36,11 @@ __all__ = [
     "pre_armature_positions", "example_keys", "example_correctives",
     "TEMP_KEY", "apply_example", "modelled_exactly",
     "trained_deformer", "flag_examples",
-    "preview", "write_wpsd_preview", "stop_live_preview", "clear_preview_message",
+    "preview", "cached_model", "forget_models", "model_method", "write_wpsd_preview", "stop_live_preview",
+    "clear_preview_message",
     "add_target", "read_targets", "write_targets", "record_targets", "target_driver",
     "mirror_example",
     "MESH_CACHE_NAME", "bake_weights", "bake_point_cache", "cache_path", "default_cache_name",
+    "stored_cache_path",
     "CONFIDENCE_ATTRIBUTE", "confidence", "confidence_model", "show_variance",
 ]

@@ -181,11 +181,28 @@ def _write_file(path: str, positions: np.ndarray, start: int) -> None:
             os.remove(tmp)
 
 
-def _mesh_cache_modifier(obj, path: str, start: int):
+def stored_cache_path(path: str, relative: bool | None = None) -> str:
+    """How the Mesh Cache modifier stores the absolute ``path``: ``//``-relative to the saved .blend when
+    ``relative`` (default: Blender's *Relative Paths* preference), else absolute.
+
+    An unsaved file has no folder to be relative to, and a path on another drive (Windows) cannot be
+    relative: both stay absolute.
+    """
+    if relative is None:
+        relative = bool(bpy.context.preferences.filepaths.use_relative_paths)
+    if not relative or not bpy.data.filepath:
+        return path
+    try:
+        return bpy.path.relpath(path)
+    except ValueError:          # another drive
+        return path
+
+
+def _mesh_cache_modifier(obj, path: str, start: int, relative: bool | None = None):
     """The Mesh Cache modifier playing ``path`` from frame ``start``, first in the stack (before the armature)."""
     mod = obj.modifiers.get(MESH_CACHE_NAME) or obj.modifiers.new(MESH_CACHE_NAME, "MESH_CACHE")
     mod.cache_format = "PC2"
-    mod.filepath = path
+    mod.filepath = stored_cache_path(path, relative)
     mod.deform_mode = "OVERWRITE"
     mod.time_mode = "FRAME"
     mod.play_mode = "SCENE"
@@ -199,20 +216,23 @@ def _mesh_cache_modifier(obj, path: str, start: int):
     return mod
 
 
-def bake_point_cache(obj, scene, start: int, end: int, path: str, progress=None) -> str:
+def bake_point_cache(obj, scene, start: int, end: int, path: str, progress=None,
+                     relative: bool | None = None) -> str:
     """Bake the corrected pre-armature mesh of every frame to PC2 and play it with a Mesh Cache modifier.
 
     Works for every method (weighted PSD included): the Mesh Cache modifier,
     placed before the Armature modifier, replaces the shape-key result with
     the corrected one, so playback needs neither ShapeSpace nor Python.
-    ``path``: an absolute file path (see :func:`cache_path`).  ``progress``: called with the fraction of
-    frames sampled.  Returns the modifier's name.
+    ``path``: an absolute file path (see :func:`cache_path`); the modifier stores it as
+    :func:`stored_cache_path` does (``//``-relative to the saved .blend by Blender's preference, so a
+    moved project keeps playing).  ``progress``: called with the fraction of frames sampled.  Returns the
+    modifier's name.
     """
     check_not_editing(obj)
     deformer, names = trained_deformer(obj)
     out = _sample_meshes(obj, scene, deformer, list(range(start, end + 1)), progress)
     _write_file(path, out, start)
-    mod = _mesh_cache_modifier(obj, path, start)
+    mod = _mesh_cache_modifier(obj, path, start, relative)
     # the correctives now come from the cache: every corrective key (and the WPSD preview key) at 0
     blocks = obj.data.shape_keys.key_blocks
     zero = sorted(n for n in example_keys(obj) if n in blocks)

@@ -189,7 +189,11 @@ def remove_example(obj, example_name: str) -> str:
     key = obj.data.shape_keys
     if key is not None and example_name in key.key_blocks:
         obj.shape_key_remove(key.key_blocks[example_name])
+    post_deform = find_example(obj, example_name).post_deform
     st.examples.remove(st.examples.find(example_name))
+    if post_deform:
+        from .postdeform import remove_post_deform
+        remove_post_deform(obj, example_name)
     st.active_example = max(0, min(st.active_example, len(st.examples) - 1))
     st.revision += 1
     return example_name

@@ -16,6 +16,8 @@ from ...core.result import ShapeSpaceError, Status
 from ...core.skinning import deform
 from .. import meshes, skin
 from ..arrays import read_float, write_float
+from .finalshape import store_final_shape, touched
+from .postdeform import is_post_deform_modifier
 from .examples import (basis_positions, check_finite_positions, check_not_editing, check_topology, example_keys,
                        pre_armature_positions)
 from .pose import settings
@@ -30,7 +32,7 @@ _EXPECTED_EVALUATIONS = 40.0
 def modelled_exactly(obj) -> bool:
     """True when ShapeSpace's skinning model reproduces the modifier stack exactly (plain Armature
     modifiers with vertex groups, no B-Bones, no other deforming modifiers)."""
-    others = [m for m in obj.modifiers if m.show_viewport and m.type != "ARMATURE"]
+    others = [m for m in obj.modifiers if m.show_viewport and m.type != "ARMATURE" and not is_post_deform_modifier(m)]
     if others:
         return False
     problems = skin.check_skinning(obj)
@@ -74,7 +76,8 @@ def apply_example(obj, example_name: str, sculpt_positions=None, progress=None) 
     ``sculpt_positions`` (p, 3) in ``obj``'s object space; default: the sculpt copy's vertices (refused while
     the copy is in Edit Mode).  ``progress``: called with an estimated fraction done while inverting
     through Blender's own evaluation (for a progress display).
-    Returns the core ``InversionResult`` (``corrective``, ``residual``, status).
+    Returns the core ``InversionResult`` (``corrective``, ``residual``, status).  The sculpt is also kept as
+    the example's final shape (:mod:`.finalshape`), so the corrective can be re-inverted after rig changes.
     """
     check_not_editing(obj)
     check_topology(obj)
@@ -91,8 +94,10 @@ def apply_example(obj, example_name: str, sculpt_positions=None, progress=None) 
     basis = basis_positions(obj)
     result = _invert(obj, pre_armature_positions(obj), sculpt_positions, progress)
     check_finite_positions(result.corrective, f"the inverted corrective of {ex.name!r}")
+    idx = touched(obj, result.corrective)
     key = obj.data.shape_keys
     write_float(key.key_blocks[example_name].data, "co", basis + result.corrective)
+    store_final_shape(obj, ex, idx, sculpt_positions[idx])     # the sculpt survives rig changes (re-invert)
     obj.data.update()
     st.revision += 1
     return result

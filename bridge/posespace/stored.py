@@ -6,7 +6,9 @@ written through :mod:`bridge.storage` with a versioned schema:
 - ``pose`` — where in pose space it was sculpted (the feature vector);
 - ``pseudo_pose`` — where it is interpolated when moved (Shape-by-Example
   pseudo-example), empty otherwise;
-- ``target_values`` — the driven targets' values recorded at it.
+- ``target_values`` — the driven targets' values recorded at it;
+- ``final_shape`` — its sculpted posed shape, rig pose and input fingerprint
+  (:data:`FINAL_SHAPE_SCHEMA`; see :mod:`.finalshape`).
 
 Version 1 stores ``{"schema_version": 1, "values": [...]}``; files saved by
 ShapeSpace 0.1.0 hold bare JSON lists and still load.  Damage raises
@@ -31,6 +33,12 @@ WPSD_KEY = "ShapeSpace_WPSD"
 POSE_SCHEMA = Schema("pose-space example pose", 1, fields={"values": "list"}, list_blob=True)
 PSEUDO_POSE_SCHEMA = Schema("pose-space pseudo-example pose", 1, fields={"values": "list"}, list_blob=True)
 TARGET_VALUES_SCHEMA = Schema("driven target values of an example", 1, fields={"values": "list"}, list_blob=True)
+#: An example's final shape (thesis 7.2.1): its sculpted posed positions where it moves the mesh (float32,
+#: base64), the rig pose it was sculpted at and the fingerprint of the inputs its corrective was inverted from.
+#: Absent (empty) on examples made by ShapeSpace 0.1.0 and on examples not applied yet.
+FINAL_SHAPE_SCHEMA = Schema("pose-space example final shape", 1,
+                            fields={"vertex_count": "int", "indices": "string", "positions": "string",
+                                    "pose": "object", "fingerprint": "object"})
 
 
 def find_example(obj, name: str):
@@ -84,6 +92,21 @@ def target_values(ex) -> list:
 
 def set_target_values(ex, values) -> None:
     _write_values(ex, "target_values", TARGET_VALUES_SCHEMA, values)
+
+
+def final_shape(ex) -> dict | None:
+    """The example's stored final shape (:data:`FINAL_SHAPE_SCHEMA`), None when it has none."""
+    if not ex.final_shape:
+        return None
+    return storage.read_string_blob(ex, "final_shape", FINAL_SHAPE_SCHEMA)
+
+
+def set_final_shape(ex, data: dict | None) -> None:
+    """Store (or, with None, clear) the example's final shape."""
+    if data is None:
+        ex.final_shape = ""
+    else:
+        storage.write_string_blob(ex, "final_shape", FINAL_SHAPE_SCHEMA, data)
 
 
 def deleted_key(obj, name: str) -> ShapeSpaceError:

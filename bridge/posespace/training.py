@@ -43,6 +43,8 @@ def trained_deformer(obj) -> tuple:
     if method == "wpsd":
         d = skin.read_skinning(obj).deformers[0]
         kwargs = skin_group_inputs(rs, d.bone_names, d.weights.bone_index, d.weights.weight)
+        if st.wpsd_distance == "BLEND":        # per-region blend with the global distance (#16)
+            kwargs["blend"] = "auto"
     return train_psd(np.array(poses), D, method, **kwargs), [ex.name for ex in active]
 
 

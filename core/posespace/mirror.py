@@ -15,9 +15,8 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial import cKDTree
 
-from .. import validate
+from .. import symmetry, validate
 from ..errors import ErrorCode
 from ..result import ShapeSpaceError
 from .readers import PoseReader
@@ -113,7 +112,9 @@ def mirror_pose(readers: Sequence[PoseReader], pose: ArrayLike) -> np.ndarray:
 
 
 def mirror_partners(positions: ArrayLike, tolerance: float = 1e-4) -> np.ndarray:
-    """Each vertex's mirror partner across the local X axis (nearest vertex to (−x, y, z), by KD-tree).
+    """Each vertex's mirror partner across the local X axis: the position mirror map of :mod:`core.symmetry`
+    (:func:`~core.symmetry.position_map`: nearest vertex to (−x, y, z) by KD-tree, one-to-one), which the
+    symmetry tools share.
 
     Parameters
     ----------
@@ -126,7 +127,7 @@ def mirror_partners(positions: ArrayLike, tolerance: float = 1e-4) -> np.ndarray
     Returns
     -------
     ndarray of int, shape (p,)
-        ``partner[v]`` is the vertex at v's mirror position (a symmetric mesh gives a permutation).
+        ``partner[v]`` is the vertex at v's mirror position (a permutation and an involution).
 
     Raises
     ------
@@ -135,15 +136,13 @@ def mirror_partners(positions: ArrayLike, tolerance: float = 1e-4) -> np.ndarray
     """
     co = validate.array(positions, "positions", shape=(None, 3))
     tolerance = validate.non_negative(tolerance, "tolerance")
-    size = float(np.linalg.norm(np.ptp(co, axis=0))) if len(co) else 0.0
-    size = size or 1.0
-    dist, partner = cKDTree(co).query(co * _FLIP_X)
-    unmatched = int(np.sum(dist > tolerance * size))
+    mmap = symmetry.position_map(co, axis=0, offset=0.0, tolerance=tolerance)
+    unmatched = len(mmap.unmapped)
     if unmatched:
         raise ShapeSpaceError(f"{unmatched} vertices have no mirror partner across the mesh's local X axis "
-                              f"(within {tolerance:g} of its size): the mesh is not symmetric",
-                              ErrorCode.NOT_SYMMETRIC)
-    return np.asarray(partner, dtype=np.int64)
+                              f"(within {tolerance:g} of its size; first: {mmap.unmapped[:5].tolist()}): the mesh "
+                              "is not symmetric", ErrorCode.NOT_SYMMETRIC)
+    return mmap.mirror
 
 
 def mirror_displacements(delta: ArrayLike, partner: ArrayLike) -> np.ndarray:

@@ -16,6 +16,18 @@ The rigger sculpts correctives at example poses; each is stored in rest space
   interpolation per vertex.  Training factors one K × K system per vertex
   and folds it into the correctives, so evaluation is a kernel evaluation
   and a K-term contraction per vertex.
+- **Blended distance** (weighted PSD option): a vertex whose corrective
+  depends on joints it is not skinned to sees them through a blend of the
+  skin-weighted and the global pose distance,
+  ``d_v² = (1 − λ_v) Σ_j w_vj ‖x_j − x_kj‖² + λ_v ¼ ‖x − x_k‖²`` (the global
+  part at PSD's kernel width: weighted PSD's kernel is twice as narrow), with
+  λ chosen per region (the vertices a joint dominates) by leave-one-out cross
+  validation over the examples.  λ = 0 is weighted PSD, λ = 1 a normalised
+  Gaussian PSD over the whole pose.
+- **Evaluation at memory speed** (:meth:`PoseSpaceDeformer.evaluate_fast`):
+  float32 coefficients in one contiguous block; vertices whose coefficients
+  cancel strongly (an ill-conditioned vertex system) keep float64, so the
+  result stays within 1e-6 of the mesh size of the float64 evaluation.
 
 Detection of bad examples (8.2.1, 8.2.3) is in :mod:`.examples`, scalar
 targets driven from pose space (7.3.3) in :mod:`.drivers`; both share the
@@ -35,13 +47,30 @@ from ..errors import ErrorCode
 from ..result import ShapeSpaceError
 from .readers import PoseReader, feature_groups
 
-__all__ = ["METHODS", "AMPLIFICATION_LIMIT", "PoseSpaceDeformer", "train_psd", "default_epsilon",
-           "affine_determined", "regularisation", "skin_group_inputs"]
+__all__ = ["METHODS", "AMPLIFICATION_LIMIT", "BLEND_CANDIDATES", "BLEND_MARGIN", "WIDTH_CANDIDATES",
+           "GLOBAL_DISTANCE_SCALE", "FAST_TOLERANCE", "PoseSpaceDeformer", "train_psd", "default_epsilon",
+           "affine_determined", "regularisation", "skin_group_inputs", "blend_regions", "loo_errors_wpsd"]
 
 METHODS = ("psd", "sbe", "wpsd")
 #: Weighted PSD: per-vertex coefficients larger than this times the vertex's largest corrective
 #: mark an ill-conditioned vertex system (see train_psd's ``vertex_ridge``).
 AMPLIFICATION_LIMIT = 2000.0
+#: Blended weighted PSD: the global pose distance's factor (¼: measured at PSD's kernel width, half weighted PSD's).
+GLOBAL_DISTANCE_SCALE = 0.25
+#: Blended weighted PSD: the λ tried per region by leave-one-out cross validation.
+BLEND_CANDIDATES = (0.0, 0.1, 0.25, 0.5, 1.0)
+#: Blended weighted PSD ("auto"): a region leaves the skin-weighted distance only when leave-one-out cross
+#: validation shows at least this relative gain (a blend chosen on noise costs accuracy between the examples).
+BLEND_MARGIN = 0.1
+#: Blended weighted PSD ("auto"): the kernel-width factors tried per region with each λ (the leave-one-out
+#: score prefers wider kernels than the held-out test poses do on RobotExpressive's hand, so only today's).
+WIDTH_CANDIDATES = (1.0,)
+#: Fast evaluation: largest difference from the float64 evaluation, as a fraction of the size given to
+#: :meth:`PoseSpaceDeformer.prepare_fast` (4× below the 1e-6 promised).
+FAST_TOLERANCE = 2.5e-7
+#: Float32 evaluation error per unit of a vertex's largest coefficient: one float32 rounding unit (2⁻²⁴; the
+#: largest measured on ill-conditioned 30k-vertex models is 0.64 of it: coefficient rounding plus kernel rounding).
+_F32_ERROR = 2.0 ** -24
 
 
 # ------------------------------------------------------------------ shared rules
@@ -121,8 +150,13 @@ class PoseSpaceDeformer:
         Weighted PSD: the pose columns of each joint.
     folded : ndarray, shape (p, K, 3)
         Weighted PSD: ``A_v⁻¹ Δ_v``, the per-vertex system folded into the correctives.
+    blend : ndarray, shape (p,), or None
+        Weighted PSD: per-vertex λ_v of the blended distance (None: the skin-weighted distance, λ = 0).
+    width : ndarray, shape (p,), or None
+        Weighted PSD: per-vertex kernel-width factor ε_v / ε (None: 1 everywhere).
     diagnostics : dict
-        ``smoothing``, ``degree``, ``loo_rms``, ``unweighted_vertices``, ``ridged_vertices`` as applicable.
+        ``smoothing``, ``degree``, ``loo_rms``, ``unweighted_vertices``, ``ridged_vertices``, ``blend_regions``
+        as applicable.
     """
 
     method: str
@@ -136,8 +170,10 @@ class PoseSpaceDeformer:
     group_columns: list = None           # feature columns per group
     folded: np.ndarray = None            # (p, K, 3): A_v⁻¹ Δ_v
     diagnostics: dict = field(default_factory=dict)
-    _fast: tuple = None                  # sparse weights and (3, p, K) coefficients
-    _W: object = None                    # sparse (p × joints) skin weights
+    blend: np.ndarray = None             # (p,) λ_v of the blended distance, None = 0
+    width: np.ndarray = None             # (p,) per-vertex kernel-width factor (ε_v / ε), None = 1
+    _fast: object = None                 # _FastWPSD
+    _W: object = None                    # sparse (p × joints[+1]) metric weights
 
     @property
     def n_examples(self) -> int:
@@ -151,53 +187,72 @@ class PoseSpaceDeformer:
         return self.interpolant.cardinal(np.asarray(pose, dtype=np.float64)[None])[0]
 
     def _group_d2(self, pose):
+        """Per-joint squared distances to the examples (G[+1], K); with a blend, the global distance last."""
         x = np.asarray(pose, dtype=np.float64)
-        return np.stack([np.sum((x[cols] - self.poses[:, cols]) ** 2, axis=1) for cols in self.group_columns])
+        g2 = np.stack([np.sum((x[cols] - self.poses[:, cols]) ** 2, axis=1) for cols in self.group_columns])
+        return g2 if self.blend is None else np.vstack([g2, g2.sum(axis=0, keepdims=True)])
 
     def vertex_weights_at(self, pose: ArrayLike) -> np.ndarray:
         """Weighted PSD: normalised kernel values per vertex and example at ``pose`` (d,), shape (p, K)."""
         g2 = self._group_d2(pose)                               # (G, K)
-        gi = np.where(self.vertex_groups >= 0, self.vertex_groups, 0)
-        d2 = np.einsum("pm,pmk->pk", self.vertex_weights, g2[gi])
+        if self.blend is None and self.width is None:
+            gi = np.where(self.vertex_groups >= 0, self.vertex_groups, 0)
+            d2 = np.einsum("pm,pmk->pk", self.vertex_weights, g2[gi])
+        else:
+            if self._W is None:
+                self._prepare_fast_weights()
+            d2 = self._W @ g2
         phi = np.exp(-(self.epsilon ** 2) * d2)
         return phi / phi.sum(axis=1, keepdims=True)
 
     def _prepare_fast_weights(self):
-        """Sparse (p × joints) skin-weight matrix."""
-        import scipy.sparse as sp
-        p, m = self.vertex_groups.shape
-        ok = self.vertex_groups >= 0
-        rows = np.repeat(np.arange(p), m)[ok.ravel()]
-        self._W = sp.csr_matrix((self.vertex_weights.ravel()[ok.ravel()],
-                                 (rows, self.vertex_groups.ravel()[ok.ravel()])),
-                                shape=(p, len(self.group_columns)))
+        """Sparse (p × joints) metric weights: skin weights, scaled by 1 − λ_v, and λ_v/4 on the global distance."""
+        self._W = _metric_matrix(self.vertex_groups, self.vertex_weights, len(self.group_columns), self.blend,
+                                 self.width)
 
-    def _prepare_fast(self):
+    @property
+    def fast_ready(self) -> bool:
+        """Whether :meth:`prepare_fast` has laid out the coefficients (weighted PSD)."""
+        return self._fast is not None
+
+    def prepare_fast(self, size: float | None = None, tolerance: float = FAST_TOLERANCE) -> None:
+        """Weighted PSD: lay out the coefficients for :meth:`evaluate_fast`.
+
+        Parameters
+        ----------
+        size : float, optional
+            The mesh's size (e.g. its bounding-box diagonal); default: the largest corrective coordinate
+            (stricter).
+        tolerance : float
+            Largest difference from :meth:`evaluate` as a fraction of ``size``.  A vertex goes to the float32
+            block when its float32 error ``u₃₂ max_k |a_vk|`` (``a_v = A_v⁻¹Δ_v``, u₃₂ = 2⁻²⁴) is within it:
+            the folded coefficients of an ill-conditioned vertex system are large and cancel, and float32
+            rounding of the coefficients and of the kernel is amplified by exactly that cancellation, so
+            those vertices stay in float64; vertices without correctives are skipped.
+        """
+        if self.method != "wpsd":
+            return
         if self._W is None:
             self._prepare_fast_weights()
-        self._fast = (self._W, np.ascontiguousarray(self.folded.transpose(2, 0, 1)))
+        scale = float(size) if size else float(np.abs(self.correctives).max())
+        self._fast = _FastWPSD(self._W, self.folded, max(scale, 1e-300) * tolerance)
 
     def evaluate_fast(self, pose: ArrayLike) -> np.ndarray:
-        """Weighted PSD for live preview at ``pose`` (d,), shape (p, 3): the same result as :meth:`evaluate`,
-        faster.
+        """Corrective displacement for live preview at ``pose`` (d,), shape (p, 3) float32.
 
-        A sparse (p × joints) weight matrix gives every vertex's pose distances
-        at once; normalisation is applied to the 3 output columns instead of
-        the p × K kernel matrix.  Double precision throughout: the folded
-        coefficients A_v⁻¹Δ_v can cancel strongly, which single precision
-        would amplify.
+        Weighted PSD: within ``tolerance × size`` of :meth:`evaluate` (see :meth:`prepare_fast`, called with
+        defaults when it was not).  One sparse product gives every vertex's pose distances (per-joint
+        distances shifted by their minimum over the examples: a per-vertex constant the normalisation
+        cancels, which keeps the exponent small and float32 away from underflow), then one exponential and
+        one contraction over the float32 coefficients (p × K × 3, contiguous); the few strongly cancelling
+        vertices repeat this in float64.  Other methods: :meth:`evaluate` in float32.
         """
         if self.method != "wpsd":
             return self.evaluate(pose).astype(np.float32)
         if self._fast is None:
-            self._prepare_fast()
-        W, coeffs = self._fast
-        d2 = W @ self._group_d2(pose)
-        d2 *= -(self.epsilon ** 2)
-        phi = np.exp(d2, out=d2)
-        out = np.einsum("pk,cpk->pc", phi, coeffs)
-        out /= phi.sum(axis=1, keepdims=True)
-        return out
+            self.prepare_fast()
+        return self._fast(self._fast.group_d2(pose, self.poses, self.group_columns, self.blend is not None),
+                          self.epsilon)
 
     def evaluate(self, pose: ArrayLike) -> np.ndarray:
         """Rest-space corrective displacement at ``pose`` (d,), shape (p, 3): ``Σ_k c_k(x) Δ_k``."""
@@ -207,12 +262,127 @@ class PoseSpaceDeformer:
         return np.tensordot(w, self.correctives, axes=1)
 
 
+def _metric_matrix(vertex_groups, vertex_weights, n_groups, blend, width=None):
+    """Sparse (p × G[+1]) weights of the per-joint squared distances in each vertex's metric (a per-vertex
+    kernel width folded in as ``(ε_v / ε)²``)."""
+    import scipy.sparse as sp
+    p, m = vertex_groups.shape
+    ok = (vertex_groups >= 0).ravel()
+    rows = np.repeat(np.arange(p), m)[ok]
+    cols = vertex_groups.ravel()[ok]
+    vals = vertex_weights.ravel()[ok]
+    if width is not None:
+        vals = vals * np.asarray(width, dtype=np.float64)[rows] ** 2
+    if blend is None:
+        return sp.csr_matrix((vals, (rows, cols)), shape=(p, n_groups))
+    lam = np.asarray(blend, dtype=np.float64)
+    vals = vals * (1.0 - lam[rows])
+    rows = np.concatenate([rows, np.arange(p)])
+    cols = np.concatenate([cols, np.full(p, n_groups)])
+    glob = GLOBAL_DISTANCE_SCALE * lam * (1.0 if width is None else np.asarray(width, dtype=np.float64) ** 2)
+    vals = np.concatenate([vals, glob])
+    return sp.csr_matrix((vals, (rows, cols)), shape=(p, n_groups + 1))
+
+
+#: Exponent floors: exp stays a normal number (float32: e⁻⁸⁰ ≈ 1.8e-35; float64: e⁻⁷⁰⁰).
+_EXP_FLOOR = {np.float32: np.float32(-80.0), np.float64: -700.0}
+#: A float32 denominator (Σ_k φ_vk) below this is re-evaluated in float64: the floored terms then stay below
+#: 1e-9 of it.
+_DEN_FLOOR = 1e-25
+
+
+class _FastWPSD:
+    """Weighted PSD laid out for evaluation: a float32 block, a float64 block (cancelling vertices), and the
+    vertices without correctives skipped."""
+
+    def __init__(self, W, folded, tol_abs):
+        p = folded.shape[0]
+        cmax = np.abs(folded).max(axis=(1, 2)) if folded.size else np.zeros(p)
+        live = cmax > 0
+        f32 = live & (_F32_ERROR * cmax <= tol_abs)
+        self.p = p
+        self.idx32 = np.flatnonzero(f32)
+        self.idx64 = np.flatnonzero(live & ~f32)
+        self.all32 = self.idx32.size == p
+        self.W32_exact = W[self.idx32]                  # float64 rows for the underflow fallback
+        self.W32 = self.W32_exact.astype(np.float32)
+        # (n, 3, K): one contiguous pass, the example axis innermost
+        self.C32 = np.ascontiguousarray(folded[self.idx32].transpose(0, 2, 1), dtype=np.float32)
+        self.W64 = W[self.idx64]
+        self.C64 = np.ascontiguousarray(folded[self.idx64].transpose(0, 2, 1))
+        self.wmax32, self.wmax64 = self._row_max(self.W32), self._row_max(self.W64)
+
+    def group_d2(self, pose, poses, group_columns, with_total):
+        """:meth:`PoseSpaceDeformer._group_d2` in one vectorised pass (columns gathered once, summed per joint)."""
+        if not hasattr(self, "_cols"):
+            lengths = np.array([len(c) for c in group_columns])
+            self._cols = np.concatenate([np.asarray(c, dtype=np.int64) for c in group_columns]) \
+                if len(group_columns) else np.zeros(0, dtype=np.int64)
+            self._starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+            self._empty = lengths == 0
+            self._ref = np.ascontiguousarray(poses[:, self._cols])
+        x = np.asarray(pose, dtype=np.float64)[self._cols]
+        sq = self._ref - x
+        sq *= sq
+        g2 = np.add.reduceat(sq, np.minimum(self._starts, max(sq.shape[1] - 1, 0)), axis=1).T \
+            if sq.shape[1] else np.zeros((len(self._starts), poses.shape[0]))
+        if self._empty.any():
+            g2[self._empty] = 0.0
+        return np.vstack([g2, g2.sum(axis=0, keepdims=True)]) if with_total else g2
+
+    @staticmethod
+    def _row_max(W) -> float:
+        return float(abs(W).sum(axis=1).max()) if W.shape[0] else 0.0
+
+    @staticmethod
+    def _block(W, C, g2, eps2, dtype, wmax):
+        d2 = W @ g2.astype(dtype)
+        d2 *= dtype(-eps2)
+        # no subnormal results (exp is many times slower on them); terms this small are far below the
+        # precision of any vertex whose denominator passes the check in __call__.  Skipped when the largest
+        # row sum of W times the largest shifted joint distance cannot reach the floor.
+        if eps2 * wmax * float(g2.max(initial=0.0)) > -_EXP_FLOOR[dtype]:
+            np.maximum(d2, _EXP_FLOOR[dtype], out=d2)
+        phi = np.exp(d2, out=d2)
+        den = phi @ np.ones(phi.shape[1], dtype=dtype)      # a BLAS matrix-vector product: faster than sum
+        out = np.einsum("pk,pck->pc", phi, C)
+        out /= den[:, None]
+        return out, den
+
+    def __call__(self, g2, epsilon):
+        g2 = g2 - g2.min(axis=1, keepdims=True)          # a per-vertex constant shift (cancels)
+        eps2 = float(epsilon) ** 2
+        out32, den = self._block(self.W32, self.C32, g2, eps2, np.float32, self.wmax32)
+        if self.all32 and (den > _DEN_FLOOR).all():
+            return out32
+        out = np.zeros((self.p, 3), dtype=np.float32)
+        out[self.idx32] = out32
+        idx64 = self.idx64
+        low = np.flatnonzero(~(den > _DEN_FLOOR))
+        if low.size:                                     # float32 underflow far from every example
+            idx64 = np.concatenate([idx64, self.idx32[low]])
+        if idx64.size:
+            W, C, wmax = self.W64, self.C64, self.wmax64
+            if low.size:
+                W = _vstack_rows(self.W64, self.W32_exact[low])
+                C = np.concatenate([self.C64, self.C32[low].astype(np.float64)])
+                wmax = self._row_max(W)
+            out64, _ = self._block(W, C, g2, eps2, np.float64, wmax)
+            out[idx64] = out64
+        return out
+
+
+def _vstack_rows(a, b):
+    import scipy.sparse as sp
+    return sp.vstack([a, b], format="csr")
+
+
 # ------------------------------------------------------------------ training
 def train_psd(poses: ArrayLike, correctives: ArrayLike, method: str = "psd", epsilon: float | None = None,
               smoothing: float = 0.0, kernel: str | None = None, pseudo_poses: Mapping[int, ArrayLike] | None = None,
               vertex_groups: ArrayLike | None = None, vertex_weights: ArrayLike | None = None,
               group_columns: Sequence[ArrayLike] | None = None, vertex_ridge: float = 1e-3,
-              chunk: int = 4096) -> PoseSpaceDeformer:
+              chunk: int = 4096, blend: float | str | ArrayLike | None = None) -> PoseSpaceDeformer:
     """Train pose-space correctives (thesis ch. 7–8).
 
     Parameters
@@ -247,6 +417,14 @@ def train_psd(poses: ArrayLike, correctives: ArrayLike, method: str = "psd", eps
         them; all other vertices interpolate exactly.  0 turns it off.
     chunk : int
         Weighted PSD: vertices solved per batch (memory bound only; the result does not depend on it).
+    blend : float, array_like of shape (p,), "auto" or None
+        Weighted PSD: λ of the blended distance ``d_v² = (1 − λ_v) Σ_j w_vj ‖x_j − x_kj‖² + λ_v ¼ ‖x − x_k‖²``
+        — one value for every vertex, one per vertex, or ``"auto"``: per region (the vertices whose
+        largest skin weight is on the same joint) the λ of :data:`BLEND_CANDIDATES` and kernel-width factor
+        of :data:`WIDTH_CANDIDATES` with the smallest leave-one-out error over the examples
+        (:func:`blend_regions`), each vertex then taking its skin-weighted average of its joints' values
+        (no seams where regions meet).  None or 0: the
+        skin-weighted distance (weighted PSD as published); 1: a normalised Gaussian PSD over the whole pose.
 
     Returns
     -------
@@ -262,7 +440,8 @@ def train_psd(poses: ArrayLike, correctives: ArrayLike, method: str = "psd", eps
     smoothing = regularisation(X, smoothing)
     if method in ("psd", "sbe"):
         return _train_rbf(X, D, method, epsilon, smoothing, kernel)
-    return _train_wpsd(X, D, epsilon, smoothing, vertex_groups, vertex_weights, group_columns, vertex_ridge, chunk)
+    return _train_wpsd(X, D, epsilon, smoothing, vertex_groups, vertex_weights, group_columns, vertex_ridge, chunk,
+                       blend)
 
 
 def _train_rbf(X, D, method, epsilon, smoothing, kernel) -> PoseSpaceDeformer:
@@ -312,21 +491,26 @@ def _normalised_skin(vertex_groups, vertex_weights, group_columns, p):
 
 
 def _train_wpsd(X, D, epsilon, smoothing, vertex_groups, vertex_weights, group_columns, vertex_ridge,
-                chunk) -> PoseSpaceDeformer:
-    """Weighted PSD: one normalised-RBF system per vertex in its skin-weighted pose metric, folded into
-    the correctives."""
+                chunk, blend=None) -> PoseSpaceDeformer:
+    """Weighted PSD: one normalised-RBF system per vertex in its skin-weighted (or blended) pose metric,
+    folded into the correctives."""
     K, p = X.shape[0], D.shape[1]
     gi, gw, n_unweighted = _normalised_skin(vertex_groups, vertex_weights, group_columns, p)
     if epsilon is None:
         # a vertex sees only its own joints' part of the pose, so its distances are shorter than the
         # full pose distance: a kernel twice as narrow as PSD's default
         epsilon = 2.0 * default_epsilon(X)
-    model = PoseSpaceDeformer("wpsd", X, D, float(epsilon), None, gi, gw, [np.asarray(c) for c in group_columns],
-                              diagnostics={"smoothing": smoothing, "unweighted_vertices": n_unweighted})
-    folded = np.empty((p, K, 3))
+    columns = [np.asarray(c) for c in group_columns]
+    diagnostics = {"smoothing": smoothing, "unweighted_vertices": n_unweighted}
     # squared distances between examples, per joint: (G, K, K)
-    pair = np.stack([rbf.pairwise_distances(X[:, c], X[:, c]) ** 2 for c in model.group_columns])
-    pair_flat = pair.reshape(pair.shape[0], -1)                            # (G, K·K)
+    pair = np.stack([rbf.pairwise_distances(X[:, c], X[:, c]) ** 2 for c in columns])
+    lam, width = _blend_per_vertex(blend, X, D, gi, gw, pair, float(epsilon), smoothing, diagnostics)
+    model = PoseSpaceDeformer("wpsd", X, D, float(epsilon), None, gi, gw, columns, diagnostics=diagnostics,
+                              blend=lam, width=width)
+    if lam is not None:
+        pair = np.concatenate([pair, pair.sum(axis=0, keepdims=True)])
+    folded = np.empty((p, K, 3))
+    pair_flat = pair.reshape(pair.shape[0], -1)                            # (G[+1], K·K)
     model._prepare_fast_weights()
     ridged = 0
     for start in range(0, p, chunk):
@@ -342,6 +526,136 @@ def _train_wpsd(X, D, epsilon, smoothing, vertex_groups, vertex_weights, group_c
     model.folded = folded
     model.diagnostics["ridged_vertices"] = ridged
     return model
+
+
+def _blend_per_vertex(blend, X, D, gi, gw, pair, epsilon, smoothing, diagnostics):
+    """λ_v (p,) and the width factor ε_v/ε (p,) from the caller's ``blend``; None where they change nothing
+    (λ = 0, factor 1: the skin-weighted distance)."""
+    p = D.shape[1]
+    if blend is None:
+        return None, None
+    width = None
+    if isinstance(blend, str):
+        validate.choice(blend, "blend", ("auto",))
+        lam_g, width_g = blend_regions(D, gi, gw, pair, epsilon, smoothing)
+        diagnostics["blend_regions"] = {int(g): (float(v), float(w)) for g, (v, w) in enumerate(zip(lam_g, width_g))}
+        G = pair.shape[0]
+        index = np.where(gi >= 0, gi, G)                                   # −1 padding → index G (weight 0)
+        lam = np.einsum("pm,pm->p", gw, np.append(lam_g, 0.0)[index])
+        width = np.einsum("pm,pm->p", gw, np.append(width_g, 0.0)[index])
+        width = np.where(width > 0, width, 1.0)
+        width = None if np.all(width == 1.0) else width
+    else:
+        lam = np.broadcast_to(np.asarray(blend, dtype=np.float64), (p,)).copy()
+        if not np.isfinite(lam).all() or lam.min() < 0.0 or lam.max() > 1.0:
+            raise ShapeSpaceError("the distance blend λ must lie in [0, 1]", ErrorCode.RANGE)
+    lam = np.clip(lam, 0.0, 1.0)
+    return (None if not lam.any() else lam), width
+
+
+def loo_errors_wpsd(D: np.ndarray, weights: np.ndarray, pair: np.ndarray, epsilon: float,
+                    smoothing: float = 0.0) -> np.ndarray:
+    """Leave-one-out errors of the normalised-RBF interpolant of each vertex, in closed form.
+
+    Leaving example k out of vertex v's system ``A c = Δ`` (rows ``A_ik = φ_ik / Σ_l φ_il``) removes row and
+    column k and renormalises the other rows by ``1 / (1 − A_ik)``; the reduced inverse comes from
+    ``B = A⁻¹`` by the bordering formula ``B − B₍:,ₖ₎ B₍ₖ,:₎ / Bₖₖ`` (row and column k become 0), so all K
+    held-out predictions cost O(K³) per vertex, like one training solve.  (With smoothing s the held-out
+    system is taken as ``D_k Ā + s I ≈ D_k (Ā + s I)``: a selection score, not a model.)
+
+    Parameters
+    ----------
+    D : ndarray, shape (K, n, 3)
+        The vertices' correctives.
+    weights : ndarray, shape (n, G)
+        Each vertex's weights of the per-joint squared distances (kernel width folded in).
+    pair : ndarray, shape (G, K, K)
+        Per-joint squared distances between the examples.
+    epsilon, smoothing : float
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Sum over the held-out examples of the squared prediction error.
+    """
+    K, n = D.shape[0], D.shape[1]
+    if K < 3 or n == 0:
+        return np.zeros(n)
+    d2 = np.einsum("ng,gkl->nkl", weights, pair)
+    A = np.exp(-(epsilon ** 2) * d2)
+    A /= A.sum(axis=2, keepdims=True)
+    As = A + smoothing * np.eye(K) if smoothing > 0 else A
+    B = np.linalg.inv(As + 1e-12 * np.eye(K))
+    rhs = np.transpose(D, (1, 0, 2))                                       # (n, K, 3)
+    keep = 1.0 - A                                                         # (n, i, k): row i's renormalisation
+    r = np.transpose(keep, (0, 2, 1))[:, :, :, None] * rhs[:, None]        # (n, k, j, 3): r_k
+    Br = np.matmul(B[:, None], r)                                          # (n, k, i, 3): B r_k for every k
+    Bkr = np.einsum("nkkc->nkc", Br)                                       # (B r_k)_k
+    diagB = np.einsum("nkk->nk", B)
+    c = Br - np.einsum("nik,nkc->nkic", B, Bkr / diagB[:, :, None])      # (n, k, i, 3); entry i = k is 0
+    row = A / (1.0 - np.einsum("nkk->nk", A))[:, :, None]                 # (n, k, i)
+    row = row * (1.0 - np.eye(K))
+    pred = np.einsum("nki,nkic->nkc", row, c)
+    return np.sum((pred - rhs) ** 2, axis=(1, 2))
+
+
+def blend_regions(D: np.ndarray, vertex_groups: np.ndarray, vertex_weights: np.ndarray, pair: np.ndarray,
+                  epsilon: float, smoothing: float = 0.0, candidates: Sequence[float] = BLEND_CANDIDATES,
+                  widths: Sequence[float] = WIDTH_CANDIDATES, max_vertices: int = 128) -> tuple:
+    """λ and kernel-width factor per joint region of the blended distance, by leave-one-out cross validation.
+
+    A region is the set of vertices whose largest (normalised) skin weight is on one joint.  For each, the
+    ``max_vertices`` vertices with the largest correctives are scored with :func:`loo_errors_wpsd` for every
+    pair (λ, f) of candidates (distance ``f² ((1 − λ) Σ_j w_vj d_j² + λ ¼ Σ_j d_j²)``); the pair with the
+    smallest total wins if it beats today's (λ = 0, f = 1) by :data:`BLEND_MARGIN` (ties: the smaller λ).
+    Regions without correctives keep λ = 0, f = 1.
+
+    Parameters
+    ----------
+    D : ndarray, shape (K, p, 3)
+    vertex_groups, vertex_weights : ndarray, shape (p, m)
+        Normalised skinning (−1 padding).
+    pair : ndarray, shape (G, K, K)
+        Per-joint squared distances between the examples.
+    epsilon, smoothing : float
+    candidates, widths : sequence of float
+        λ and width factors tried.
+    max_vertices : int
+
+    Returns
+    -------
+    (ndarray, ndarray), each shape (G,)
+        λ and the width factor per joint.
+    """
+    G = pair.shape[0]
+    K, p = D.shape[0], D.shape[1]
+    lam_out, width_out = np.zeros(G), np.ones(G)
+    if K < 3:
+        return lam_out, width_out
+    dense = np.zeros((p, G + 1))
+    np.add.at(dense, (np.repeat(np.arange(p), vertex_groups.shape[1]),
+                      np.where(vertex_groups >= 0, vertex_groups, G).ravel()), vertex_weights.ravel())
+    dense = dense[:, :G]
+    dominant = dense.argmax(axis=1)
+    size = np.abs(D).max(axis=(0, 2))
+    pg = np.concatenate([pair, pair.sum(axis=0)[None]])
+    combos = sorted(((lam, f) for lam in candidates for f in widths),
+                    key=lambda c: (c != (0.0, 1.0), c[0], abs(np.log(c[1]))))
+    for g in range(G):
+        members = np.flatnonzero((dominant == g) & (size > 0))
+        if members.size == 0:
+            continue
+        members = members[np.argsort(-size[members], kind="stable")[:max_vertices]]
+        w = dense[members]
+        scores = []
+        for lam, f in combos:
+            blended = np.concatenate([(1.0 - lam) * w, np.full((members.size, 1), GLOBAL_DISTANCE_SCALE * lam)], 1)
+            scores.append(float(loo_errors_wpsd(D[:, members], f * f * blended, pg, epsilon, smoothing).sum()))
+        scores = np.array(scores)
+        best = int(np.flatnonzero(scores <= scores.min() * (1 + 1e-9))[0])
+        if scores[best] < (1.0 - BLEND_MARGIN) * scores[0]:     # combos[0] is today's (λ = 0, f = 1)
+            lam_out[g], width_out[g] = combos[best]
+    return lam_out, width_out
 
 
 def _solve_vertex_systems(A, rhs, vertex_ridge):

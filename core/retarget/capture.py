@@ -25,11 +25,11 @@ Limits (each refusal is a :class:`~core.result.ShapeSpaceError` naming the file 
 from __future__ import annotations
 
 import csv
-import io
 import math
 import os
 import stat
-from collections.abc import Sequence
+from array import array as array_of
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -159,19 +159,17 @@ def read_live_link_csv(source: str | os.PathLike, required: Sequence[str] = ARKI
 
 def _parse(text: str, required: Sequence[str], fps: float) -> WeightStream:
     """The stream of a CSV text (errors name the line, not the file)."""
-    numbered = _csv_rows(text)
-    rows = [r for _, r in numbered]
-    line_of = [i for i, _ in numbered]
-    if not rows:
+    numbered = _csv_rows(text)                   # streamed: a long take is never held as rows of strings
+    first = next(numbered, None)
+    if first is None:
         raise ShapeSpaceError("the CSV file is empty", ErrorCode.EMPTY)
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in first[1]]
     if "Timecode" not in header:
         raise ShapeSpaceError("the CSV has no Timecode column: not a Live Link Face recording",
                               ErrorCode.NO_TIMECODE)
     t_col = header.index("Timecode")
     cols, names, issues = _channel_columns(header, t_col, required)
-    t, w = _read_rows(rows, line_of, header, t_col, cols, fps)
-    lines = np.array(line_of[1:], dtype=np.int64)
+    t, w, lines, stamps = _read_rows(numbered, header, t_col, cols, fps)
     t = _unwrap_midnight(t, lines, issues)
     order = np.argsort(t, kind="stable")
     if np.any(np.diff(t) < 0):
@@ -186,26 +184,26 @@ def _parse(text: str, required: Sequence[str], fps: float) -> WeightStream:
         raise ShapeSpaceError(f"the recording has {t.size} frames; at least 3 are needed", ErrorCode.TOO_SHORT)
     _check_span(t, lines)
     issues += _fill_and_check(t, w, names, lines)
-    start = rows[1 + int(order[0])][t_col].strip()
+    start = stamps[int(order[0])].strip()
     return WeightStream(names, t - t[0], w, issues, start)
 
 
-def _csv_rows(text: str) -> list:
-    """``[(line, cells)]`` of the non-blank records; any line ending (LF, CRLF, CR) ends a line."""
-    text = text.replace("\r\n", "\n").replace("\r", "\n")
-    reader = csv.reader(io.StringIO(text, newline=""))
-    out = []
+def _csv_rows(text: str) -> Iterator[tuple]:
+    """``(line, cells)`` of each non-blank record, one at a time; any line ending (LF, CRLF, CR) ends a line."""
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    reader = csv.reader(_lines(text))
     while True:
         start = reader.line_num + 1         # the record's first line (a quoted cell may span lines)
         try:
             row = next(reader)
         except StopIteration:
-            return out
+            return
         except csv.Error as exc:
             raise ShapeSpaceError(f"line {start}: not a readable CSV row ({exc}; a stray quote?)",
                                   ErrorCode.CORRUPT_FILE) from None
         if any(c.strip() for c in row):
-            out.append((reader.line_num, row))
+            yield reader.line_num, row
 
 
 def _channel_columns(header: list, t_col: int, required: Sequence[str]) -> tuple:
@@ -236,19 +234,33 @@ def _channel_columns(header: list, t_col: int, required: Sequence[str]) -> tuple
     return cols, names, issues
 
 
-def _read_rows(rows: list, line_of: list, header: list, t_col: int, cols: list, fps: float) -> tuple:
-    """Seconds (f,) and values (f, n) of the data rows, in file order (empty cells → NaN)."""
-    times, values = [], []
-    for k, r in enumerate(rows[1:], start=1):
-        i = line_of[k]
+def _lines(text: str) -> Iterator[str]:
+    """The lines of ``text`` with their ``\n`` (for the csv reader: no copy of the whole text)."""
+    start, end = 0, len(text)
+    while start < end:
+        stop = text.find("\n", start)
+        stop = end if stop < 0 else stop + 1
+        yield text[start:stop]
+        start = stop
+
+
+def _read_rows(rows: Iterator[tuple], header: list, t_col: int, cols: list, fps: float) -> tuple:
+    """Seconds (f,), values (f, n), line numbers (f,) and timecode texts of the data rows ``(line, cells)``, in
+    file order (empty cells → NaN); the values go straight into a flat array of doubles (8 bytes each)."""
+    times, lines, stamps, values = array_of("d"), array_of("q"), [], array_of("d")
+    for i, r in rows:
         if len(r) < len(header):
             raise ShapeSpaceError(f"line {i} has {len(r)} cells, the header has {len(header)}", ErrorCode.RAGGED)
         try:
             times.append(parse_timecode(r[t_col], fps))
         except ShapeSpaceError as exc:
             raise ShapeSpaceError(f"line {i}: {exc}", exc.code) from None
-        values.append([_cell(r[j], i, header[j]) for j in cols])
-    return np.array(times), np.array(values, dtype=np.float64).reshape(len(times), len(cols))
+        values.extend([_cell(r[j], i, header[j]) for j in cols])
+        lines.append(i)
+        stamps.append(r[t_col])
+    t = np.frombuffer(times, dtype=np.float64).copy()
+    return (t, np.frombuffer(values, dtype=np.float64).copy().reshape(t.size, len(cols)),
+            np.frombuffer(lines, dtype=np.int64).copy(), stamps)
 
 
 def _cell(text: str, line: int, column: str) -> float:
@@ -303,10 +315,17 @@ def _fill_and_check(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray
     issues = []
     bad = ~np.isfinite(w)
     if bad.any():
+        empty = np.flatnonzero(bad.all(axis=0))
+        if empty.size:                       # nothing recorded for a channel: refuse, naming them all
+            listed = ", ".join(repr(names[j]) for j in empty[:4]) + (" …" if empty.size > 4 else "")
+            recorded = w.shape[1] - empty.size
+            raise ShapeSpaceError(
+                f"{'channel' if empty.size == 1 else f'{empty.size} of {w.shape[1]} channels'} {listed} "
+                f"{'has' if empty.size == 1 else 'have'} no valid value in {w.shape[0]} rows (NaN or empty)"
+                + (f"; only {recorded} channel{'s' if recorded != 1 else ''} recorded: did the capture lose "
+                   "tracking?" if recorded < empty.size else ""), ErrorCode.NON_FINITE)
         for j in np.flatnonzero(bad.any(axis=0)):
             ok = ~bad[:, j]
-            if not ok.any():
-                raise ShapeSpaceError(f"channel {names[j]!r} has no valid value", ErrorCode.NON_FINITE)
             w[~ok, j] = np.interp(t[~ok], t[ok], w[ok, j])
         issues.append(Issue("warning", "filled_nan", f"filled {int(bad.sum())} missing or NaN values from "
                             "neighbouring frames"))
@@ -374,7 +393,9 @@ def _read_file(path: str) -> str:
                                   ErrorCode.TOO_LARGE)
         try:
             with os.fdopen(os.dup(fd), "rb") as fh:
-                data = fh.read(MAX_FILE_BYTES + 1)
+                data = fh.read(info.st_size + 1)          # not a MAX_FILE_BYTES buffer for every read
+                if len(data) > info.st_size:              # it grew since fstat
+                    data += fh.read(MAX_FILE_BYTES + 1 - len(data))
         except OSError as exc:
             raise ShapeSpaceError(f"{path}: cannot be read ({exc.strerror or exc})", ErrorCode.CORRUPT_FILE) \
                 from None

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..progress import ProgressFn, notify
 from ..result import ShapeSpaceError
 from ..validate import array
 
@@ -30,7 +31,7 @@ MOVING_TOL = 1e-6
 
 def copy_weights(source: ArrayLike, mapping: Sequence, n_target: int, gain: ArrayLike | None = None,
                  offset: ArrayLike | None = None, lo: ArrayLike | None = None,
-                 hi: ArrayLike | None = None) -> np.ndarray:
+                 hi: ArrayLike | None = None, *, progress: ProgressFn | None = None) -> np.ndarray:
     """Copy mapped channels: ``w_t[:, j] = gain_j · w_s[:, i] + offset_j`` for each pair (i, j) (3.5.3).
 
     Parameters
@@ -41,6 +42,8 @@ def copy_weights(source: ArrayLike, mapping: Sequence, n_target: int, gain: Arra
     gain, offset : ndarray (n_target,), optional
     lo, hi : ndarray (n_target,), optional
         Clamp to the target sliders' ranges.
+    progress : callable, optional
+        ``progress(fraction)`` after each mapped channel (:mod:`core.progress`).
 
     Returns
     -------
@@ -53,8 +56,9 @@ def copy_weights(source: ArrayLike, mapping: Sequence, n_target: int, gain: Arra
     out = np.zeros((S.shape[0], n_target))
     g = np.ones(n_target) if gain is None else np.asarray(gain, dtype=np.float64)
     o = np.zeros(n_target) if offset is None else np.asarray(offset, dtype=np.float64)
-    for i, j in mapping:
+    for k, (i, j) in enumerate(mapping, start=1):
         out[:, j] = g[j] * S[:, i] + o[j]
+        notify(progress, k / len(mapping))
     if lo is not None or hi is not None:
         out = np.clip(out, -np.inf if lo is None else lo, np.inf if hi is None else hi)
     return out

@@ -30,10 +30,12 @@ from numpy.typing import ArrayLike
 
 from ..blendshape import BlendshapeModel, normalised_unit
 from ..errors import ErrorCode
+from ..progress import ProgressFn, notify, scaled
 from ..result import ShapeSpaceError
 from ..validate import array, choice, positive
 from .metrics import clipping_frames, position_error_rms, slider_scales, velocity_error_rms, weight_errors
 from .perframe import fit_frames
+from .report import clipped_mask
 from .spacetime_solver import SpacetimeResult, spacetime
 
 __all__ = ["METHODS", "GEOMETRIC_METHODS", "PerformanceFit", "normalised_basis", "retarget_weights",
@@ -69,6 +71,8 @@ class PerformanceFit:
     clipping_frames : int
     solver : SpacetimeResult or None
         The space-time solve, for the ``spacetime`` method.
+    clipped : ndarray of bool (f,) or None
+        Which frames clip (``clipping_frames`` of them), :func:`~.report.clipped_mask`.
     """
 
     weights: np.ndarray
@@ -77,6 +81,7 @@ class PerformanceFit:
     velocity_error_rms: float
     clipping_frames: int
     solver: SpacetimeResult | None = None
+    clipped: np.ndarray | None = None
 
 
 def normalised_basis(model: BlendshapeModel) -> tuple:
@@ -116,23 +121,69 @@ def check_finite_weights(W: ArrayLike, names: list, what: str = "the fit") -> No
                               f"{int(bad.any(axis=0).sum())} sliders in all)", ErrorCode.NON_FINITE)
 
 
+#: Frames clipped per progress report by the ``copy`` and ``learned`` methods.
+CLIP_CHUNK = 4096
+
+
 def _fit(B: np.ndarray, b0: np.ndarray, S: np.ndarray, lo: np.ndarray, hi: np.ndarray, method: str,
-         ideal: np.ndarray, lam: float, names: list) -> tuple:
+         ideal: np.ndarray, lam: float, names: list, progress: ProgressFn | None = None) -> tuple:
     """Per-frame or space-time fit of the sliders to positions ``S`` (f, 3p); σ from the ideal weights."""
     if method == "perframe":
-        return fit_frames(B, b0, S, lo, hi), None
+        return fit_frames(B, b0, S, lo, hi, progress=progress), None
     # anchored regulariser (#11): pull towards the per-frame ridge fit, not zero, so long takes do not drift
     res = spacetime(B, b0, S, slider_scales(ideal, lo, hi), lam, lo=lo, hi=hi, relative=True, names=names,
-                    anchor=True)
+                    anchor=True, progress=progress)
     return res.weights, res
 
 
-def retarget_weights(model: BlendshapeModel, ideal: ArrayLike, method: str, lam: float = 1e-7) -> PerformanceFit:
+def _clip(raw: np.ndarray, lo: np.ndarray, hi: np.ndarray, progress: ProgressFn | None) -> np.ndarray:
+    """``clip(raw, lo, hi)`` a chunk of :data:`CLIP_CHUNK` frames at a time, reporting after each."""
+    W = np.empty_like(raw)
+    for a in range(0, raw.shape[0], CLIP_CHUNK):
+        np.clip(raw[a:a + CLIP_CHUNK], lo, hi, out=W[a:a + CLIP_CHUNK])
+        notify(progress, min(a + CLIP_CHUNK, raw.shape[0]) / max(raw.shape[0], 1))
+    return W
+
+
+def reduced_geometry(model: BlendshapeModel, raw: np.ndarray, live: np.ndarray) -> tuple:
+    """The geometric fit of a weight performance in the rig's own n-dimensional coordinates.
+
+    With ``B = Q R`` (thin QR of the live keys' normalised deltas, ``Q`` orthonormal columns),
+    ``‖(W − raw) Bᵀ‖ = ‖(W − raw) Rᵀ‖`` frame by frame and for every linear combination of frames
+    (velocities), so the per-frame and space-time fits of ``W`` to the positions ``b0 + raw Bᵀ`` are the
+    same problems as fits to ``raw Rᵀ`` with basis ``R`` and a zero neutral — the same normal equations
+    ``BᵀB = RᵀR``, the same minimiser — but the source never exists as (f, 3p) positions: memory
+    and time are linear in the take length with a constant of the key count, not the vertex count.
+
+    Parameters
+    ----------
+    model : BlendshapeModel
+        The target (n sliders, p vertices).
+    raw : ndarray (f, n)
+        The ideal (unbounded) weights.
+    live : ndarray of bool (n,)
+        The keys that move something.
+
+    Returns
+    -------
+    R : ndarray (r, k)
+        ``k = live.sum()``, ``r = min(3p, k)``; upper triangular.
+    S : ndarray (f, r)
+        ``raw[:, live] Rᵀ``.
+    """
+    B, _, _ = normalised_basis(model)
+    R = np.linalg.qr(B[:, live], mode="r")
+    return R, raw[:, live] @ R.T
+
+
+def retarget_weights(model: BlendshapeModel, ideal: ArrayLike, method: str, lam: float = 1e-7, *,
+                     progress: ProgressFn | None = None) -> PerformanceFit:
     """Retarget an unlimited weight performance on the target's sliders.
 
     ``copy``/``learned``: ``W = clip(ideal, lo, hi)``.  ``perframe``/``spacetime``:
     the sliders of the keys that move something fitted to the geometry
-    ``b0 + ideal Bᵀ`` (thesis ch. 5 for space-time, λ relative to the data);
+    ``b0 + ideal Bᵀ`` (thesis ch. 5 for space-time, λ relative to the data), solved in the rig's own
+    coordinates (:func:`reduced_geometry`, no per-vertex source is built);
     the sliders of empty keys keep ``clip(ideal, lo, hi)``.  Errors are
     measured on ``(W − ideal) Bᵀ`` at every vertex (:mod:`.metrics`).
 
@@ -146,6 +197,10 @@ def retarget_weights(model: BlendshapeModel, ideal: ArrayLike, method: str, lam:
         One of :data:`METHODS`.
     lam : float
         Positive, finite.
+    progress : callable, optional
+        ``progress(fraction)`` (:mod:`core.progress`), called as the work goes on (per chunk of frames for
+        ``copy``/``learned``, by the solver for the fits); raising :class:`~core.progress.Cancelled` from it
+        stops the work.
 
     Returns
     -------
@@ -156,23 +211,25 @@ def retarget_weights(model: BlendshapeModel, ideal: ArrayLike, method: str, lam:
     raw = array(ideal, "ideal", shape=(None, model.n_targets))
     lo, hi = model.slider_min, model.slider_max
     solver = None
-    W = np.clip(raw, lo, hi)
-    if method in GEOMETRIC_METHODS:
+    geometric = method in GEOMETRIC_METHODS
+    W = _clip(raw, lo, hi, scaled(progress, 0.0, 0.05 if geometric else 0.9))
+    if geometric:
         positive(lam, "lam")
-        check_dense_budget(raw.shape[0], model.n_vertices, f"a {method} fit")
         live = ~empty_keys(model)
         if live.any():
-            B, b0, _ = normalised_basis(model)
-            Bl = B[:, live]
-            W[:, live], solver = _fit(Bl, b0, b0 + raw[:, live] @ Bl.T, lo[live], hi[live], method, raw[:, live],
-                                      lam, [n for n, keep in zip(model.names, live) if keep])
+            R, S = reduced_geometry(model, raw, live)
+            W[:, live], solver = _fit(R, np.zeros(R.shape[0]), S, lo[live], hi[live], method, raw[:, live],
+                                      lam, [n for n, keep in zip(model.names, live) if keep],
+                                      scaled(progress, 0.05, 0.9))
     check_finite_weights(W, model.names, f"the {method} fit")
     pos, vel = weight_errors(W - raw, model.delta_matrix, model.scale)
-    return PerformanceFit(W, raw, pos, vel, clipping_frames(raw, lo, hi), solver)
+    notify(progress, 1.0)
+    clipped = clipped_mask(raw, lo, hi)
+    return PerformanceFit(W, raw, pos, vel, clipping_frames(raw, lo, hi), solver, clipped)
 
 
 def retarget_positions(model: BlendshapeModel, positions: ArrayLike, method: str,
-                       lam: float = 1e-7) -> PerformanceFit:
+                       lam: float = 1e-7, *, progress: ProgressFn | None = None) -> PerformanceFit:
     """Retarget a dense performance given on the target's vertices.
 
     The ideal weights are the per-frame fit within ±:data:`IDEAL_BOUND`
@@ -190,6 +247,9 @@ def retarget_positions(model: BlendshapeModel, positions: ArrayLike, method: str
         ``perframe`` or ``spacetime``.
     lam : float
         Positive, finite.
+    progress : callable, optional
+        ``progress(fraction)`` (:mod:`core.progress`): the ideal fit, then the bounded one; raising
+        :class:`~core.progress.Cancelled` from it stops the work.
 
     Returns
     -------
@@ -207,10 +267,12 @@ def retarget_positions(model: BlendshapeModel, positions: ArrayLike, method: str
     if live.any():
         Bl = B[:, live]
         bound = np.full(int(live.sum()), IDEAL_BOUND)
-        ideal[:, live] = fit_frames(Bl, b0, S / unit, -bound, bound)
+        ideal[:, live] = fit_frames(Bl, b0, S / unit, -bound, bound, progress=scaled(progress, 0.0, 0.4))
         W[:, live], solver = _fit(Bl, b0, S / unit, lo[live], hi[live], method, ideal[:, live], lam,
-                                  [n for n, keep in zip(model.names, live) if keep])
+                                  [n for n, keep in zip(model.names, live) if keep], scaled(progress, 0.4, 0.95))
     check_finite_weights(W, model.names, f"the {method} fit")
     residual = (b0 + W @ B.T) * unit - S
+    notify(progress, 1.0)
     return PerformanceFit(W, ideal, position_error_rms(residual, model.scale),
-                          velocity_error_rms(residual, model.scale), clipping_frames(ideal, lo, hi, 1e-6), solver)
+                          velocity_error_rms(residual, model.scale), clipping_frames(ideal, lo, hi, 1e-6), solver,
+                          clipped_mask(ideal, lo, hi, 1e-6))

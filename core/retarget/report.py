@@ -4,12 +4,78 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+from numpy.typing import ArrayLike
+
 from ..result import Report, Status
 
 if TYPE_CHECKING:
     from .performance import PerformanceFit
 
-__all__ = ["RetargetReport"]
+__all__ = ["RetargetReport", "clipped_mask", "frame_ranges", "format_ranges"]
+
+
+def clipped_mask(ideal: ArrayLike, lo: ArrayLike, hi: ArrayLike, tol: float = 1e-9) -> np.ndarray:
+    """Frames whose ideal (unbounded) weights leave the slider ranges: bool (f,).
+
+    Frame f clips when ``∃k: w_fk < lo_k − tol  or  w_fk > hi_k + tol`` (the frames
+    :func:`~.metrics.clipping_frames` counts).
+
+    Parameters
+    ----------
+    ideal : ndarray (f, n)
+    lo, hi : ndarray (n,)
+    tol : float
+        Slack for weights that are themselves the result of a numerical fit.
+
+    Returns
+    -------
+    ndarray of bool (f,)
+    """
+    W = np.asarray(ideal, dtype=np.float64)
+    if W.ndim != 2:
+        raise ValueError(f"ideal weights must be (frames, sliders), got shape {W.shape}")
+    return np.any((W < np.asarray(lo) - tol) | (W > np.asarray(hi) + tol), axis=1)
+
+
+def frame_ranges(frames: ArrayLike, mask: ArrayLike) -> list:
+    """The frames where ``mask`` holds, as inclusive runs ``[[first, last], …]``.
+
+    A run is a maximal sequence of masked frames that are consecutive in ``frames``
+    (one row apart): ``frames = 10…20``, ``mask`` true at 12, 13, 14 and 17 gives
+    ``[[12, 14], [17, 17]]``.  Whole-number frames are given as ``int``.
+
+    Parameters
+    ----------
+    frames : ndarray (f,)
+        Scene frame of each row, increasing.
+    mask : ndarray of bool (f,)
+
+    Returns
+    -------
+    list of [first, last]
+        In frame order; empty when nothing is masked.
+    """
+    frames = np.asarray(frames, dtype=np.float64).ravel()
+    mask = np.asarray(mask, dtype=bool).ravel()
+    if frames.shape != mask.shape:
+        raise ValueError(f"{frames.size} frames for a mask of {mask.size}")
+    padded = np.concatenate([[False], mask, [False]]).astype(np.int8)
+    edges = np.diff(padded)
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return [[_frame(frames[a]), _frame(frames[b])] for a, b in zip(starts, stops)]
+
+
+def format_ranges(ranges: list, limit: int = 6) -> str:
+    """``[[12, 40], [97, 97]]`` → ``'12–40, 97'`` (the first ``limit`` runs, then ``'… (N runs)'``)."""
+    parts = [f"{a:g}" if a == b else f"{a:g}–{b:g}" for a, b in ranges[:limit]]
+    if len(ranges) > limit:
+        parts.append(f"… ({len(ranges)} runs)")
+    return ", ".join(parts)
+
+
+def _frame(value: float) -> int | float:
+    return int(value) if float(value).is_integer() else float(value)
 
 
 @dataclass
@@ -45,6 +111,14 @@ class RetargetReport(Report):
         See :mod:`.metrics`.
     clipping_frames : int or None
         Frames whose ideal weights leave the slider ranges.
+    clipped_frames : list of [first, last] or None
+        Those frames (scene frames) as inclusive runs, :func:`frame_ranges`.
+    frame_range : list of [first, last] or None
+        The scene frames written (first and last key of the new action).
+    scene_range_extended : bool or None
+        Whether the scene's frame range was widened to include ``frame_range``.
+    scene_range_before : list of [start, end] or None
+        The scene's frame range before it was widened (*Discard Result* gives it back).
     keys_kept_frac : float or None
         With key reduction: fraction of the dense keys kept.
     action : str
@@ -69,16 +143,27 @@ class RetargetReport(Report):
     position_error_rms: float | None = None
     velocity_error_rms: float | None = None
     clipping_frames: int | None = None
+    clipped_frames: list | None = None
+    frame_range: list | None = None
+    scene_range_extended: bool | None = None
+    scene_range_before: list | None = None
     keys_kept_frac: float | None = None
     action: str = ""
     previous_action: str = ""
     previous_fake_user: bool | None = None
 
-    def record(self, fit: PerformanceFit) -> None:
-        """Take the errors, clipping and (space-time) solver outcome of a :class:`~.performance.PerformanceFit`."""
+    def record(self, fit: PerformanceFit, frames: ArrayLike | None = None) -> None:
+        """Take the errors, clipping and (space-time) solver outcome of a :class:`~.performance.PerformanceFit`;
+        with the scene ``frames`` (f,) of its rows, the clipped frames as runs and the frame range too."""
         self.position_error_rms = fit.position_error_rms
         self.velocity_error_rms = fit.velocity_error_rms
         self.clipping_frames = fit.clipping_frames
+        if frames is not None:
+            frames = np.asarray(frames, dtype=np.float64)
+            if fit.clipped is not None:
+                self.clipped_frames = frame_ranges(frames, fit.clipped)
+            if frames.size:
+                self.frame_range = [_frame(frames[0]), _frame(frames[-1])]
         if fit.solver is not None:
             self.solver_iterations = fit.solver.iterations
             self.status = fit.solver.message

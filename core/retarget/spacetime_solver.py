@@ -19,27 +19,50 @@ second difference: factored once (LAPACK ``pttrf``), O(f·n) per solve after an
 O(n³) eigendecomposition — no Kronecker system is ever formed.  The interior
 operator is ``𝓗 = DᵀD ⊗ M + λ I``.
 
-Bounds.  A primal–dual active-set method (Hintermüller–Ito–Kunisch): fix the
-entries whose bound is active or violated, solve *exactly* for the rest and
-update the set from the multipliers' signs until it repeats — then the KKT
-conditions hold exactly.  Each reduced Newton system ``𝓗_FF d_F = r_F``
-(``d_A = 0``) is solved exactly by the cheapest route (:func:`reduced_step`):
+Bounds.  The bounded problem ``min ½ yᵀ𝓗y − r₀ᵀy, lo/σ ≤ y ≤ hi/σ`` is
+solved exactly: every step is an exact solve of ``𝓗_FF d_F = r_F`` with the
+held (active) entries fixed, by a block-tridiagonal Cholesky of ``𝓗`` in
+frame-major order (:class:`BlockCholesky`: blocks ``(2 + β) M + λ I`` and
+``−M``, held rows/columns replaced by the identity; O(f n³) flops in BLAS-3
+blocks, memory f·n², linear in the take length).  The held set is found by
 
-- few active entries — the m × m capacitance system
-  ``(E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A``, whose entries are lookups in tables of
-  closed-form per-mode Green's functions of ``T`` (:class:`GreenTables`),
-  refined against exact products (:func:`capacitance_step`);
-- many — a banded Cholesky of ``𝓗`` with the active rows replaced by the
-  identity (bandwidth 2n − 1 frame-major, O(f n³); :func:`banded_step`);
-- beyond :data:`BANDED_FLOP_LIMIT` — conjugate gradients preconditioned by
-  the unbounded inverse (:func:`cg_step`).
+- :func:`peak_active_set` (first): from the unbounded solution, hold the
+  deepest entry of every run of violated frames of a slider and release held
+  entries whose multiplier has the wrong sign.  Holding all violated entries
+  (the clipped unbounded solution) overshoots: on real takes most of them end
+  up free, lifted by the velocity coupling (facecap→FBHead: 7,231 violated,
+  1,059 active; the 1,640-frame take: 12,997 and 2,612), and a primal–dual
+  active-set method then needs 23–88 iterations to shed them; holding run
+  peaks needs 8–14;
+- :func:`interior_point` (Mehrotra predictor–corrector, one block factor per
+  iteration) when the rig is rank-deficient (duplicate keys: ``M`` singular,
+  bounded ties that only λ tells apart, on which active-set iterations cycle)
+  or the peak iteration stops progressing; it finishes with an exact solve on
+  the barrier's active set (:func:`_crossover`).
 
-If the active set cycles, a projected Newton method with an ε-active set and
-a projected Armijo search (Bertsekas 1982; monotone) takes over
-(:func:`projected_newton`).  Convergence test: the natural residual
-``‖y − clip(y − ∇f(y))‖∞ ≤ tol · max(1, ‖rhs‖∞)`` in the whitened variables
-(zero exactly at the KKT point), or no further decrease at a residual ≤ 1e-6
-(rounding).  The returned weights satisfy the bounds exactly.
+The earlier routes stay as fallbacks: the primal–dual active set
+(Hintermüller–Ito–Kunisch, :func:`active_set`) whose steps
+(:func:`reduced_step`) use the m × m capacitance system
+``(E_Aᵀ 𝓗⁻¹ E_A) ν = −(𝓗⁻¹ r)_A`` from closed-form per-mode Green's functions
+of ``T`` (:class:`GreenTables`, :func:`capacitance_step`) for few active
+entries, else the block Cholesky, else conjugate gradients preconditioned by
+the unbounded inverse (:func:`cg_step`); and a projected Newton method with
+an ε-active set and a projected Armijo search (Bertsekas 1982; monotone,
+:func:`projected_newton`), which also checks the final point.  Convergence
+test: the natural residual ``‖y − clip(y − ∇f(y))‖∞ ≤ tol · max(1, ‖rhs‖∞)``
+in the whitened variables (zero exactly at the KKT point), or no further
+decrease at a residual ≤ 1e-6 (rounding).  The returned weights satisfy the
+bounds exactly.
+
+Ties.  On a rig with duplicate or dependent keys the geometric terms do not
+decide between the keys; the regulariser does: towards zero (``λ Σ (w/σ)²``,
+the smallest σ-weighted norm) or, with ``anchor``, towards the per-frame ridge
+fit (itself the smallest-norm split), so exact duplicates share a motion
+equally (the retarget command leaves keys that move nothing out of the fit).
+
+Progress.  :func:`spacetime` takes ``progress`` (:mod:`core.progress`):
+called per chunk of source rows and per bounded iteration; a
+:class:`~core.progress.Cancelled` raised from it ends the solve.
 """
 from __future__ import annotations
 
@@ -48,15 +71,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.linalg import lapack, solveh_banded
+from scipy.linalg import blas, lapack, solveh_banded
 
+from ..blas_threads import single_threaded
 from ..errors import ErrorCode
+from ..progress import ProgressFn, notify, scaled
 from ..result import Result, ShapeSpaceError, Status
 from ..validate import array, finite_scalar, positive
 from .perframe import fit_frames
 
 __all__ = ["spacetime", "DRIFT_BETA", "SpacetimeResult", "SpacetimeSystem", "GreenTables", "BANDED_FLOP_LIMIT",
-           "reduced_step", "capacitance_step", "banded_step", "cg_step", "active_set", "projected_newton"]
+           "reduced_step", "capacitance_step", "banded_step", "cg_step", "active_set", "projected_newton",
+           "BlockCholesky", "BLOCK_BYTES_LIMIT", "block_step", "capacitance_limit", "run_peaks", "peak_active_set",
+           "interior_point"]
 
 #: Largest banded-Cholesky Newton step (≈ flops, f·n·(2n)²) before bounded space-time falls back to CG.
 BANDED_FLOP_LIMIT = 4e9
@@ -196,7 +223,7 @@ class SpacetimeSystem:
         return diag_j, off_j
 
     def rhs(self, frames: np.ndarray, neutral: np.ndarray, first: np.ndarray, last: np.ndarray,
-            anchor: bool = False) -> np.ndarray:
+            anchor: bool = False, *, progress: ProgressFn | None = None) -> np.ndarray:
         """``DᵀD (S − b0) B Σ`` on the interior frames, the fixed end frames moved to the right-hand side.
 
         Parameters
@@ -209,6 +236,8 @@ class SpacetimeSystem:
         anchor : bool
             Regularise towards the per-frame ridge fit ``Y_pf = S B Σ (M + λ I)⁻¹`` instead of towards 0:
             ``λ ‖Y − Y_pf‖²`` adds ``λ Y_pf`` here (the operator is unchanged).
+        progress : callable, optional
+            Called after each chunk of :data:`CHUNK_ROWS` source rows.
 
         Returns
         -------
@@ -219,6 +248,7 @@ class SpacetimeSystem:
         SB = np.empty((F, n))                                             # (S − b0)·B·Σ, in row chunks
         offset = neutral @ Bs
         for start in range(0, F, CHUNK_ROWS):
+            notify(progress, start / F)
             rows = slice(start, min(start + CHUNK_ROWS, F))
             SB[rows] = np.asarray(frames[rows], dtype=np.float64) @ Bs - offset
         if not np.isfinite(SB).all():
@@ -465,12 +495,196 @@ def cg_step(system: SpacetimeSystem, free: np.ndarray, r: np.ndarray, nat: float
     return d
 
 
+# ------------------------------------------------------------------ block-tridiagonal Cholesky (the exact route)
+class BlockCholesky:
+    """Cholesky factor of ``𝓗 + diag(δ)`` with the ``held`` entries' rows and columns replaced by the identity.
+
+    Frame-major, ``𝓗`` is block tridiagonal: diagonal blocks ``(2 + β) M + λ I``,
+    off-diagonal blocks ``B_t = −M``.  The factor has blocks ``L_t`` (lower
+    triangular, n × n) on the diagonal and ``C_t = B_t L_{t−1}^{−T}`` below,
+    from ``S_t = A_t − C_t C_tᵀ = L_t L_tᵀ`` frame after frame: O(f n³) flops
+    in BLAS-3 blocks and memory f·n² (the ``L_t``; also ``X_t = C_tᵀ`` up to
+    :data:`BLOCK_KEEP_BYTES`, else recomputed), linear in the take length; a
+    solve is two sweeps of triangular solves and products, one frame at a time.
+
+    Parameters
+    ----------
+    system : SpacetimeSystem
+    held : ndarray of bool (f − 2, n), optional
+        Entries held fixed (their step is 0).
+    shift : ndarray (f − 2, n), optional
+        Diagonal ``δ`` added to ``𝓗`` (≥ 0; the interior-point barrier).
+    previous : BlockCholesky, optional
+        A factor of the same system with another held set (no shift): its blocks before the first frame
+        whose held entries differ are taken over (and it can no longer be used).
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        If a block is not numerically positive definite.
+    """
+
+    def __init__(self, system: SpacetimeSystem, held: np.ndarray | None = None, shift: np.ndarray | None = None,
+                 previous: BlockCholesky | None = None):
+        N, n = system.shape
+        self.shape = (N, n)
+        M = system.M
+        A = (2.0 + system.beta) * M
+        A[np.diag_indices(n)] += system.lam
+        self.M = M
+        self.keep = None if held is None or not held.any() else ~held
+        self.touched = touched = np.zeros(N, dtype=bool) if self.keep is None else held.any(axis=1)
+        self.held = np.zeros((N, n), dtype=bool) if held is None else held.copy()
+        self.shifted = shift is not None
+        start = 0
+        if previous is not None and not self.shifted and not previous.shifted and previous.shape == self.shape:
+            # the factor is a forward recursion: frames before the first change keep their blocks
+            changed = np.flatnonzero((previous.held != self.held).any(axis=1))
+            start = int(changed[0]) if changed.size else N
+            self.L, self.X = previous.L, previous.X                  # taken over (the previous factor is spent)
+            previous.L = previous.X = None
+        else:
+            self.L = np.empty((N, n, n))
+            self.X = np.empty((N, n, n)) if N * n * n * 8 <= BLOCK_KEEP_BYTES else None   # else recomputed
+        diag = np.diag_indices(n)
+        keep = self.keep
+        for t in range(start, N):
+            if touched[t] or shift is not None:
+                At = A.copy()
+                if shift is not None:
+                    At[diag] += shift[t]
+                if touched[t]:
+                    k = keep[t]
+                    At *= k[:, None]
+                    At *= k[None, :]
+                    At[diag] += ~k
+            else:
+                At = A
+            if t:
+                Bt = -M if not (touched[t] or touched[t - 1]) else -(M * keep[t - 1][:, None]) * keep[t][None, :]
+                X = lapack.dtrtrs(self.L[t - 1], Bt, lower=1)[0]             # L_{t−1}⁻¹ B_tᵀ = C_tᵀ (M symmetric)
+                if self.X is not None:
+                    self.X[t] = X
+                At = blas.dsyrk(-1.0, X, 1.0, At, trans=1, lower=1)                 # A_t − XᵀX (lower half)
+            elif At is A:
+                At = A.copy()
+            Lt, info = lapack.dpotrf(At, lower=1, clean=1, overwrite_a=1)
+            if info:
+                raise np.linalg.LinAlgError(f"block {t} is not positive definite")
+            self.L[t] = Lt
+
+    def _b(self, t: int, v: np.ndarray, transpose: bool) -> np.ndarray:
+        """``B_t v`` (``B_tᵀ v`` with ``transpose``) without forming ``B_t`` (rows of frame t, columns of t − 1)."""
+        if self.keep is None or not (self.touched[t] or self.touched[t - 1]):
+            return -(self.M @ v)
+        rows, cols = (self.keep[t - 1], self.keep[t]) if transpose else (self.keep[t], self.keep[t - 1])
+        return -(rows * (self.M @ (cols * v)))
+
+    def solve(self, r: np.ndarray) -> np.ndarray:
+        """The solution (f − 2, n) of the held system for the right-hand side ``r`` (held entries get 0)."""
+        N = self.shape[0]
+        L, X = self.L, self.X
+        u = np.array(r if self.keep is None else np.where(self.keep, r, 0.0), dtype=np.float64)
+        u[0] = lapack.dtrtrs(L[0], u[0], lower=1)[0]
+        for t in range(1, N):                                   # C_t u = X_tᵀ u = B_t L_{t−1}⁻ᵀ u
+            cu = (u[t - 1] @ X[t] if X is not None
+                  else self._b(t, lapack.dtrtrs(L[t - 1], u[t - 1], lower=1, trans=1)[0], False))
+            u[t] = lapack.dtrtrs(L[t], u[t] - cu, lower=1)[0]
+        u[N - 1] = lapack.dtrtrs(L[N - 1], u[N - 1], lower=1, trans=1)[0]
+        for t in range(N - 2, -1, -1):                          # C_{t+1}ᵀ d = X_{t+1} d = L_t⁻¹ B_{t+1}ᵀ d
+            cd = (X[t + 1] @ u[t + 1] if X is not None
+                  else lapack.dtrtrs(L[t], self._b(t + 1, u[t + 1], True), lower=1)[0])
+            u[t] = lapack.dtrtrs(L[t], u[t] - cd, lower=1, trans=1)[0]
+        if self.keep is not None:
+            u[~self.keep] = 0.0
+        return u
+
+
+#: A rig whose ``M`` has an eigenvalue at most this fraction of its largest is rank-deficient: bounded space-time
+#: goes straight to the interior point.
+DEGENERATE_RATIO = 1e-10
+
+#: Iterations :func:`peak_active_set` may go without lowering the best 2-norm of its natural residual by 10 %.
+PEAK_PATIENCE = 5
+
+#: Largest block-Cholesky factor (bytes: (f − 2) · n² · 8) the exact route builds; beyond it CG is used.
+BLOCK_BYTES_LIMIT = 2 * 2 ** 30
+
+#: Up to this size (bytes, (f − 2) · n² · 8) :class:`BlockCholesky` also keeps the ``C_t`` (faster solves);
+#: beyond it they are recomputed by triangular solves, so the memory stays one factor.
+BLOCK_KEEP_BYTES = 2 ** 28
+
+
+def block_step(system: SpacetimeSystem, act: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Exact Newton step ``𝓗_FF d_F = r_F``, ``d_A = 0`` by the block-tridiagonal Cholesky (:class:`BlockCholesky`).
+
+    Parameters
+    ----------
+    system : SpacetimeSystem
+    act : ndarray of bool (f − 2, n)
+    r : ndarray (f − 2, n)
+
+    Returns
+    -------
+    ndarray (f − 2, n)
+    """
+    system.solves += 1
+    return BlockCholesky(system, act).solve(r)
+
+
+def capacitance_limit(system: SpacetimeSystem) -> int:
+    """Largest held set for which the capacitance route is cheaper than a block factorisation (cost model).
+
+    Capacitance: ``m³/3`` flops for its Cholesky plus ~2 table lookups per entry (``m²``); block Cholesky:
+    ``7/3 · n³`` flops per frame plus a fixed per-frame overhead (a dozen LAPACK calls from Python, ~10⁵ flops'
+    worth).
+    """
+    block = system.shape[0] * (7.0 / 3.0 * system.n ** 3 + 1e5)
+    m = np.arange(1, 20001, 16, dtype=np.float64)
+    cheaper = m ** 3 / 3.0 + 40.0 * m * m <= block
+    return int(m[cheaper].max()) if cheaper.any() else 0
+
+
+def _block_fits(system: SpacetimeSystem) -> bool:
+    """Whether :class:`BlockCholesky` stays within :data:`BLOCK_BYTES_LIMIT`."""
+    return system.shape[0] * system.n * system.n * 8 <= BLOCK_BYTES_LIMIT
+
+
+def run_peaks(v: np.ndarray) -> np.ndarray:
+    """The deepest entry of every run of consecutive positive entries along time, per channel.
+
+    Parameters
+    ----------
+    v : ndarray (f − 2, n)
+        Violation (> 0 where violated).
+
+    Returns
+    -------
+    ndarray of bool (f − 2, n)
+    """
+    N, n = v.shape
+    pos = np.zeros((n, N + 1), dtype=bool)
+    pos[:, :N] = v.T > 0
+    vals = np.zeros((n, N + 1))
+    vals[:, :N] = v.T
+    pos, vals = pos.ravel(), vals.ravel()
+    idx = np.flatnonzero(pos)
+    out = np.zeros(n * (N + 1), dtype=bool)
+    if idx.size:
+        starts = np.ones(idx.size, dtype=bool)
+        starts[1:] = np.diff(idx) > 1
+        run = np.cumsum(starts) - 1
+        peak = np.maximum.reduceat(vals[idx], np.flatnonzero(starts))
+        out[idx[vals[idx] >= peak[run]]] = True
+    return out.reshape(n, N + 1)[:, :N].T
+
+
 def reduced_step(system: SpacetimeSystem, act: np.ndarray, r: np.ndarray, scale: float,
                  max_exact_active: int) -> np.ndarray:
     """Exact Newton step on the free entries (``𝓗_FF d_F = r_F``, ``d_A = 0``), by the cheapest route.
 
     Capacitance for ≤ ``max_exact_active`` active entries whose tables fit,
-    else a banded Cholesky within :data:`BANDED_FLOP_LIMIT`, else CG.
+    else the block-tridiagonal Cholesky within :data:`BLOCK_BYTES_LIMIT`, else CG.
 
     Parameters
     ----------
@@ -488,13 +702,197 @@ def reduced_step(system: SpacetimeSystem, act: np.ndarray, r: np.ndarray, scale:
     active = np.flatnonzero(act)
     if active.size <= max_exact_active and system.tables_fit(active):
         return capacitance_step(system, active, r)
-    size, n = act.size, system.n
-    if size * (2 * n) ** 2 <= BANDED_FLOP_LIMIT and size * 2 * n <= BANDED_FLOP_LIMIT / 100:
-        return banded_step(system, ~act, r, scale)
+    if _block_fits(system):
+        try:
+            return block_step(system, act, r)
+        except np.linalg.LinAlgError:
+            pass
     return cg_step(system, ~act, np.where(act, 0.0, r), 0.0, scale)
 
 
 # ------------------------------------------------------------------ the bounded iteration
+def _natural(Y: np.ndarray, mult: np.ndarray, ylo: np.ndarray, yhi: np.ndarray) -> float:
+    """Natural residual ``‖y − clip(y − ∇f)‖∞`` (``mult = −∇f``); it also measures any bound violation."""
+    return float(np.abs(Y - np.clip(Y + mult, ylo, yhi)).max(initial=0.0))
+
+
+def peak_active_set(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo: np.ndarray, yhi: np.ndarray,
+                    tol: float, max_iter: int, scale: float, progress: ProgressFn | None = None) -> tuple:
+    """Active set grown from below: hold the deepest entry of every violated run, free wrong-signed holds.
+
+    From the unbounded solution, each iteration holds (at its bound) the most
+    violated entry of every run of consecutive violated frames of a slider,
+    releases held entries whose multiplier has the wrong sign, and solves
+    exactly for the rest (:class:`BlockCholesky`).  Holding a run's deepest
+    point lifts its neighbours through the time coupling, so the held set
+    grows towards the optimal active set without the overshoot of holding
+    every violated entry (a fraction of which ends up active on real takes).
+    Each solve takes the cheaper exact route for the held set's size
+    (:func:`capacitance_limit`: capacitance while few are held, else the block
+    Cholesky, which keeps the blocks of the frames before the first change
+    from the previous iteration).
+    Stops at the natural-residual tolerance, or when the held set repeats
+    (cycling) or the 2-norm of the natural residual (over the whole take: its
+    max-norm plateaus on long takes while distant runs are being settled) has
+    not dropped below 0.9 of its best for :data:`PEAK_PATIENCE` iterations (the
+    caller globalises).
+
+    Parameters
+    ----------
+    system : SpacetimeSystem
+    Y : ndarray (f − 2, n)
+        The unbounded solution.
+    R0, ylo, yhi : ndarray (f − 2, n)
+    tol, scale : float
+    max_iter : int
+    progress : callable, optional
+        Called with the iteration's fraction of ``max_iter``.
+
+    Returns
+    -------
+    Y : ndarray (f − 2, n)
+        The last iterate (exact for its held set; may violate the bounds when not converged).
+    iterations : int
+    converged : bool
+    """
+    lower = np.zeros(Y.shape, dtype=bool)
+    upper = np.zeros(Y.shape, dtype=bool)
+    seen = set()
+    best, since = np.inf, 0
+    limit, factor = capacitance_limit(system), None
+    for it in range(max_iter + 1):
+        notify(progress, it / max_iter)
+        mult = R0 - system.apply(Y)
+        nat = _natural(Y, mult, ylo, yhi)
+        if nat <= tol * scale:
+            return Y, it, True
+        total = float(np.linalg.norm(Y - np.clip(Y + mult, ylo, yhi)))    # progress over the whole take
+        best, since = (total, 0) if total < 0.9 * best else (best, since + 1)
+        if it == max_iter or since >= PEAK_PATIENCE:
+            break                                                   # no progress: the caller globalises
+        held = lower | upper
+        thr = 1e-3 * tol * scale
+        add_lo = run_peaks(np.where(held, 0.0, ylo - Y - thr))
+        add_hi = run_peaks(np.where(held, 0.0, Y - yhi - thr))
+        new_lower = (lower & ~(mult > 0)) | add_lo
+        new_upper = (upper & ~(mult < 0)) | add_hi
+        key = hash(np.packbits(new_lower).tobytes() + np.packbits(new_upper).tobytes())
+        if key in seen or (np.array_equal(new_lower, lower) and np.array_equal(new_upper, upper)):
+            break                                                   # cycling (or rounding): globalise
+        seen.add(key)
+        lower, upper = new_lower, new_upper
+        held = lower | upper
+        Yh = np.where(upper, yhi, np.where(lower, ylo, Y))
+        r = R0 - system.apply(Yh)
+        if held.sum() > limit:                                      # block Cholesky, reusing the unchanged prefix
+            try:
+                factor = BlockCholesky(system, held, previous=factor)
+                system.solves += 1
+                Y = Yh + factor.solve(r)
+                continue
+            except np.linalg.LinAlgError:
+                factor = None
+        Y = Yh + reduced_step(system, held, r, scale, limit)
+    return Y, it, False
+
+
+def interior_point(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo: np.ndarray, yhi: np.ndarray,
+                   tol: float, max_iter: int, scale: float, progress: ProgressFn | None = None) -> tuple:
+    """Primal–dual interior point (Mehrotra predictor–corrector) to a small complementarity gap.
+
+    The robust route for degenerate problems (redundant rigs: duplicate keys
+    make ``M`` singular, active-set iterations can cycle).  Each iteration
+    factors ``𝓗 + Z_l S_l⁻¹ + Z_u S_u⁻¹`` once (:class:`BlockCholesky`) for the
+    predictor and the corrector.  Stops when the mean complementarity gap and
+    the dual residual are below ``10⁻² · tol · scale`` and the clipped point
+    passes the natural-residual test; then the entries with ``s < z`` are
+    held at their bounds and the rest solved for exactly, and that point
+    returned if it passes too (:func:`_crossover`).  The caller checks the
+    result with :func:`projected_newton`.
+
+    Parameters
+    ----------
+    system : SpacetimeSystem
+    Y : ndarray (f − 2, n)
+        Start (any point; moved inside the box).
+    R0, ylo, yhi : ndarray (f − 2, n)
+        Right-hand side and whitened bounds (``ylo < yhi`` where finite; fixed entries are handled by the caller).
+    tol, scale : float
+    max_iter : int
+    progress : callable, optional
+
+    Returns
+    -------
+    Y : ndarray (f − 2, n)
+    iterations : int
+    converged : bool
+        Whether the gap test was met.
+    """
+    fl, fu = np.isfinite(ylo), np.isfinite(yhi)
+    lo_, hi_ = np.where(fl, ylo, 0.0), np.where(fu, yhi, 0.0)
+    width = np.where(fl & fu, hi_ - lo_, 1.0 + np.abs(Y))
+    y = np.clip(Y, np.where(fl, lo_ + 0.05 * width, -np.inf), np.where(fu, hi_ - 0.05 * width, np.inf))
+    g0 = system.apply(y) - R0
+    z0 = max(1e-8 * scale, float(np.abs(g0).mean()))
+    zl, zu = np.where(fl, z0, 0.0), np.where(fu, z0, 0.0)
+    count = max(1, int(fl.sum() + fu.sum()))
+    for it in range(1, max_iter + 1):
+        notify(progress, it / max_iter)
+        sl, su = np.where(fl, y - lo_, 1.0), np.where(fu, hi_ - y, 1.0)
+        rd = system.apply(y) - R0 - zl + zu
+        mu = float(np.sum(sl * zl) + np.sum(su * zu)) / count
+        if mu <= 1e-2 * tol * scale and float(np.abs(rd).max()) <= 1e-2 * tol * scale:
+            yc = np.clip(y, ylo, yhi)
+            nat = _natural(yc, R0 - system.apply(yc), ylo, yhi)
+            if nat <= tol * scale:
+                return _crossover(system, yc, R0, ylo, yhi, fl & (sl < zl), fu & (su < zu), nat), it, True
+        dl, du = zl / sl, zu / su
+        try:
+            factor = BlockCholesky(system, shift=dl + du)
+        except np.linalg.LinAlgError:
+            return np.clip(y, ylo, yhi), it, False
+        system.solves += 1
+        dy = factor.solve(-rd - zl + zu)                               # predictor (affine scaling)
+        dzl, dzu = -zl - dl * dy, -zu + du * dy
+        alpha = _step_to_boundary(sl, su, zl, zu, dy, dzl, dzu, fl, fu, 1.0)
+        mu_aff = float(np.sum((sl + alpha * dy) * (zl + alpha * dzl) * fl)
+                       + np.sum((su - alpha * dy) * (zu + alpha * dzu) * fu)) / count
+        sigma_mu = (mu_aff / mu) ** 3 * mu
+        cl, cu = dy * dzl * fl, -dy * dzu * fu
+        rhs = -rd + np.where(fl, (sigma_mu - cl) / sl, 0.0) - zl - np.where(fu, (sigma_mu - cu) / su, 0.0) + zu
+        dy = factor.solve(rhs)                                        # corrector
+        dzl = np.where(fl, (sigma_mu - sl * zl - cl - zl * dy) / sl, 0.0)
+        dzu = np.where(fu, (sigma_mu - su * zu - cu + zu * dy) / su, 0.0)
+        alpha = _step_to_boundary(sl, su, zl, zu, dy, dzl, dzu, fl, fu, 0.995)
+        y, zl, zu = y + alpha * dy, zl + alpha * dzl, zu + alpha * dzu
+    return np.clip(y, ylo, yhi), max_iter, False
+
+
+def _crossover(system: SpacetimeSystem, y: np.ndarray, R0: np.ndarray, ylo: np.ndarray, yhi: np.ndarray,
+               held_lo: np.ndarray, held_hi: np.ndarray, nat: float) -> np.ndarray:
+    """The exact solution with the barrier's active set held, if its natural residual is no worse than ``nat``.
+
+    In directions only λ curves (duplicate keys) the interior point's answer can be accurate to the KKT test yet
+    off by ``nat / λ``; the exact solve on the right active set removes that.  (On a wrong set it is rejected.)
+    """
+    Yh = np.where(held_hi, yhi, np.where(held_lo, ylo, y))
+    try:
+        Yx = Yh + block_step(system, held_lo | held_hi, R0 - system.apply(Yh))
+    except np.linalg.LinAlgError:
+        return y
+    return Yx if _natural(Yx, R0 - system.apply(Yx), ylo, yhi) <= nat else y
+
+
+def _step_to_boundary(sl, su, zl, zu, dy, dzl, dzu, fl, fu, frac: float) -> float:
+    """Largest step ≤ 1 keeping the slacks and multipliers positive, times ``frac``."""
+    ratios = [1.0 / frac]
+    for s, ds, mask in ((sl, dy, fl), (su, -dy, fu), (zl, dzl, fl), (zu, dzu, fu)):
+        neg = mask & (ds < 0)
+        if neg.any():
+            ratios.append(float(np.min(-s[neg] / ds[neg])))
+    return min(1.0, frac * min(ratios))
+
+
 def active_set(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo: np.ndarray, yhi: np.ndarray,
                max_iter: int, scale: float, max_exact_active: int) -> tuple:
     """Primal–dual active set (Hintermüller–Ito–Kunisch) from a point within the bounds.
@@ -615,19 +1013,47 @@ def _assemble(Y: np.ndarray, sig: np.ndarray, first: np.ndarray, last: np.ndarra
 
 def _solve_bounded(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                    first: np.ndarray, last: np.ndarray, tol: float, max_iter: int,
-                   max_exact_active: int) -> SpacetimeResult:
-    """The bounded problem from the unbounded solution ``Y``: active set, then projected Newton."""
+                   max_exact_active: int, progress: ProgressFn | None = None) -> SpacetimeResult:
+    """The bounded problem from the unbounded solution ``Y``.
+
+    :func:`peak_active_set` first (a handful of exact block solves on real
+    takes); if it cycles, or the rig is rank-deficient (smallest eigenvalue of
+    ``M`` ≤ :data:`DEGENERATE_RATIO` × the largest), :func:`interior_point`
+    (robust on degenerate, redundant rigs); if that fails too, the primal–dual active set and
+    projected Newton of before.  The final :func:`projected_newton` call
+    checks the natural residual of the point returned (and returns at once
+    when it passes).
+    """
     sig = system.sigma
     ylo = np.broadcast_to(lo / sig, Y.shape)
     yhi = np.broadcast_to(hi / sig, Y.shape)
     scale = max(1.0, float(np.abs(R0).max()))
     system.solves = 0
-    Y, pdas_iterations = active_set(system, np.clip(Y, ylo, yhi), R0, ylo, yhi, max_iter, scale, max_exact_active)
-    Y, newton_iterations, status, message, nat = projected_newton(
-        system, np.clip(Y, ylo, yhi), R0, ylo, yhi, tol, max_iter, scale, max_exact_active)
-    return SpacetimeResult(_assemble(Y, sig, first, last, lo, hi), status=status, message=message,
-                           iterations=pdas_iterations + newton_iterations,
+    peak_iterations = ipm_iterations = pdas_iterations = 0
+    exact = _block_fits(system)
+    Ys, done = Y, False
+    # a rank-deficient rig (duplicate keys: M singular) has many bounded ties only λ tells apart, on which active-set
+    # iterations cycle; the interior point goes straight through them
+    degenerate = float(system.mu.min()) <= DEGENERATE_RATIO * float(system.mu.max())
+    if exact and not degenerate:
+        Ys, peak_iterations, done = peak_active_set(system, Y, R0, ylo, yhi, tol, max_iter, scale,
+                                                    scaled(progress, 0.0, 0.5))
+    if not done and exact and bool(np.all(lo < hi)):
+        Ys, ipm_iterations, done = interior_point(system, Y, R0, ylo, yhi, tol, max_iter, scale,
+                                                  scaled(progress, 0.5, 0.9))
+        done = True                          # projected Newton finishes from the interior point's answer
+    if not done:
+        Ys, pdas_iterations = active_set(system, np.clip(Y, ylo, yhi), R0, ylo, yhi, max_iter, scale,
+                                         max_exact_active)
+    notify(progress, 0.9)
+    Ys, newton_iterations, status, message, nat = projected_newton(
+        system, np.clip(Ys, ylo, yhi), R0, ylo, yhi, tol, max_iter, scale, max_exact_active)
+    notify(progress, 1.0)
+    return SpacetimeResult(_assemble(Ys, sig, first, last, lo, hi), status=status, message=message,
+                           iterations=peak_iterations + ipm_iterations + pdas_iterations + newton_iterations,
                            diagnostics={"natural_residual": nat, "solves": system.solves,
+                                        "peak_iterations": peak_iterations,
+                                        "interior_point_iterations": ipm_iterations,
                                         "active_set_iterations": pdas_iterations,
                                         "newton_iterations": newton_iterations})
 
@@ -684,7 +1110,7 @@ def spacetime(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayL
               first: ArrayLike | None = None, last: ArrayLike | None = None, lo: ArrayLike | None = None,
               hi: ArrayLike | None = None, tol: float = 1e-8, max_iter: int = 100, relative: bool = False,
               max_exact_active: int = 1000, names: Sequence[str] | None = None,
-              beta: float = 0.0, anchor: bool = False) -> SpacetimeResult:
+              beta: float = 0.0, anchor: bool = False, *, progress: ProgressFn | None = None) -> SpacetimeResult:
     """Space-time expression cloning (thesis ch. 5), optionally with slider bounds.
 
     Minimises ``‖D (W Bᵀ − S)‖² + β ‖W Bᵀ − S‖² + λ Σ_f Σ_k (w_fk / σ_k)²`` over the interior
@@ -738,6 +1164,11 @@ def spacetime(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayL
         long takes, which the zero-pulling regulariser causes in modes with
         ``μ_j ≲ λ f²``.  Where sliders clip the pull is as weak as before, so
         the velocity shape is kept (Fig. 3.9).  Used by the retarget command.
+    progress : callable, optional
+        ``progress(fraction)`` while the source is multiplied (per chunk of
+        :data:`CHUNK_ROWS` frames) and after every bounded iteration
+        (:mod:`core.progress`); raising :class:`~core.progress.Cancelled` from
+        it stops the solve.
 
     Returns
     -------
@@ -759,8 +1190,11 @@ def spacetime(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayL
         last = ends[1] if last is None else last
     first, last = array(first, "first", shape=(n,)), array(last, "last", shape=(n,))
     system = SpacetimeSystem(B, sig, lam, F, relative, beta)
-    R0 = system.rhs(S, b0, first, last, anchor)
+    R0 = system.rhs(S, b0, first, last, anchor, progress=scaled(progress, 0.0, 0.3 if bounded else 0.95))
     Y = system.solve(R0)
     if not bounded:
+        notify(progress, 1.0)
         return SpacetimeResult(_assemble(Y, sig, first, last), diagnostics={"modes": n})
-    return _solve_bounded(system, Y, R0, lo, hi, first, last, tol, max_iter, max_exact_active)
+    with single_threaded():                  # thousands of small BLAS calls: threads only spin (core.blas_threads)
+        return _solve_bounded(system, Y, R0, lo, hi, first, last, tol, max_iter, max_exact_active,
+                              scaled(progress, 0.3, 1.0))

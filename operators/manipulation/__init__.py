@@ -2,6 +2,7 @@
 from .add_pin import SHAPESPACE_OT_add_pin
 from .clear_pins import SHAPESPACE_OT_clear_pins
 from .drag_pins import SHAPESPACE_OT_drag_pins
+from .mirror_pins import SHAPESPACE_OT_mirror_pins
 from .remove_pin import SHAPESPACE_OT_remove_pin
 from .solve_pins import SHAPESPACE_OT_solve_pins
 
@@ -9,6 +10,7 @@ classes = (
     SHAPESPACE_OT_add_pin,
     SHAPESPACE_OT_clear_pins,
     SHAPESPACE_OT_drag_pins,
+    SHAPESPACE_OT_mirror_pins,
     SHAPESPACE_OT_remove_pin,
     SHAPESPACE_OT_solve_pins,
 )

@@ -11,7 +11,8 @@ PICK_RADIUS_PX = 12.0
 
 class SHAPESPACE_OT_drag_pins(bpy.types.Operator):
     """Click the face to pin a point and drag it; the sliders follow live.
-Click near a pin to drag it, Shift-click to pin a point in place, right-click or Esc cancels the drag"""
+Click near a pin to drag it, Shift-click to pin a point in place, right-click or Esc cancels the drag.
+With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follows it (cancel restores both)"""
 
     bl_idname = "shapespace.drag_pins"
     bl_label = "Drag Pins"

@@ -1,3 +1,5 @@
+import os
+
 import bpy
 
 from ...bridge import posespace
@@ -14,9 +16,12 @@ before the Armature modifier (every method, weighted PSD included; also for expo
     bl_label = "Bake Point Cache"
     bl_options = {"REGISTER", "UNDO"}
 
+    filename_ext = ".pc2"
     filepath: bpy.props.StringProperty(
         name="File", subtype="FILE_PATH",
-        description="PC2 file (default: <object>_correctives.pc2 next to the saved .blend)")
+        description="PC2 file (default: <object>_correctives.pc2 next to the saved .blend); stored relative "
+                    "to the .blend when it is saved and the Relative Paths preference is on")
+    filter_glob: bpy.props.StringProperty(default="*.pc2", options={"HIDDEN"})
     overwrite: bpy.props.BoolProperty(
         name="Overwrite", default=False,
         description="Replace an existing file that is not this mesh's point cache")
@@ -28,8 +33,22 @@ before the Armature modifier (every method, weighted PSD included; also for expo
         return psd_mesh(cls, context, need_example=True) is not None
 
     def invoke(self, context, event):
+        """Open the file browser at the default cache file (next to the saved .blend)."""
         self.frame_start, self.frame_end = context.scene.frame_start, context.scene.frame_end
-        return self.execute(context)
+        if not self.filepath:
+            name = posespace.default_cache_name(context.active_object)
+            folder = os.path.dirname(bpy.data.filepath) if bpy.data.filepath else ""
+            self.filepath = os.path.join(folder, name) if folder else name
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def check(self, context):
+        """Give the chosen file the .pc2 extension (the file browser calls this)."""
+        if self.filepath and not self.filepath.lower().endswith(self.filename_ext) and \
+                not os.path.isdir(bpy.path.abspath(self.filepath)):
+            self.filepath = bpy.path.ensure_ext(self.filepath, self.filename_ext)
+            return True
+        return False
 
     def execute(self, context):
         ob = context.active_object
@@ -44,5 +63,8 @@ before the Armature modifier (every method, weighted PSD included; also for expo
         except (ShapeSpaceError, OSError) as exc:
             self.report({"ERROR"}, str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
             return {"CANCELLED"}
-        self.report({"INFO"}, f"Baked frames {self.frame_start}–{self.frame_end} to {path}")
+        stored = posespace.stored_cache_path(path)
+        how = "relative to the .blend" if stored.startswith("//") else (
+            "absolute: save the file to store it relative" if not bpy.data.filepath else "absolute")
+        self.report({"INFO"}, f"Baked frames {self.frame_start}–{self.frame_end} to {stored} ({how})")
         return {"FINISHED"}

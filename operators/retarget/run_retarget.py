@@ -1,14 +1,56 @@
+"""Retarget: read (main thread) → compute (a worker thread when invoked from the UI) → write (main thread).
+
+From the UI (``invoke``) the computation runs in a :class:`core.jobs.BackgroundJob` while a modal timer shows
+window-manager progress and a status-bar line; Esc cancels it and nothing is written.  Scripts, redo and
+``EXEC_DEFAULT`` (``execute``) run the same three steps synchronously, with window-manager progress.
+"""
+import os
+from contextlib import contextmanager
+
 import bpy
 
 from ...bridge import retarget
+from ...core.progress import Cancelled, scaled
+from ...core.retarget.report import format_ranges
 from ...properties import KEY_SHAPES, RETARGET_METHODS
 from ..polls import active_rig
 from ..reporting import FAILED, attempt
 
+#: Seconds between the modal handler's progress updates.
+TICK = 0.1
+
+#: The part of the progress bar for reading the source (main thread); the computation has the rest.
+READ_SHARE = 0.1
+
+#: Events passed on to Blender while a retarget computes (view navigation only; everything else waits).
+NAVIGATION = {"MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "MOUSEMOVE", "INBETWEEN_MOUSEMOVE", "TRACKPADPAN",
+              "TRACKPADZOOM", "NDOF_MOTION"}
+
+
+@contextmanager
+def window_progress(context, steps: int = 100):
+    """Window-manager progress (the cursor's percentage) while the block runs; yields ``progress(fraction)``."""
+    wm = getattr(context, "window_manager", None)
+    if wm is None:
+        yield None
+        return
+    wm.progress_begin(0, steps)
+    try:
+        yield lambda fraction: wm.progress_update(int(round(steps * min(max(float(fraction), 0.0), 1.0))))
+    finally:
+        wm.progress_end()
+
+
+def status_text(context, text) -> None:
+    """Show ``text`` in the status bar (``None`` clears it); nothing without a workspace (background)."""
+    workspace = getattr(context, "workspace", None)
+    if workspace is not None and getattr(context, "window", None) is not None:
+        workspace.status_text_set(text)
+
 
 class SHAPESPACE_OT_retarget(bpy.types.Operator):
     """Retarget a Live Link Face CSV, an action or a mesh performance onto the active mesh's shape keys, into a new
-action"""
+action (Esc cancels a long retarget; nothing is written then)"""
 
     bl_idname = "shapespace.retarget"
     bl_label = "Retarget"
@@ -25,34 +67,118 @@ action"""
     key_shape: bpy.props.EnumProperty(name="Key Shape", items=KEY_SHAPES, default="BEZIER")
     key_pose_action: bpy.props.StringProperty(
         name="Key Poses", description="Learned method: the action keying this rig at the key-pose frames")
+    extend_scene_range: bpy.props.BoolProperty(
+        name="Extend Scene Range", default=True,
+        description="Widen the scene's frame range to include every frame the result keys")
 
     @classmethod
     def poll(cls, context):
         return active_rig(cls, context) is not None
 
-    def execute(self, context):
+    # ------------------------------------------------------------ orchestration
+    def _read(self, context, progress=None):
+        """The retarget plan read from Blender (:func:`bridge.retarget.read_retarget`), or FAILED (reported)."""
+        settings = dict(method=self.method, scene=context.scene, key_tolerance=self.key_tolerance,
+                        key_shape=self.key_shape, extend_scene_range=self.extend_scene_range)
         if self.source_object:
             src = bpy.data.objects.get(self.source_object)
             if src is None or src.type != "MESH":
                 self.report({"ERROR"}, f"no mesh named {self.source_object!r}")
-                return {"CANCELLED"}
+                return FAILED
             if self.method in ("copy", "learned"):
                 self.report({"ERROR"}, "a mesh performance needs a geometric method: perframe or spacetime")
-                return {"CANCELLED"}
-            rep = attempt(self, retarget.retarget_dense, context.active_object, src, self.method,
-                          key_tolerance=self.key_tolerance, key_shape=self.key_shape)
-        else:
-            source = bpy.path.abspath(self.filepath) if self.filepath else self.action
-            if not source:
-                self.report({"ERROR"}, "choose a CSV file, an action or a mesh performance")
-                return {"CANCELLED"}
-            rep = attempt(self, retarget.retarget, context.active_object, source, self.method,
-                          key_tolerance=self.key_tolerance, key_shape=self.key_shape,
-                          key_pose_action=self.key_pose_action or None)
+                return FAILED
+            return attempt(self, retarget.read_retarget_dense, context.active_object, src, progress=progress,
+                           **settings)
+        source = bpy.path.abspath(self.filepath) if self.filepath else self.action
+        if not source:
+            self.report({"ERROR"}, "choose a CSV file, an action or a mesh performance")
+            return FAILED
+        return attempt(self, retarget.read_retarget, context.active_object, source,
+                       key_pose_action=self.key_pose_action or None, **settings)
+
+    def _done(self, rep):
+        """Report a written result (or a failure) and give the operator's return value."""
         if rep is FAILED:
             return {"CANCELLED"}
         for msg in rep.issues:
             self.report({"WARNING"}, msg)
-        self.report({"INFO"}, f"{rep.action}: {rep.frames} frames, position error "
-                              f"{rep.position_error_rms:.2g} of the size")
+        self.report({"INFO"}, result_message(rep))
         return {"FINISHED"}
+
+    def execute(self, context):
+        with window_progress(context) as progress:
+            plan = self._read(context, scaled(progress, 0.0, READ_SHARE))
+            if plan is FAILED:
+                return {"CANCELLED"}
+            outcome = attempt(self, retarget.compute_retarget, plan, scaled(progress, READ_SHARE, 1.0))
+            if outcome is FAILED:
+                return {"CANCELLED"}
+            return self._done(attempt(self, retarget.write_retarget, outcome, context.scene))
+
+    def invoke(self, context, event):
+        if getattr(context, "window", None) is None:          # no event loop to poll from: run it here
+            return self.execute(context)
+        with window_progress(context) as progress:             # reading a mesh performance takes a while
+            plan = self._read(context, scaled(progress, 0.0, READ_SHARE))
+        if plan is FAILED:
+            return {"CANCELLED"}
+        wm = context.window_manager
+        self._job = retarget.start_retarget_job(plan)
+        self._label = f"Retargeting {os.path.basename(plan.report.source)} onto {plan.obj_name} ({plan.method})"
+        self._timer = wm.event_timer_add(TICK, window=context.window)
+        wm.progress_begin(0, 100)
+        wm.progress_update(int(100 * READ_SHARE))
+        wm.modal_handler_add(self)
+        status_text(context, f"{self._label}: starting… (Esc to cancel)")
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        job = self._job
+        if event.type == "ESC":
+            job.cancel()                      # the worker stops at its next progress call; nothing was written
+            self._stop(context)
+            self.report({"INFO"}, "Retarget cancelled: nothing was changed")
+            return {"CANCELLED"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"} if event.type in NAVIGATION else {"RUNNING_MODAL"}
+        if not job.done:
+            shown = READ_SHARE + (1.0 - READ_SHARE) * job.fraction
+            context.window_manager.progress_update(int(round(100 * shown)))
+            status_text(context, f"{self._label}: {100 * shown:.0f} %, {job.elapsed():.0f} s (Esc to cancel)")
+            return {"RUNNING_MODAL"}
+        self._stop(context)
+        try:
+            rep = attempt(self, retarget.finish_retarget_job, job, context.scene)
+        except Cancelled:
+            self.report({"INFO"}, "Retarget cancelled: nothing was changed")
+            return {"CANCELLED"}
+        return self._done(rep)
+
+    def cancel(self, context):
+        """Blender ends the operator (file closed, window gone): stop the worker, write nothing."""
+        if getattr(self, "_job", None) is not None:
+            self._job.cancel()
+        self._stop(context)
+
+    def _stop(self, context):
+        wm = context.window_manager
+        if getattr(self, "_timer", None) is not None:
+            wm.event_timer_remove(self._timer)
+            self._timer = None
+            wm.progress_end()
+            status_text(context, None)
+
+
+def result_message(rep) -> str:
+    """The one-line summary of a written retarget: action, frames, error, clipped frames, scene range."""
+    text = f"{rep.action}: {rep.frames} frames"
+    if rep.frame_range:
+        text += f" ({rep.frame_range[0]:g}–{rep.frame_range[1]:g})"
+    if rep.position_error_rms is not None:
+        text += f", position error {rep.position_error_rms:.2g} of the size"
+    if rep.clipped_frames:
+        text += f"; beyond the slider ranges at {format_ranges(rep.clipped_frames)}"
+    if rep.scene_range_extended:
+        text += "; scene range extended"
+    return text

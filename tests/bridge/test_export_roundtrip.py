@@ -14,11 +14,8 @@ from shapespace.core.export import sample_frames
 
 TOL = 1e-5
 EXT = bench_export.EXT
-#: bpy 4.2 / 4.5 crash (4.2) or hang (4.5) at interpreter exit after any glTF export once SciPy's optimize module
-#: is loaded — `import bpy, scipy.optimize; bpy.ops.export_scene.gltf(filepath="x.glb")` is enough; not
-#: ShapeSpace's doing.  The glTF cases pass there (checked by hand), but the test process could not exit.
-GLTF_EXITS = bpy.app.version >= (5, 0, 0)
-gltf_exits = pytest.mark.skipif(not GLTF_EXITS, reason="bpy < 5.0 cannot exit after a glTF export with SciPy")
+#: glTF exports: on bpy < 5.0 the test process must end through os._exit (see tests/bridge/conftest.py).
+gltf_exits = pytest.mark.gltf_export
 FORMATS = [pytest.param("gltf", marks=gltf_exits), "fbx", "abc"]
 
 

@@ -317,7 +317,8 @@ def test_the_default_cache_path_stays_in_the_blend_folder(registered, tmp_path, 
     assert os.path.dirname(written) == str(folder) and written.endswith("_correctives.pc2")
     assert ".." not in os.path.basename(written) and "\\" not in os.path.basename(written)
     assert not os.path.exists(abs_target)
-    assert ob.modifiers[posespace.MESH_CACHE_NAME].filepath == written
+    stored = ob.modifiers[posespace.MESH_CACHE_NAME].filepath      # `//`-relative by the preference (#12)
+    assert os.path.normpath(bpy.path.abspath(stored)) == written
     assert read_pc2(written)[0].shape == (2, len(ob.data.vertices), 3)
 
 

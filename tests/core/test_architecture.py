@@ -17,7 +17,7 @@ import pytest
 from core.errors import ErrorCode
 
 REPO_ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))
-CAPABILITIES = ("manipulation", "posespace", "retarget", "facespace", "live", "export")
+CAPABILITIES = ("manipulation", "posespace", "retarget", "facespace", "live", "export", "authoring")
 ADDON_DIRS = ("core", "bridge", "operators", "panels", "properties", "ui", "cli")
 
 

@@ -264,15 +264,18 @@ def test_copy_errors_need_no_dense_residual_and_match_it():
     assert vel == pytest.approx(velocity_error_rms(R, model.scale), rel=1e-13)
 
 
-def test_geometric_fit_beyond_the_memory_budget_is_refused(monkeypatch):
+def test_dense_performance_beyond_the_memory_budget_is_refused_but_weight_fits_build_nothing_dense(monkeypatch):
     import core.retarget.performance as performance
     rng = np.random.default_rng(23)
     model = _tiny_model(rng)
     ideal = np.full((100, 3), 0.5)
+    expected = retarget_weights(model, ideal, "spacetime").weights
     monkeypatch.setattr(performance, "MAX_DENSE_BYTES", 100 * 3 * 20 * 8 - 1)
-    with pytest.raises(ShapeSpaceError) as exc:
-        retarget_weights(model, ideal, "spacetime")
+    with pytest.raises(ShapeSpaceError) as exc:            # a mesh performance: (f, 3p) positions
+        performance.check_dense_budget(100, 20, "a mesh performance")
     assert exc.value.code == "too_large" and "100 frames on 20 vertices" in str(exc.value)
+    # a weight performance is fitted in the rig's own coordinates (reduced_geometry): nothing per vertex
+    np.testing.assert_array_equal(retarget_weights(model, ideal, "spacetime").weights, expected)
     assert retarget_weights(model, ideal, "copy").weights.shape == (100, 3)    # copy builds nothing dense
 
 

@@ -1,0 +1,799 @@
+"""Rig authoring by model transfer (thesis 3.4.1): a source rig's shape keys onto any other head.
+
+The only module that touches Blender for *Transfer Shapes*.  It reads the source rig (neutral, triangles,
+every key's delta, slider ranges, vertex-group masks, driven in-betweens and combinations — see
+:mod:`bridge.driven`) and the target mesh (any topology), keeps the landmark pairs per target object
+(a versioned blob, ``Object['shapespace_landmarks']``), shows the registration as a preview object, and writes the
+transferred shapes onto the target in one step after everything is computed: validate → compute → write,
+and on any failure the file is as before.  The maths is :mod:`core.authoring`.
+
+Deltas are transferred *unmasked*; a source key's vertex-group mask becomes a vertex group of the target
+(weights mapped through the correspondence) named on the new key, so Blender applies it exactly as on the
+source.  In-betweens and combination shapes are transferred as full sculpts and rebuilt on the target with
+:func:`bridge.driven.add_inbetween` / :func:`~bridge.driven.add_combination` (native drivers: they play
+back without the add-on).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+
+from ..core import authoring as core
+from ..core.errors import ErrorCode
+from ..core.result import Result, ShapeSpaceError, Status, to_jsonable
+from ..core.schema import Schema
+from . import driven, shapekeys, storage
+from .arrays import read_float, write_float
+from .meshes import vertex_groups
+
+__all__ = ["MIN_LANDMARKS", "PREVIEW_PROP", "LANDMARKS_PROP", "NAMINGS", "EXISTING", "SourceRig", "TargetMesh",
+           "TransferReport", "read_source_rig", "read_target", "landmark_pairs", "landmark_count", "landmark_list",
+           "add_landmark", "remove_landmark", "set_landmarks", "clear_landmarks", "propose_landmarks",
+           "register_source", "show_preview", "clear_preview", "preview_object", "transfer_shapes",
+           "selected_vertex", "append_object", "remove_appended"]
+
+MIN_LANDMARKS = 5
+PREVIEW_PROP = "shapespace_registration_preview"
+NAMINGS = ("source", "arkit", "suffix", "pascal")
+EXISTING = ("refuse", "skip", "overwrite")
+_TMP = "__shapespace_transfer_tmp"
+_WEIGHT_STEP = 1e-4        # mapped mask weights are written rounded to this (one vertex-group call per value)
+
+
+# ------------------------------------------------------------------ reading
+@dataclass
+class SourceRig:
+    """A source rig as arrays: every non-reference key, unmasked deltas, and what to rebuild on the target."""
+
+    name: str
+    neutral: np.ndarray                 # (p, 3) reference-key positions, object space
+    triangles: np.ndarray               # (f, 3) int
+    names: list                         # every key to transfer, in key order
+    deltas: np.ndarray                  # (n, p, 3) key − its relative key, unmasked
+    slider_min: np.ndarray              # (n,)
+    slider_max: np.ndarray              # (n,)
+    mute: np.ndarray                    # (n,) bool
+    groups: dict                        # key name → vertex-group name (masks)
+    group_weights: dict                 # vertex-group name → (p,) weights
+    inbetweens: dict                    # key name → {"primary", "at"}
+    combinations: dict                  # key name → {"inputs"}
+
+    def full_sculpts(self) -> np.ndarray:
+        """Each key's full shape at its slider = 1: a driven key's correction plus what its drivers add
+        (``t·S_P`` for an in-between of ``P`` at ``t``, ``ΣS_inputs`` for a combination), (n, p, 3)."""
+        index = {n: i for i, n in enumerate(self.names)}
+        out = self.deltas.copy()
+        for name, v in self.inbetweens.items():
+            out[index[name]] += float(v["at"]) * self.deltas[index[v["primary"]]]
+        for name, v in self.combinations.items():
+            out[index[name]] += sum(self.deltas[index[i]] for i in v["inputs"])
+        return out
+
+
+@dataclass
+class TargetMesh:
+    name: str
+    neutral: np.ndarray                 # (q, 3) reference key (or mesh) positions, object space
+    triangles: np.ndarray               # (u, 3) int
+    keys: list                          # existing shape-key names (reference first), [] without keys
+    parts: int                          # connected parts through triangles (loose vertices in none)
+
+
+def _mesh_object(obj, role: str):
+    if obj is None:
+        raise ShapeSpaceError(f"choose the {role} mesh", ErrorCode.NO_OBJECT)
+    if obj.type != "MESH":
+        raise ShapeSpaceError(f"the {role} {obj.name!r} is a {obj.type.lower()}, not a mesh", ErrorCode.NOT_MESH)
+    if obj.mode == "EDIT":
+        raise ShapeSpaceError(f"the {role} {obj.name!r} is in Edit Mode: leave Edit Mode first", ErrorCode.MODE)
+    if len(obj.data.vertices) == 0:
+        raise ShapeSpaceError(f"the {role} {obj.name!r} has no vertices", ErrorCode.EMPTY)
+    return obj
+
+
+def triangles(mesh) -> np.ndarray:
+    """The mesh's triangles from Blender's own tessellation (``loop_triangles``), int (f, 3)."""
+    mesh.calc_loop_triangles()
+    tris = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int32)
+    mesh.loop_triangles.foreach_get("vertices", tris)
+    return tris.reshape(-1, 3).astype(np.int64)
+
+
+def _neutral(obj) -> np.ndarray:
+    key = obj.data.shape_keys
+    if key is not None and len(key.key_blocks):
+        return read_float(key.reference_key.points, "co", 3).astype(np.float64)
+    return read_float(obj.data.vertices, "co", 3).astype(np.float64)
+
+
+def _finite(obj, role: str, name: str, co: np.ndarray) -> None:
+    bad = ~np.isfinite(co)
+    if bad.any():
+        v, axis = (int(i) for i in np.argwhere(bad)[0])
+        raise ShapeSpaceError(f"{role} {obj.name!r}: {name} has a non-finite coordinate ({'xyz'[axis]}) at vertex "
+                              f"{v}", ErrorCode.NON_FINITE)
+
+
+def read_source_rig(obj) -> SourceRig:
+    """Read a rig to transfer from (refuses one without targets, NaN, or damaged keys, naming the culprit)."""
+    _mesh_object(obj, "source rig")
+    errors = [i for i in shapekeys.check_shape_keys(obj) if i.severity == "error"]
+    if errors:
+        raise ShapeSpaceError(f"source rig: {errors[0].message}", errors[0].code)
+    key = obj.data.shape_keys
+    ref = key.reference_key
+    blocks = [kb for kb in key.key_blocks if kb != ref]
+    coords = {kb.name: read_float(kb.points, "co", 3).astype(np.float64) for kb in key.key_blocks}
+    for name, co in coords.items():
+        _finite(obj, "source rig", f"shape key {name!r}", co)
+    meta = driven.prune(key)
+    names = [kb.name for kb in blocks]
+    deltas = np.stack([coords[kb.name] - coords[(kb.relative_key or ref).name] if kb.relative_key != kb
+                       else np.zeros_like(coords[ref.name]) for kb in blocks])
+    used_groups = {kb.name: kb.vertex_group for kb in blocks if kb.vertex_group}
+    groups, weights = {}, {}
+    if used_groups:
+        cache = vertex_groups(obj)
+        for key_name, group in used_groups.items():
+            if group in cache[2]:            # Blender ignores a mask naming a missing group: so do we
+                groups[key_name] = group
+                idx = cache[2].index(group)
+                weights[group] = np.where(cache[0] == idx, cache[1], 0.0).sum(axis=1).astype(np.float64)
+    lo = np.array([kb.slider_min for kb in blocks], dtype=np.float64)
+    hi = np.array([kb.slider_max for kb in blocks], dtype=np.float64)
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        bad = next(kb.name for kb in blocks if not (np.isfinite(kb.slider_min) and np.isfinite(kb.slider_max)))
+        raise ShapeSpaceError(f"source rig {obj.name!r}: shape key {bad!r} has a non-finite slider range",
+                              ErrorCode.NON_FINITE)
+    return SourceRig(name=obj.name, neutral=coords[ref.name], triangles=triangles(obj.data), names=names,
+                     deltas=deltas, slider_min=lo, slider_max=hi,
+                     mute=np.array([kb.mute for kb in blocks], dtype=bool), groups=groups, group_weights=weights,
+                     inbetweens=meta["inbetweens"], combinations=meta["combinations"])
+
+
+def read_target(obj) -> TargetMesh:
+    """Read the mesh to transfer onto: its neutral (reference key, else the mesh), triangles, keys, parts."""
+    _mesh_object(obj, "target")
+    key = obj.data.shape_keys
+    if key is not None:
+        errors = [i for i in shapekeys.check_shape_keys(obj) if i.severity == "error" and i.code != "no_targets"]
+        if errors and errors[0].code != "no_shape_keys":
+            raise ShapeSpaceError(f"target: {errors[0].message}", errors[0].code)
+    neutral = _neutral(obj)
+    _finite(obj, "target", "the neutral", neutral)
+    tris = triangles(obj.data)
+    if not len(tris):
+        raise ShapeSpaceError(f"the target {obj.name!r} has no faces: transfer needs a surface", ErrorCode.EMPTY)
+    keys = [kb.name for kb in key.key_blocks] if key is not None else []
+    parts = len(core.triangle_parts(len(neutral), tris)[1])
+    return TargetMesh(name=obj.name, neutral=neutral, triangles=tris, keys=keys, parts=parts)
+
+
+# ------------------------------------------------------------------ landmarks (per target object)
+#: ``{"pairs": [[source vertex, target vertex], …], "source_vertices": int, "target_vertices": int}`` — the
+#: vertex counts the pairs were placed on (a topology change makes them stale).
+LANDMARKS_PROP = "shapespace_landmarks"
+LANDMARKS_SCHEMA = Schema("transfer landmark pairs", 1,
+                          fields={"pairs": "list", "source_vertices": "int", "target_vertices": "int"})
+
+
+def _stored(target) -> dict:
+    data = storage.read_id_blob(target, LANDMARKS_PROP, LANDMARKS_SCHEMA)
+    pairs = data.get("pairs", [])
+    ok = all(isinstance(p, list) and len(p) == 2 and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
+                                                         for v in p) for p in pairs)
+    if not ok:
+        raise ShapeSpaceError(f"damaged ShapeSpace data in {storage.where(target, LANDMARKS_PROP)}: every pair "
+                              f"needs two vertex indices (Clear Landmarks and place them again)",
+                              ErrorCode.CORRUPT_METADATA)
+    return {"pairs": pairs, "source_vertices": int(data.get("source_vertices", 0)),
+            "target_vertices": int(data.get("target_vertices", 0))}
+
+
+def _store_pairs(target, source, pairs: list) -> None:
+    storage.write_id_blob(target, LANDMARKS_PROP, LANDMARKS_SCHEMA,
+                          {"pairs": [[int(a), int(b)] for a, b in pairs],
+                           "source_vertices": len(source.data.vertices),
+                           "target_vertices": len(target.data.vertices)})
+
+
+def landmark_count(target) -> tuple:
+    """``(number of stored pairs, problem)``: ``problem`` is '' or one line (damaged data); never raises."""
+    if target is None or LANDMARKS_PROP not in target:
+        return 0, ""
+    try:
+        return len(_stored(target)["pairs"]), ""
+    except ShapeSpaceError as exc:
+        return 0, str(exc)
+
+
+def landmark_list(target) -> list:
+    """The stored pairs as ``[(source vertex, target vertex), …]`` ([] when none or damaged); for panels."""
+    try:
+        return [tuple(p) for p in _stored(target)["pairs"]] if LANDMARKS_PROP in target else []
+    except ShapeSpaceError:
+        return []
+
+
+def selected_vertex(obj):
+    """The single selected vertex of a mesh (object-mode data), or None."""
+    sel = np.zeros(len(obj.data.vertices), dtype=bool)
+    obj.data.vertices.foreach_get("select", sel)
+    idx = np.flatnonzero(sel)
+    return int(idx[0]) if idx.size == 1 else None
+
+
+def landmark_pairs(target, source=None, check: bool = True) -> tuple:
+    """The stored pairs ``(source vertices, target vertices)``, int arrays (m,).
+
+    With ``check``: refuses pairs that became stale (either mesh's vertex count changed since they were
+    placed) or point past the end of a mesh, naming the mesh.
+    """
+    data = _stored(target)
+    pairs = np.asarray(data["pairs"], dtype=np.int64).reshape(-1, 2)
+    src, dst = pairs[:, 0].copy(), pairs[:, 1].copy()
+    if check and len(pairs):
+        if data["target_vertices"] != len(target.data.vertices):
+            raise ShapeSpaceError(f"the landmarks of {target.name!r} were placed when it had "
+                                  f"{data['target_vertices']} vertices, now {len(target.data.vertices)}: clear and "
+                                  f"place them again", ErrorCode.STALE_LANDMARKS)
+        if source is not None and data["source_vertices"] != len(source.data.vertices):
+            raise ShapeSpaceError(f"the landmarks of {target.name!r} were placed on a source with "
+                                  f"{data['source_vertices']} vertices; {source.name!r} has "
+                                  f"{len(source.data.vertices)}: clear and place them again",
+                                  ErrorCode.STALE_LANDMARKS)
+        for idx, ob, role in ((src, source, "the source rig"), (dst, target, "the target")):
+            if ob is not None and idx.max() >= len(ob.data.vertices):
+                _check_vertex(ob, int(idx.max()), role)
+    return src, dst
+
+
+def _check_vertex(obj, index: int, role: str) -> int:
+    if not 0 <= int(index) < len(obj.data.vertices):
+        raise ShapeSpaceError(f"{role} {obj.name!r} has no vertex {index}", ErrorCode.RANGE)
+    return int(index)
+
+
+def add_landmark(target, source, source_vertex: int, target_vertex: int) -> int:
+    """Add the pair (replacing a pair already using either vertex); returns the number of pairs."""
+    _mesh_object(source, "source rig")
+    _mesh_object(target, "target")
+    a = _check_vertex(source, source_vertex, "the source rig")
+    b = _check_vertex(target, target_vertex, "the target")
+    src, dst = landmark_pairs(target, source)
+    keep = [(x, y) for x, y in zip(src.tolist(), dst.tolist()) if x != a and y != b]
+    _store_pairs(target, source, keep + [(a, b)])
+    return len(keep) + 1
+
+
+def remove_landmark(target, index: int) -> int:
+    """Remove pair ``index`` (−1: the last one); returns the number left."""
+    data = _stored(target)
+    pairs = data["pairs"]
+    if not -len(pairs) <= index < len(pairs) or not pairs:
+        raise ShapeSpaceError(f"{target.name!r} has no landmark pair {index} ({len(pairs)} placed)", ErrorCode.RANGE)
+    del pairs[index]
+    storage.write_id_blob(target, LANDMARKS_PROP, LANDMARKS_SCHEMA, data)
+    return len(pairs)
+
+
+def clear_landmarks(target) -> None:
+    if LANDMARKS_PROP in target:
+        del target[LANDMARKS_PROP]
+
+
+def set_landmarks(target, source, src_index, dst_index) -> int:
+    """Replace the target's landmark pairs (each vertex used at most once); returns their number."""
+    src = np.asarray(src_index, dtype=np.int64)
+    dst = np.asarray(dst_index, dtype=np.int64)
+    for a in src:
+        _check_vertex(source, a, "the source rig")
+    for b in dst:
+        _check_vertex(target, b, "the target")
+    seen_a, seen_b, pairs = set(), set(), []
+    for a, b in zip(src.tolist(), dst.tolist()):
+        if a not in seen_a and b not in seen_b:
+            seen_a.add(a)
+            seen_b.add(b)
+            pairs.append((a, b))
+    _store_pairs(target, source, pairs)
+    return len(pairs)
+
+
+def _snap(points: np.ndarray, index: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """Vertex indices for landmark points (a free surface point, index −1, snaps to its closest vertex)."""
+    from scipy.spatial import cKDTree
+    index = np.asarray(index, dtype=np.int64).copy()
+    free = index < 0
+    if free.any():
+        index[free] = cKDTree(verts).query(np.asarray(points)[free])[1]
+    return index
+
+
+def propose_landmarks(source, target, method: str = "auto") -> Result:
+    """Propose landmark pairs and store them on the target (replacing the ones it had).
+
+    ``method``: ``shapes`` (from the shape keys both meshes share), ``geometry`` (geometric features of
+    both heads: for a target without shapes), ``auto`` (shapes when the target has shapes the source
+    shares, else geometry).  Returns the core result (value: the number of pairs stored); nothing is
+    stored when it fails.
+    """
+    rig = read_source_rig(source)
+    tgt = read_target(target)
+    if method not in ("auto", "shapes", "geometry"):
+        raise ShapeSpaceError(f"unknown landmark method {method!r}: auto, shapes or geometry", ErrorCode.METHOD)
+    result = None
+    if method in ("auto", "shapes") and len(tgt.keys) > 1:
+        model = shapekeys.read_blendshape_model(target)
+        try:
+            result = core.landmarks_from_shared_shapes(rig.neutral, rig.deltas, rig.names, tgt.neutral,
+                                                       model.deltas, model.names)
+        except ShapeSpaceError:
+            if method == "shapes":
+                raise
+            result = None
+    elif method == "shapes":
+        raise ShapeSpaceError(f"the target {target.name!r} has no shape keys to find landmarks from: use the "
+                              f"geometric proposal", ErrorCode.NO_SHAPE_KEYS)
+    if result is None or result.value is None or len(result.value.names) < MIN_LANDMARKS:
+        if method == "shapes":
+            found = 0 if result is None or result.value is None else len(result.value.names)
+            raise ShapeSpaceError(f"only {found} shared shapes give a landmark; {MIN_LANDMARKS} are needed: use the "
+                                  f"geometric proposal or place them by hand", ErrorCode.TOO_FEW_LANDMARKS)
+        from ..core.authoring.proposal import propose_landmark_pairs
+        result = propose_landmark_pairs(rig.neutral, rig.triangles, rig.full_sculpts(), rig.names, tgt.neutral,
+                                        tgt.triangles)
+    if result.value is None:
+        raise ShapeSpaceError(result.message or "no landmarks could be proposed", ErrorCode.TOO_FEW_LANDMARKS)
+    pairs = result.value
+    src = _snap(pairs.source, pairs.source_index, rig.neutral)
+    dst = _snap(pairs.target, pairs.target_index, tgt.neutral)
+    count = set_landmarks(target, source, src, dst)
+    return Result(count, status=result.status, message=result.message, diagnostics=dict(result.diagnostics),
+                  issues=list(result.issues))
+
+
+def _landmarks_for(source, target, rig: SourceRig, tgt: TargetMesh):
+    src, dst = landmark_pairs(target, source)
+    if len(src) < MIN_LANDMARKS:
+        raise ShapeSpaceError(f"{target.name!r} has {len(src)} landmark pairs; place at least {MIN_LANDMARKS} "
+                              f"(Propose Landmarks, or Add Landmark on a selected vertex pair)",
+                              ErrorCode.TOO_FEW_LANDMARKS)
+    pairs = core.landmarks_from_indices(rig.neutral, tgt.neutral, src, dst)
+    core.check_landmarks(pairs, rig.neutral, tgt.neutral)
+    return pairs
+
+
+# ------------------------------------------------------------------ registration and its preview
+def _progress_adapter(progress):
+    """D's core takes ``progress(fraction, text) -> bool``-style callables as well as ``progress(fraction)``."""
+    if progress is None:
+        return None
+
+    def call(fraction, *_):
+        progress(fraction)
+        return True
+    return call
+
+
+def register_source(source, target, progress=None, rig: SourceRig = None, tgt: TargetMesh = None) -> Result:
+    """Register the source neutral onto the target (landmarks stored on the target); value: the correspondence."""
+    rig = rig or read_source_rig(source)
+    tgt = tgt or read_target(target)
+    pairs = _landmarks_for(source, target, rig, tgt)
+    result = core.register(rig.neutral, rig.triangles, tgt.neutral, tgt.triangles, pairs,
+                           progress=_progress_adapter(progress))
+    if result.value is None or result.status == Status.FAILED:
+        raise ShapeSpaceError(f"registration of {source.name!r} onto {target.name!r} failed: "
+                              f"{result.message or 'no result'}", ErrorCode.DEGENERATE)
+    return result
+
+
+def preview_object(target):
+    """The registration preview object of ``target``, or None."""
+    for ob in target.children:
+        if PREVIEW_PROP in ob and ob.library is None:
+            return ob
+    return None
+
+
+def clear_preview(target) -> bool:
+    """Remove the target's registration preview object and its mesh (nothing is left behind)."""
+    ob = preview_object(target)
+    if ob is None:
+        return False
+    mesh = ob.data
+    bpy.data.objects.remove(ob)
+    if mesh is not None and mesh.users == 0:
+        bpy.data.meshes.remove(mesh)
+    return True
+
+
+def _triangle_mesh(name: str, verts: np.ndarray, tris: np.ndarray):
+    me = bpy.data.meshes.new(name)
+    me.vertices.add(len(verts))
+    write_float(me.vertices, "co", verts)
+    me.loops.add(tris.size)
+    me.loops.foreach_set("vertex_index", np.ascontiguousarray(tris, dtype=np.int32).ravel())
+    me.polygons.add(len(tris))
+    me.polygons.foreach_set("loop_start", np.arange(0, tris.size, 3, dtype=np.int32))
+    me.update(calc_edges=True)
+    me.validate()
+    return me
+
+
+def show_preview(source, target, progress=None) -> tuple:
+    """Register and show the registered source neutral as a wireframe object over the target.
+
+    The preview is one object (parented to the target, not selectable, not rendered), replaced by the next
+    preview and removed with its mesh by :func:`clear_preview` and by a transfer.  Returns
+    ``(preview object, registration result)``.
+    """
+    rig = read_source_rig(source)
+    result = register_source(source, target, progress, rig=rig)
+    corr = result.value
+    clear_preview(target)
+    name = f"{target.name} Registration Preview"
+    me = _triangle_mesh(name, np.asarray(corr.registered, dtype=np.float64), rig.triangles)
+    ob = bpy.data.objects.new(name, me)
+    ob[PREVIEW_PROP] = target.name
+    ob.display_type = "WIRE"
+    ob.show_in_front = True
+    ob.hide_render = True
+    ob.hide_select = True
+    collection = target.users_collection[0] if target.users_collection else bpy.context.scene.collection
+    collection.objects.link(ob)
+    ob.parent = target
+    ob.matrix_parent_inverse.identity()
+    return ob, result
+
+
+# ------------------------------------------------------------------ transfer
+@dataclass
+class TransferReport:
+    """What a transfer did (the command line prints it as JSON)."""
+
+    source: str
+    target: str
+    created: list = field(default_factory=list)          # new key names, in order
+    overwritten: list = field(default_factory=list)
+    skipped: list = field(default_factory=list)          # existing names kept ("skip") and their dependents
+    empty: list = field(default_factory=list)            # source shapes that move nothing (created all the same)
+    inbetweens: list = field(default_factory=list)
+    combinations: list = field(default_factory=list)
+    vertex_groups: list = field(default_factory=list)
+    landmarks: int = 0
+    registration_residual_mm: float = 0.0
+    registration_status: str = "ok"
+    seconds: float = 0.0
+    warnings: list = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return to_jsonable(self)
+
+
+def _new_names(rig: SourceRig, naming: str) -> dict:
+    """Source key name → target key name in the chosen convention (driven keys follow their primaries)."""
+    if naming not in NAMINGS:
+        raise ShapeSpaceError(f"unknown naming {naming!r}: {', '.join(NAMINGS)}", ErrorCode.METHOD)
+    out = {}
+    for n in rig.names:
+        if n not in rig.inbetweens and n not in rig.combinations:
+            out[n] = n if naming == "source" else core.convert_name(n, naming)
+    for n, v in rig.inbetweens.items():
+        default = f"{v['primary']}@{v['at']:g}"
+        out[n] = f"{out[v['primary']]}@{v['at']:g}" if n == default else (
+            n if naming == "source" else core.convert_name(n, naming))
+    for n, v in rig.combinations.items():
+        out[n] = "+".join(out[i] for i in v["inputs"]) if n == "+".join(v["inputs"]) else (
+            n if naming == "source" else core.convert_name(n, naming))
+    by_new = {}
+    for old, new in out.items():
+        if len(new.encode("utf-8")) > 63:
+            raise ShapeSpaceError(f"the new name of {old!r} is longer than Blender's 63 bytes: {new!r}",
+                                  ErrorCode.RESERVED_NAME)
+        if new in by_new:
+            raise ShapeSpaceError(f"source keys {by_new[new]!r} and {old!r} both become {new!r} in this naming "
+                                  f"convention: rename one, or keep the source names", ErrorCode.DUPLICATE_NAME)
+        by_new[new] = old
+    return out
+
+
+def _plan(rig: SourceRig, tgt: TargetMesh, names: dict, existing: str, target_obj) -> tuple:
+    """Which source keys are written, which target keys are replaced, which are skipped (by policy)."""
+    if existing not in EXISTING:
+        raise ShapeSpaceError(f"unknown policy for existing keys {existing!r}: {', '.join(EXISTING)}",
+                              ErrorCode.METHOD)
+    have = set(tgt.keys)
+    reference = tgt.keys[0] if tgt.keys else None
+    clash = [n for n in rig.names if names[n] in have]
+    if clash and existing == "refuse":
+        shown = ", ".join(names[n] for n in clash[:6]) + (f" … ({len(clash)} in all)" if len(clash) > 6 else "")
+        raise ShapeSpaceError(f"{tgt.name!r} already has shape keys named {shown}: choose to skip or "
+                              f"overwrite existing keys (nothing was changed)", ErrorCode.DUPLICATE_NAME)
+    if reference is not None and existing == "overwrite" and any(names[n] == reference for n in clash):
+        raise ShapeSpaceError(f"a source key would replace the basis {reference!r} of {tgt.name!r}: rename it or "
+                              f"skip existing keys", ErrorCode.RESERVED_NAME)
+    skip = set(clash) if existing == "skip" else set()
+    # driven keys whose primary / inputs were skipped are skipped too (their correction belongs to our primary)
+    for n, v in rig.inbetweens.items():
+        if v["primary"] in skip:
+            skip.add(n)
+    for n, v in rig.combinations.items():
+        if any(i in skip for i in v["inputs"]):
+            skip.add(n)
+    write = [n for n in rig.names if n not in skip]
+    replace = [names[n] for n in write if names[n] in have]
+    groups_clash = sorted({rig.groups[n] for n in write if n in rig.groups
+                           and rig.groups[n] in target_obj.vertex_groups})
+    if groups_clash and existing == "refuse":
+        raise ShapeSpaceError(f"{tgt.name!r} already has vertex groups named {', '.join(groups_clash)} (masks of "
+                              f"the source keys): choose to skip or overwrite existing keys", ErrorCode.DUPLICATE_NAME)
+    return write, replace, sorted(skip, key=rig.names.index), groups_clash
+
+
+def _map_weights(corr, src_tris: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per-vertex source values at each target vertex's corresponding source point (0 where unmapped)."""
+    tri = np.asarray(corr.tri, dtype=np.int64)
+    ok = tri >= 0
+    out = np.zeros(len(tri), dtype=np.float64)
+    corners = src_tris[tri[ok]]                                  # (m, 3)
+    out[ok] = np.einsum("ij,ij->i", np.asarray(corr.bary, dtype=np.float64)[ok], weights[corners])
+    return np.clip(out, 0.0, 1.0)
+
+
+def _fill_group(group, weights: np.ndarray) -> None:
+    rounded = np.round(weights / _WEIGHT_STEP) * _WEIGHT_STEP
+    for w in np.unique(rounded[rounded > 0]):
+        group.add(np.flatnonzero(rounded == w).tolist(), float(w), "REPLACE")
+
+
+def _set_range(kb, lo: float, hi: float) -> None:
+    kb.slider_max = 10.0
+    kb.slider_min = float(lo)
+    kb.slider_max = float(hi)
+
+
+def _write(target, rig: SourceRig, names: dict, write: list, replace: list, full: np.ndarray, base: np.ndarray,
+           masks: dict, replace_groups: bool, report: TransferReport) -> None:
+    """Write every new key (plain ones, then in-betweens and combinations through the driven verbs).
+
+    Keys and mask groups that replace existing ones are written under temporary names first; only when
+    everything is written are the old ones removed and the new ones renamed (drivers that referred to an
+    old key by name then find the new one).  Any failure before that removes everything new and restores
+    the driven-key blob, so the file is as before.
+    """
+    index = {n: i for i, n in enumerate(rig.names)}
+    made_key = target.data.shape_keys is None
+    old_keys = set() if made_key else {kb.name for kb in target.data.shape_keys.key_blocks}
+    old_groups = {g.name for g in target.vertex_groups}
+    old_meta = None if made_key else target.data.shape_keys.get(driven.PROP)
+    replacing = set(replace)
+    live = {n: (f"{_TMP}{i}" if names[n] in replacing else names[n]) for i, n in enumerate(write)}
+    new_groups, swap_groups = [], {}
+    try:
+        if made_key:
+            target.shape_key_add(name="Basis", from_mix=False)
+        blocks = target.data.shape_keys.key_blocks
+        group_names = {}
+        for j, (group, weights) in enumerate(masks.items()):
+            if group in old_groups and not replace_groups:
+                group_names[group] = group                       # "skip": the target's own group is kept
+                continue
+            made = target.vertex_groups.new(name=group if group not in old_groups else f"{_TMP}g{j}")
+            new_groups.append(made.name)
+            _fill_group(made, weights)
+            group_names[group] = group
+            if group in old_groups:
+                swap_groups[made.name] = group
+        for n in write:
+            if n in rig.inbetweens or n in rig.combinations:
+                continue
+            kb = target.shape_key_add(name=live[n], from_mix=False)
+            write_float(kb.data, "co", base + full[index[n]])
+        for n in [n for n in write if n in rig.inbetweens] + [n for n in write if n in rig.combinations]:
+            tmp = target.shape_key_add(name=_TMP, from_mix=False)
+            write_float(tmp.data, "co", base + full[index[n]])
+            if n in rig.inbetweens:
+                v = rig.inbetweens[n]
+                driven.add_inbetween(target, live.get(v["primary"], names[v["primary"]]), tmp.name,
+                                     float(v["at"]), name=live[n])
+                report.inbetweens.append(names[n])
+            else:
+                inputs = [live.get(i, names[i]) for i in rig.combinations[n]["inputs"]]
+                driven.add_combination(target, inputs, tmp.name, name=live[n])
+                report.combinations.append(names[n])
+        for n in write:
+            kb = blocks[live[n]]
+            i = index[n]
+            _set_range(kb, rig.slider_min[i], rig.slider_max[i])
+            kb.mute = bool(rig.mute[i])
+            kb.value = 0.0
+            if n in rig.groups:
+                kb.vertex_group = group_names[rig.groups[n]]
+    except Exception:
+        _undo_write(target, old_keys, new_groups, made_key, old_meta)
+        raise
+    # everything is written: now replace the old keys and groups (plain renames and removals)
+    for name in replace:                                         # validated: never the reference key
+        old = blocks[name]
+        old.driver_remove("value")
+        target.shape_key_remove(old)
+    for n in write:
+        if live[n] != names[n]:
+            blocks[live[n]].name = names[n]                      # drivers referring to it follow the rename
+    for tmp_name, final in swap_groups.items():
+        target.vertex_groups.remove(target.vertex_groups[final])
+        target.vertex_groups[tmp_name].name = final
+    if replace:
+        key = target.data.shape_keys
+        storage.write_id_blob(key, driven.PROP, driven.SCHEMA, driven.prune(key))
+    report.overwritten = list(replace)
+    report.created = [names[n] for n in write]
+    report.vertex_groups = sorted(group_names.values())
+    target.data.update()
+
+
+def _undo_write(target, old_keys: set, groups: list, made_key: bool, old_meta) -> None:
+    """Remove what :func:`_write` made (every key not there before, with its driver; new groups) and restore
+    the driven-key blob."""
+    key = target.data.shape_keys
+    if key is not None and not made_key:
+        if old_meta is None:
+            key.pop(driven.PROP, None)
+        else:
+            key[driven.PROP] = old_meta
+    if key is not None:
+        for kb in [kb for kb in key.key_blocks if kb.name not in old_keys and kb != key.reference_key]:
+            target.shape_key_remove(kb)
+        if made_key and target.data.shape_keys is not None:
+            target.shape_key_clear()
+    for name in groups:
+        g = target.vertex_groups.get(name)
+        if g is not None:
+            target.vertex_groups.remove(g)
+
+
+def transfer_shapes(source, target, naming: str = "source", existing: str = "refuse", unmatched_parts: str = "keep",
+                    progress=None) -> TransferReport:
+    """Transfer every shape key of ``source`` onto ``target`` (validate → compute → write).
+
+    Parameters
+    ----------
+    source, target : bpy.types.Object
+        Meshes; the target may have any topology and vertex count and needs ≥ 5 landmark pairs.
+    naming : {"source", "arkit", "suffix", "pascal"}
+    existing : {"refuse", "skip", "overwrite"}
+        Target keys (and mask vertex groups) that already have a new name: refuse naming them (default),
+        keep them (their in-betweens/combinations are skipped too), or replace them.
+    unmatched_parts : {"keep", "refuse"}
+        Separate parts of the target the source does not have (eyes, teeth): they stay still, or refuse.
+    progress : callable(fraction) or None
+
+    Raises
+    ------
+    core.ShapeSpaceError
+        Before anything is written; the file is unchanged.
+    """
+    start = time.perf_counter()
+    if source is not None and target is not None and source == target:
+        raise ShapeSpaceError("the source rig and the target are the same object", ErrorCode.SAME_KEY)
+    if unmatched_parts not in ("keep", "refuse"):
+        raise ShapeSpaceError(f"unknown unmatched-parts policy {unmatched_parts!r}: keep or refuse", ErrorCode.METHOD)
+    rig = read_source_rig(source)
+    tgt = read_target(target)
+    if target.library is not None or target.data.library is not None:
+        raise ShapeSpaceError(f"{target.name!r} is linked from a library: make it local first", ErrorCode.LINKED)
+    names = _new_names(rig, naming)
+    write, replace, skipped, groups_clash = _plan(rig, tgt, names, existing, target)
+    if not write:
+        raise ShapeSpaceError(f"{target.name!r} already has every shape of {source.name!r}: nothing to transfer",
+                              ErrorCode.NO_TARGETS)
+    report = TransferReport(source=source.name, target=target.name, skipped=[names[n] for n in skipped])
+    notify = progress or (lambda fraction: None)
+    notify(0.0)
+    result = register_source(source, target, lambda f: notify(0.6 * f), rig=rig, tgt=tgt)
+    corr = result.value
+    report.landmarks = len(landmark_pairs(target, source)[0])
+    report.registration_residual_mm = float(getattr(corr, "residual_mm", result.diagnostics.get("residual_mm", 0.0)))
+    report.registration_status = {Status.OK: "ok", Status.WARNING: "warning",
+                                  Status.NOT_CONVERGED: "not_converged"}.get(result.status, "ok")
+    if result.status != Status.OK and result.message:
+        report.warnings.append(f"registration: {result.message}")
+    transfer = core.Transfer(rig.neutral, rig.triangles, tgt.neutral, tgt.triangles, corr,
+                             unmatched_parts=unmatched_parts)
+    for issue in getattr(transfer, "issues", []) or []:
+        report.warnings.append(getattr(issue, "message", str(issue)))
+    notify(0.7)
+    rows = [rig.names.index(n) for n in write]
+    sculpts = rig.full_sculpts()[rows]
+    chunk = 8                                    # the core solves 8 shapes at a time: same numbers, progress between
+    solved = np.zeros((len(rows),) + tgt.neutral.shape)
+    for c0 in range(0, len(rows), chunk):
+        solved[c0:c0 + chunk] = transfer.solve(sculpts[c0:c0 + chunk])
+        notify(0.7 + 0.2 * min(len(rows), c0 + chunk) / len(rows))
+    if not np.isfinite(solved).all():
+        bad = write[int(np.argwhere(~np.isfinite(solved))[0][0])]
+        raise ShapeSpaceError(f"the transfer of {bad!r} produced non-finite positions: nothing was written",
+                              ErrorCode.NON_FINITE)
+    full = np.zeros((len(rig.names),) + tgt.neutral.shape)
+    full[rows] = solved
+    scale = float(np.linalg.norm(np.ptp(rig.neutral, axis=0))) or 1.0
+    report.empty = [names[n] for n, d in zip(write, sculpts) if np.abs(d).max() <= 1e-9 * scale]
+    masks = {}
+    for n in write:
+        group = rig.groups.get(n)
+        if group is not None and group not in masks:
+            masks[group] = _map_weights(corr, rig.triangles, rig.group_weights[group])
+    notify(0.9)
+    _write(target, rig, names, write, replace, full, tgt.neutral, masks, existing == "overwrite", report)
+    clear_preview(target)                       # it served its purpose; the result file does not keep it
+    report.skipped = [names[n] for n in skipped] + ([f"vertex group {g} (kept)" for g in groups_clash]
+                                                  if existing == "skip" else [])
+    notify(1.0)
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+# ------------------------------------------------------------------ a source rig from another .blend (command line)
+_ID_COLLECTIONS = ("actions", "armatures", "brushes", "cache_files", "cameras", "collections", "curves", "fonts",
+                   "grease_pencils", "grease_pencils_v3", "hair_curves", "images", "lattices", "libraries",
+                   "lightprobes", "lights", "linestyles", "masks", "materials", "meshes", "metaballs", "movieclips",
+                   "node_groups", "objects", "paint_curves", "palettes", "particles", "pointclouds", "scenes",
+                   "screens", "shape_keys", "sounds", "speakers", "texts", "textures", "volumes", "workspaces",
+                   "worlds")
+
+
+def _all_ids() -> dict:
+    out = {}
+    for attr in _ID_COLLECTIONS:
+        coll = getattr(bpy.data, attr, None)
+        if coll is None:
+            continue
+        for idb in coll:
+            out[idb.as_pointer()] = idb
+    return out
+
+
+def append_object(path: str, name: str) -> tuple:
+    """Append object ``name`` (with what it uses) from the .blend ``path``, local to this file.
+
+    Returns ``(object, appended)``: ``appended`` lists every datablock the append created, for
+    :func:`remove_appended` (the output file keeps none of them).
+    """
+    import os
+    if not os.path.isfile(path):
+        raise ShapeSpaceError(f"file not found: {path}", ErrorCode.MISSING_FILE)
+    before = set(_all_ids())
+    try:
+        with bpy.data.libraries.load(path, link=False) as (data_from, data_to):
+            if name not in data_from.objects:
+                shown = ", ".join(sorted(data_from.objects)[:8])
+                raise ShapeSpaceError(f"{path} has no object named {name!r} (objects: {shown or 'none'})",
+                                      ErrorCode.MISSING_OBJECT)
+            data_to.objects = [name]
+    except OSError as exc:
+        raise ShapeSpaceError(f"cannot read {path}: {exc}", ErrorCode.CORRUPT_FILE) from None
+    appended = [idb for ptr, idb in _all_ids().items() if ptr not in before]
+    obj = next((o for o in data_to.objects if o is not None), None)
+    if obj is None:
+        remove_appended(appended)
+        raise ShapeSpaceError(f"cannot append {name!r} from {path}", ErrorCode.CORRUPT_FILE)
+    return obj, appended
+
+
+def remove_appended(appended: list) -> None:
+    """Remove the datablocks :func:`append_object` created (nothing else of the file is touched)."""
+    alive = set(_all_ids())
+    ids = []
+    for idb in appended:
+        try:
+            if idb.as_pointer() in alive:
+                ids.append(idb)
+        except ReferenceError:        # already gone
+            continue
+    if ids:
+        bpy.data.batch_remove(ids)

@@ -1,0 +1,183 @@
+"""``shapespace transfer``: give a head a source rig's shape keys by model transfer (thesis 3.4.1).
+
+    blender -b target.blend --command shapespace transfer --source-rig template.blend:Object --object Head \\
+        --out rigged.blend [--naming source|arkit|suffix|pascal] [--existing refuse|skip|overwrite]
+        [--landmarks auto|stored|shapes|geometry] [--unmatched-parts keep|refuse] [--report FILE] [--dry-run]
+
+The source rig is appended from its .blend, used, and removed again: the saved file holds the target with its
+new keys only (plus the landmark pairs used, stored on the target for the next run).  stdout carries only the
+JSON report; progress goes to stderr.  Exit codes: 0 done; 1 bad input or a registration that stopped at its
+iteration limit (the result is saved all the same and the report says so); 2 usage.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import bpy
+
+from ..core.errors import ErrorCode
+from ..core.result import ShapeSpaceError
+from .outputs import check_output, same_file
+
+HELP = "give a head a source rig's shape keys by model transfer (landmarks, registration, deformation transfer)"
+EPILOG = """\
+--source-rig FILE.blend:OBJECT appends OBJECT from FILE.blend for the transfer and removes it again (the saved
+file holds only the target's new keys); a bare OBJECT names a mesh of the opened file.
+Landmarks: 'auto' (default) uses the pairs stored on the target when it has at least 5 for this source,
+else proposes them (from shared shapes, else from the heads' geometry) and stores them on the target.
+Existing keys of the same names are refused unless --existing skip|overwrite says otherwise.
+Saving: --out never overwrites an input (the opened .blend, the source .blend); --overwrite allows saving into
+the opened .blend (Blender keeps the old one as .blend1) or replacing a file of another kind."""
+
+
+def add_parser(sub) -> None:
+    import argparse
+    tr = sub.add_parser("transfer", help=HELP, epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    tr.add_argument("--source-rig", required=True, metavar="FILE.blend:OBJECT",
+                    help="the rig whose shape keys are transferred (an object of another .blend, or of this one)")
+    tr.add_argument("--object", help="target mesh (default: the only mesh of the file without the source)")
+    tr.add_argument("--naming", choices=("source", "arkit", "suffix", "pascal"), default="source",
+                    help="naming convention of the new keys (default: the source's names)")
+    tr.add_argument("--existing", choices=("refuse", "skip", "overwrite"), default="refuse",
+                    help="target keys that already have a new name: refuse (default), keep them, or replace them")
+    tr.add_argument("--landmarks", choices=("auto", "stored", "shapes", "geometry"), default="auto",
+                    help="landmark pairs: stored on the target, proposed from shared shapes or geometry, or auto")
+    tr.add_argument("--unmatched-parts", choices=("keep", "refuse"), default="keep",
+                    help="target parts without a source counterpart (eyes, teeth): keep them still, or refuse")
+    tr.add_argument("--target", help="target .blend to open first (default: the open file)")
+    tr.add_argument("--out", help="save the result as this .blend")
+    tr.add_argument("--dry-run", action="store_true", help="compute and report only; save nothing")
+    tr.add_argument("--report", help="write the JSON report here instead of stdout")
+    tr.add_argument("--overwrite", action="store_true",
+                    help="allow --out onto the opened .blend, and replacing a file of another kind")
+
+
+def _say(text: str) -> None:
+    print(f"shapespace: {text}", file=sys.stderr, flush=True)
+
+
+def _split_source(spec: str) -> tuple:
+    """``FILE.blend:OBJECT`` → (file, object); a bare ``OBJECT`` → ("", object)."""
+    low = spec.lower()
+    cut = low.rfind(".blend:")
+    if cut >= 0:
+        path, name = spec[:cut + len(".blend")], spec[cut + len(".blend:"):]
+        if not name:
+            raise ShapeSpaceError(f"--source-rig {spec}: name the object after the colon (FILE.blend:OBJECT)",
+                                  ErrorCode.USAGE)
+        return path, name
+    if low.endswith(".blend"):
+        raise ShapeSpaceError(f"--source-rig {spec}: name the rig object too (FILE.blend:OBJECT)", ErrorCode.USAGE)
+    return "", spec
+
+
+def _target(name, exclude):
+    meshes = [ob for ob in bpy.data.objects if ob.type == "MESH" and ob not in exclude
+              and ob.get("shapespace_registration_preview") is None]
+    if name:
+        ob = bpy.data.objects.get(name)
+        if ob is None or ob.type != "MESH":
+            raise ShapeSpaceError(f"no mesh named {name!r} to transfer onto", ErrorCode.MISSING_OBJECT)
+        return ob
+    if len(meshes) != 1:
+        shown = ", ".join(ob.name for ob in meshes[:6]) + (" …" if len(meshes) > 6 else "")
+        raise ShapeSpaceError(f"{len(meshes)} meshes ({shown or 'none'}): choose the target with --object",
+                              ErrorCode.AMBIGUOUS_OBJECT)
+    return meshes[0]
+
+
+def _landmarks(bridge, source, target, how: str) -> str:
+    if how == "stored":
+        return "stored"                      # the transfer refuses fewer than 5, stale or damaged pairs
+    if how == "auto" and bridge.landmark_count(target)[0] >= bridge.MIN_LANDMARKS:
+        try:
+            bridge.landmark_pairs(target, source)
+            return "stored"
+        except ShapeSpaceError as exc:       # stale: propose new ones (said on stderr)
+            _say(f"stored landmarks not used: {exc}")
+    result = bridge.propose_landmarks(source, target, "auto" if how == "auto" else how)
+    if result.message and result.status != 0:
+        _say(f"warning: landmarks: {result.message}")
+    _say(f"{result.value} landmark pairs proposed ({how})")
+    return "proposed"
+
+
+def transfer(args, inputs: list) -> tuple:
+    """``transfer``: returns (exit code, JSON text for stdout or None)."""
+    from ..bridge import assets
+    from ..bridge import authoring as bridge
+    if bool(args.out) == bool(args.dry_run):
+        raise ShapeSpaceError("transfer: give --out FILE.blend to save the result, or --dry-run to only report it"
+                              if not args.out else "transfer: --out and --dry-run exclude each other", ErrorCode.USAGE)
+    src_file, src_name = _split_source(args.source_rig)
+    opened = args.target or bpy.data.filepath or (inputs[0] if inputs else "")
+    read = [p for p in (bpy.data.filepath, args.target, *inputs, src_file) if p]
+    out = check_output("--out", args.out, "blend", read, args.overwrite, opened)
+    if args.out and args.report and same_file(args.out, args.report):
+        raise ShapeSpaceError(f"--report {args.report}: is also the --out file; give two files", ErrorCode.OVERWRITE)
+    report_out = check_output("--report", args.report, "json", read, args.overwrite)
+    if src_file and not os.path.isfile(src_file):
+        raise ShapeSpaceError(f"--source-rig: file not found: {src_file}", ErrorCode.MISSING_FILE)
+    if args.target:
+        assets.load(args.target)
+    if src_file and bpy.data.filepath and same_file(src_file, bpy.data.filepath):
+        src_file = ""                            # the rig is in the opened file itself: nothing to append
+    appended = []
+    try:
+        if src_file:
+            source, appended = bridge.append_object(src_file, src_name)
+        else:
+            source = bpy.data.objects.get(src_name)
+            if source is None:
+                raise ShapeSpaceError(f"--source-rig: no object named {src_name!r} in {opened or 'the open file'}",
+                                      ErrorCode.MISSING_OBJECT)
+        target = _target(args.object, {source})
+        if target == source:
+            raise ShapeSpaceError("--source-rig and --object name the same mesh", ErrorCode.SAME_KEY)
+        _say(f"transfer {source.name} → {target.name}")
+        landmarks = _landmarks(bridge, source, target, args.landmarks)
+        step = {"last": -1}
+
+        def progress(fraction: float) -> None:
+            tenth = int(fraction * 10)
+            if tenth > step["last"]:
+                step["last"] = tenth
+                _say(f"{tenth * 10}%")
+
+        rep = bridge.transfer_shapes(source, target, naming=args.naming, existing=args.existing,
+                                     unmatched_parts=args.unmatched_parts, progress=progress)
+    finally:
+        bridge.remove_appended(appended)
+    for warning in rep.warnings:
+        _say(f"warning: {warning}")
+    _say(f"{len(rep.created)} shape keys onto {target.name} in {rep.seconds:.1f} s "
+         f"(registration residual {rep.registration_residual_mm:.2f} mm)")
+    code = 1 if rep.registration_status == "not_converged" else 0
+    payload = {**rep.to_json(), "source_file": src_file or None, "landmarks_from": landmarks,
+               "saved": out.path if out is not None else None, "ok": code == 0}
+    text = json.dumps(payload, indent=2)
+    if report_out is not None:
+        report_out.stage_text(text + "\n")
+    try:
+        if out is not None:
+            _save(out)
+        if report_out is not None:
+            report_out.commit()
+    finally:
+        if report_out is not None:
+            report_out.discard()
+    return code, (text if report_out is None else None)
+
+
+def _save(out) -> None:
+    try:
+        bpy.ops.wm.save_as_mainfile(filepath=out.abspath, check_existing=False)
+    except RuntimeError as exc:
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip() and not ln.startswith("Location:")]
+        raise out.fail(f"cannot be saved ({lines[-1] if lines else exc})") from None
+    _say(f"saved {out.path}")
+
+
+COMMANDS = {"transfer": transfer}

@@ -1,0 +1,18 @@
+"""Operators: Rig authoring ▸ Transfer Shapes (model transfer, thesis 3.4.1)."""
+from .add_landmark_pair import SHAPESPACE_OT_add_landmark_pair
+from .clear_landmark_pairs import SHAPESPACE_OT_clear_landmark_pairs
+from .clear_registration_preview import SHAPESPACE_OT_clear_registration_preview
+from .preview_registration import SHAPESPACE_OT_preview_registration
+from .propose_landmarks import SHAPESPACE_OT_propose_landmarks
+from .remove_landmark_pair import SHAPESPACE_OT_remove_landmark_pair
+from .transfer_shapes import SHAPESPACE_OT_transfer_shapes
+
+classes = (
+    SHAPESPACE_OT_add_landmark_pair,
+    SHAPESPACE_OT_clear_landmark_pairs,
+    SHAPESPACE_OT_clear_registration_preview,
+    SHAPESPACE_OT_preview_registration,
+    SHAPESPACE_OT_propose_landmarks,
+    SHAPESPACE_OT_remove_landmark_pair,
+    SHAPESPACE_OT_transfer_shapes,
+)

@@ -1,0 +1,33 @@
+import bpy
+
+from ...bridge import symmetry
+from ...core.result import ShapeSpaceError
+from ..polls import sculpted_key
+
+
+class SHAPESPACE_OT_mirror_shape(bpy.types.Operator):
+    """Create the mirror image of the active shape key on the other side (browDown_L → browDown_R, otherwise
+<name>_mirror), through the mesh's mirror map"""
+
+    bl_idname = "shapespace.mirror_shape"
+    bl_label = "Mirror Shape"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return sculpted_key(cls, context, "source") is not None
+
+    def execute(self, context):
+        ob = context.active_object
+        try:
+            mmap, stored = symmetry.map_for(ob)
+            name, res = symmetry.mirror_shape(ob, ob.active_shape_key.name, mmap)
+        except ShapeSpaceError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        note = "" if stored else " (no stored mirror map: used an automatic one)"
+        if res.status != 0:
+            self.report({"WARNING"}, f"Created {name}{note}; {res.message}")
+        else:
+            self.report({"INFO"}, f"Created {name}{note}")
+        return {"FINISHED"}

@@ -1,0 +1,31 @@
+"""Stored per target object: the Transfer Shapes settings (``Object.shapespace_authoring``).
+
+No ``update=``/``poll=`` callbacks (bpy 4.2 crashes at exit with them).  The landmark pairs are a versioned
+JSON blob on the object (``Object["shapespace_landmarks"]``, :mod:`bridge.authoring`), so the command line
+reads them without the add-on's classes.
+"""
+import bpy
+
+NAMING = [("source", "Source Names", "Keep the source rig's key names"),
+          ("arkit", "ARKit camelCase", "eyeBlinkLeft, jawOpen, …"),
+          ("suffix", "_L / _R", "eyeBlink_L, jawOpen, …"),
+          ("pascal", "PascalCase", "EyeBlinkLeft, JawOpen, … (Live Link Face)")]
+EXISTING = [("refuse", "Refuse", "Stop, naming the target's keys that already have one of the new names"),
+            ("skip", "Skip Existing", "Keep the target's keys; transfer only shapes it does not have yet"),
+            ("overwrite", "Overwrite", "Replace the target's keys of the same names")]
+PARTS = [("keep", "Keep Still", "Separate parts of this mesh with no counterpart on the source (eyes, teeth) "
+          "stay still in every new shape; the report names them"),
+         ("refuse", "Refuse", "Stop when a separate part of this mesh has no counterpart on the source")]
+
+
+class SHAPESPACE_PG_authoring(bpy.types.PropertyGroup):
+    """Transfer Shapes settings of a target mesh (what the Rig ▸ Transfer Shapes panel edits)."""
+
+    source: bpy.props.PointerProperty(name="Source Rig", type=bpy.types.Object,
+                                      description="The mesh whose shape keys are transferred onto this one")
+    naming: bpy.props.EnumProperty(name="Naming", items=NAMING, default="source",
+                                   description="Naming convention of the transferred keys")
+    existing: bpy.props.EnumProperty(name="Existing Keys", items=EXISTING, default="refuse",
+                                     description="What to do when this mesh already has keys of the new names")
+    unmatched_parts: bpy.props.EnumProperty(name="Unmatched Parts", items=PARTS, default="keep",
+                                            description="Separate parts of this mesh the source rig does not have")
