@@ -99,6 +99,24 @@ def psd_mesh(cls, context, need_example: bool = False):
     return ob
 
 
+def psd_sculpt(cls, context, verb: str = "apply"):
+    """The active pose-space mesh when its active example has a posed sculpt copy (not in Edit Mode, whose mesh
+    data is stale until it is left); otherwise say why and return None."""
+    ob = psd_mesh(cls, context, need_example=True)
+    if ob is None:
+        return None
+    st = ob.shapespace_psd
+    ex = st.examples[st.active_example]
+    if ex.sculpt is None:
+        cls.poll_message_set(f"Example '{ex.name}' has no posed copy to {verb}")
+        return None
+    if ex.sculpt.mode == "EDIT":
+        cls.poll_message_set(f"The sculpt copy '{ex.sculpt.name}' is in Edit Mode: leave Edit Mode first (its "
+                             "mesh data is not up to date until then)")
+        return None
+    return ob
+
+
 def prior_rig(cls, context):
     """The active rig when it has a learnt face prior; otherwise say why and return None."""
     ob = active_rig(cls, context)

@@ -72,20 +72,14 @@ def push_sculpt_masked(obj, example_name: str, groups, mirror: bool = False, rem
     the fraction done while inverting through Blender's own evaluation.
     Returns the names of the keys made.  Nothing is written when anything is refused.
     """
-    from .sculpt import _invert, _sculpt_positions
+    from .sculpt import _invert, sculpt_positions_of
     check_not_editing(obj)
     check_topology(obj)
     ex = find_example(obj, example_name)
     check_examples(obj)
     groups = [str(g) for g in groups]
     masks = _masks(obj, groups)
-    p = len(obj.data.vertices)
-    if sculpt_positions is None:
-        sculpt_positions = _sculpt_positions(obj, ex)
-    sculpt_positions = np.asarray(sculpt_positions, dtype=np.float64)
-    if sculpt_positions.shape != (p, 3):
-        raise ShapeSpaceError(f"sculpt positions must have shape ({p}, 3)", ErrorCode.SHAPE)
-    check_finite_positions(sculpt_positions, f"the sculpt of {ex.name!r}")
+    sculpt_positions = sculpt_positions_of(obj, ex, sculpt_positions)
     plan = _names(ex.name, groups, remainder, mirror)
     key = obj.data.shape_keys
     examples = {e.name for e in settings(obj).examples}

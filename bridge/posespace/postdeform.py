@@ -276,7 +276,7 @@ def apply_post_deform(obj, example_name: str, sculpt_positions=None, progress=No
     per-example weight to drive the offsets) and when a modifier changes the topology.  Returns the
     rest-space ``InversionResult`` (its residual is the rest-space one).
     """
-    from .sculpt import _sculpt_positions, apply_example
+    from .sculpt import apply_example, sculpt_positions_of
     check_not_editing(obj)
     check_topology(obj)
     st = settings(obj)
@@ -287,12 +287,7 @@ def apply_post_deform(obj, example_name: str, sculpt_positions=None, progress=No
                               "Example (weighted PSD blends per vertex)", ErrorCode.METHOD)
     check_post_deform_stack(obj)
     p = len(obj.data.vertices)
-    if sculpt_positions is None:
-        sculpt_positions = _sculpt_positions(obj, ex)
-    sculpt_positions = np.asarray(sculpt_positions, dtype=np.float64)
-    if sculpt_positions.shape != (p, 3):
-        raise ShapeSpaceError(f"sculpt positions must have shape ({p}, 3)", ErrorCode.SHAPE)
-    check_finite_positions(sculpt_positions, f"the sculpt of {ex.name!r}")
+    sculpt_positions = sculpt_positions_of(obj, ex, sculpt_positions)
     blocks = obj.data.shape_keys.key_blocks
     was = ex.post_deform
     had = attribute_name(ex.name) in obj.data.attributes

@@ -39,6 +39,17 @@ def modelled_exactly(obj) -> bool:
     return not any(i.severity == "error" or i.code == "bbones" for i in problems)
 
 
+def sculpt_positions_of(obj, ex, given=None) -> np.ndarray:
+    """The sculpt to invert, (p, 3) float64 in ``obj``'s object space: ``given`` when the caller passes
+    positions (checked for shape and finiteness), else the example's sculpt copy's vertices."""
+    p = len(obj.data.vertices)
+    positions = np.asarray(_sculpt_positions(obj, ex) if given is None else given, dtype=np.float64)
+    if positions.shape != (p, 3):
+        raise ShapeSpaceError(f"sculpt positions must have shape ({p}, 3)", ErrorCode.SHAPE)
+    check_finite_positions(positions, f"the sculpt of {ex.name!r}")
+    return positions
+
+
 def _sculpt_positions(obj, ex) -> np.ndarray:
     """The sculpt copy's vertices in ``obj``'s object space."""
     p = len(obj.data.vertices)
@@ -84,13 +95,7 @@ def apply_example(obj, example_name: str, sculpt_positions=None, progress=None) 
     st = settings(obj)
     ex = find_example(obj, example_name)
     check_examples(obj)
-    p = len(obj.data.vertices)
-    if sculpt_positions is None:
-        sculpt_positions = _sculpt_positions(obj, ex)
-    sculpt_positions = np.asarray(sculpt_positions, dtype=np.float64)
-    if sculpt_positions.shape != (p, 3):
-        raise ShapeSpaceError(f"sculpt positions must have shape ({p}, 3)", ErrorCode.SHAPE)
-    check_finite_positions(sculpt_positions, f"the sculpt of {ex.name!r}")
+    sculpt_positions = sculpt_positions_of(obj, ex, sculpt_positions)
     basis = basis_positions(obj)
     result = _invert(obj, pre_armature_positions(obj), sculpt_positions, progress)
     check_finite_positions(result.corrective, f"the inverted corrective of {ex.name!r}")

@@ -3,7 +3,7 @@ import bpy
 from ...bridge import authoring
 from ...core.result import ShapeSpaceError
 from ._polls import transfer_target
-from ._progress import window_progress
+from ..progress import window_progress
 
 
 class SHAPESPACE_OT_transfer_shapes(bpy.types.Operator):

@@ -2,9 +2,9 @@ import bpy
 
 from ...bridge import posespace
 from ...core.result import Status
-from ..polls import psd_mesh
+from ..polls import psd_sculpt
 from ..reporting import FAILED, attempt, report_issues
-from .progress import window_progress
+from ..progress import window_progress
 
 
 class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
@@ -19,20 +19,7 @@ class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        ob = psd_mesh(cls, context, need_example=True)
-        if ob is None:
-            return False
-        st = ob.shapespace_psd
-        ex = st.examples[st.active_example]
-        copy = ex.sculpt
-        if copy is None:
-            cls.poll_message_set(f"Example '{ex.name}' has no posed copy to apply")
-            return False
-        if copy.mode == "EDIT":
-            cls.poll_message_set(f"The sculpt copy '{copy.name}' is in Edit Mode: leave Edit Mode first (its "
-                                 "mesh data is not up to date until then)")
-            return False
-        return True
+        return psd_sculpt(cls, context) is not None
 
     def execute(self, context):
         ob = context.active_object

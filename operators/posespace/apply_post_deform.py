@@ -3,9 +3,9 @@ import bpy
 from ...bridge import posespace
 from ...bridge.posespace import postdeform
 from ...core.result import Status
-from ..polls import psd_mesh
+from ..polls import psd_sculpt
 from ..reporting import FAILED, attempt
-from .progress import window_progress
+from ..progress import window_progress
 
 
 class SHAPESPACE_OT_apply_post_deform(bpy.types.Operator):
@@ -22,18 +22,7 @@ re-weighting without re-inversion)"""
 
     @classmethod
     def poll(cls, context):
-        ob = psd_mesh(cls, context, need_example=True)
-        if ob is None:
-            return False
-        st = ob.shapespace_psd
-        ex = st.examples[st.active_example]
-        if ex.sculpt is None:
-            cls.poll_message_set(f"Example '{ex.name}' has no posed copy to apply")
-            return False
-        if ex.sculpt.mode == "EDIT":
-            cls.poll_message_set(f"The sculpt copy '{ex.sculpt.name}' is in Edit Mode: leave Edit Mode first")
-            return False
-        return True
+        return psd_sculpt(cls, context) is not None
 
     def execute(self, context):
         ob = context.active_object

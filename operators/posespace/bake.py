@@ -3,7 +3,7 @@ import bpy
 from ...bridge import posespace
 from ..polls import psd_mesh
 from ..reporting import FAILED, attempt
-from .progress import window_progress
+from ..progress import window_progress
 
 
 class SHAPESPACE_OT_psd_bake(bpy.types.Operator):

@@ -5,7 +5,7 @@ import bpy
 from ...bridge import posespace
 from ...core.result import ShapeSpaceError
 from ..polls import psd_mesh
-from .progress import window_progress
+from ..progress import window_progress
 
 
 class SHAPESPACE_OT_psd_bake_cache(bpy.types.Operator):

@@ -1,9 +1,9 @@
 import bpy
 
 from ...bridge.posespace import masked
-from ..polls import psd_mesh
+from ..polls import psd_sculpt
 from ..reporting import FAILED, attempt
-from .progress import window_progress
+from ..progress import window_progress
 
 
 class SHAPESPACE_OT_push_sculpt_masked(bpy.types.Operator):
@@ -26,15 +26,7 @@ mask (normalised where masks overlap, so the keys add up to the sculpt), optiona
 
     @classmethod
     def poll(cls, context):
-        ob = psd_mesh(cls, context, need_example=True)
-        if ob is None:
-            return False
-        st = ob.shapespace_psd
-        ex = st.examples[st.active_example]
-        if ex.sculpt is None:
-            cls.poll_message_set(f"Example '{ex.name}' has no posed copy to push")
-            return False
-        return True
+        return psd_sculpt(cls, context, "push") is not None
 
     def invoke(self, context, event):
         return context.window_manager.invoke_props_dialog(self)

@@ -4,7 +4,7 @@ from ...bridge.posespace import finalshape
 from ...core.result import Status
 from ..polls import psd_mesh
 from ..reporting import FAILED, attempt
-from .progress import window_progress
+from ..progress import window_progress
 
 
 class SHAPESPACE_OT_reinvert_all(bpy.types.Operator):

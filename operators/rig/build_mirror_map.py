@@ -3,7 +3,7 @@ import bpy
 from ...bridge import symmetry
 from ...core.result import ShapeSpaceError
 from ..polls import active_mesh
-from ..posespace.progress import window_progress
+from ..progress import window_progress
 
 
 class SHAPESPACE_OT_build_mirror_map(bpy.types.Operator):

@@ -1,4 +1,4 @@
-"""Window-manager progress (the cursor's counter) for the pose-space operators that can take a while."""
+"""Window-manager progress (the percentage on the cursor) for operators that can take a while."""
 from contextlib import contextmanager
 
 
