@@ -9,6 +9,7 @@ import tracemalloc
 import numpy as np
 
 from bench_support import ASSETS, shared_data
+from synthetic_rigs import redundant_rig
 
 
 def _problem(F, n, m3, seed=0, dtype=np.float64):
@@ -409,24 +410,6 @@ def longtake(quick):
     return out
 
 
-def _redundant_rig_problem(seed=0, m=400):
-    """52 local ARKit-like deltas, 20 exact duplicates, 16 scaled copies, 14 near duplicates, 15 visemes
-    (mixes of mouth keys) and 7 empty targets: (B (3m, 124), source weights (131, 52), base (3m, 52))."""
-    rng = np.random.default_rng(seed)
-    P = rng.normal(size=(m, 3))
-    centers = rng.normal(size=(52, 3))
-    base = np.stack([np.exp(-np.sum((P - c) ** 2, 1) / 0.3)[:, None] * rng.normal(size=3) for c in centers], -1)
-    base = base.reshape(3 * m, 52) * 0.05
-    cols = [base[:, j] for j in range(52)]
-    cols += [base[:, j].copy() for j in range(20)]
-    cols += [base[:, j] * rng.uniform(0.5, 2.0) for j in range(20, 36)]
-    cols += [base[:, j] + rng.normal(size=3 * m) * 1e-4 * np.abs(base[:, j]).max() for j in range(36, 50)]
-    cols += [base[:, 20:40] @ rng.dirichlet(np.ones(20)) * 2 for _ in range(15)]
-    cols += [np.zeros(3 * m)] * (124 - len(cols))
-    W = np.clip(np.cumsum(rng.normal(size=(131, 52)) * 0.05, 0) % 1.0, 0, 1)
-    return np.column_stack(cols), W, base
-
-
 def _spacetime_natural_residual(B, b0, S, sig, lam_abs, W, lo, hi):
     """The KKT test of the anchored bounded space-time problem, rebuilt from its definition (not from the solver):
     natural residual ‖y − clip(y − ∇f)‖∞ in the whitened weights y = W/σ, over max(1, ‖∇f(0)‖∞), for
@@ -450,7 +433,7 @@ def _redundant_rig(quick):
     (per-frame) / the anchor to the per-frame ridge fit (space-time): exact duplicates share a motion equally."""
     from shapespace.core.retarget import spacetime
     from shapespace.core.retarget.perframe import fit_frames
-    B, Wsrc, base = _redundant_rig_problem()
+    B, Wsrc, base = redundant_rig()
     S = Wsrc @ base.T
     n = B.shape[1]
     lo, hi, b0 = np.zeros(n), np.ones(n), np.zeros(B.shape[0])

@@ -1,26 +1,22 @@
 """Per-frame fitting on a redundant, rank-deficient rig (#11): 124 keys, rank far below the key count."""
 
+import importlib.util
+import os
+
 import numpy as np
 
 from core.retarget.perframe import fit_frames
 
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
 
 def _redundant_rig(seed=0, m=400):
-    """52 local ARKit-like deltas, 20 exact duplicates, 16 scaled copies, 14 near duplicates, 15 visemes
-    (mixes of mouth keys) and 7 empty targets: (B (3m, 124), source weights (131, 52), base (3m, 52))."""
-    rng = np.random.default_rng(seed)
-    P = rng.normal(size=(m, 3))
-    centers = rng.normal(size=(52, 3))
-    base = np.stack([np.exp(-np.sum((P - c) ** 2, 1) / 0.3)[:, None] * rng.normal(size=3) for c in centers], -1)
-    base = base.reshape(3 * m, 52) * 0.05
-    cols = [base[:, j] for j in range(52)]
-    cols += [base[:, j].copy() for j in range(20)]
-    cols += [base[:, j] * rng.uniform(0.5, 2.0) for j in range(20, 36)]
-    cols += [base[:, j] + rng.normal(size=3 * m) * 1e-4 * np.abs(base[:, j]).max() for j in range(36, 50)]
-    cols += [base[:, 20:40] @ rng.dirichlet(np.ones(20)) * 2 for _ in range(15)]
-    cols += [np.zeros(3 * m)] * (124 - len(cols))
-    W = np.clip(np.cumsum(rng.normal(size=(131, 52)) * 0.05, 0) % 1.0, 0, 1)
-    return np.column_stack(cols), W, base
+    """The benchmark's redundant rig (tools/synthetic_rigs.py), so the test and the bench check the same rig."""
+    path = os.path.join(ROOT, "tools", "synthetic_rigs.py")
+    spec = importlib.util.spec_from_file_location("shapespace_synthetic_rigs", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.redundant_rig(seed, m)
 
 
 def test_perframe_converges_on_a_redundant_rig_and_splits_ties_by_minimum_norm():
