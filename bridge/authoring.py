@@ -5,7 +5,9 @@ every key's delta, slider ranges, vertex-group masks, driven in-betweens and com
 :mod:`bridge.driven`) and the target mesh (any topology), keeps the landmark pairs per target object
 (a versioned blob, ``Object['shapespace_landmarks']``), shows the registration as a preview object, and writes the
 transferred shapes onto the target in one step after everything is computed: validate → compute → write,
-and on any failure the file is as before.  The maths is :mod:`core.authoring`.
+and on any failure the file is as before.  The three steps are separate (:func:`read_transfer` on the main
+thread, :func:`compute_transfer` on any thread — the operator runs it in a :class:`core.jobs.BackgroundJob`,
+cancellable — and :func:`write_transfer` on the main thread).  The maths is :mod:`core.authoring`.
 
 Deltas are transferred *unmasked*; a source key's vertex-group mask becomes a vertex group of the target
 (weights mapped through the correspondence) named on the new key, so Blender applies it exactly as on the
@@ -23,6 +25,8 @@ import numpy as np
 
 from ..core import authoring as core
 from ..core.errors import ErrorCode
+from ..core.jobs import BackgroundJob
+from ..core.progress import notify, scaled
 from ..core.result import Result, ShapeSpaceError, Status, to_jsonable
 from ..core.schema import Schema
 from . import driven, shapekeys, storage
@@ -33,7 +37,8 @@ __all__ = ["MIN_LANDMARKS", "PREVIEW_PROP", "LANDMARKS_PROP", "NAMINGS", "EXISTI
            "TransferReport", "read_source_rig", "read_target", "landmark_pairs", "landmark_count", "landmark_list",
            "add_landmark", "remove_landmark", "set_landmarks", "clear_landmarks", "propose_landmarks",
            "register_source", "show_preview", "clear_preview", "preview_object", "transfer_shapes",
-           "selected_vertex", "append_object", "remove_appended"]
+           "selected_vertex", "append_object", "remove_appended", "TransferPlan", "TransferOutcome", "read_transfer",
+           "compute_transfer", "write_transfer", "start_transfer_job", "finish_transfer_job"]
 
 MIN_LANDMARKS = 5
 PREVIEW_PROP = "shapespace_registration_preview"
@@ -368,24 +373,13 @@ def _landmarks_for(source, target, rig: SourceRig, tgt: TargetMesh):
 
 
 # ------------------------------------------------------------------ registration and its preview
-def _progress_adapter(progress):
-    """D's core takes ``progress(fraction, text) -> bool``-style callables as well as ``progress(fraction)``."""
-    if progress is None:
-        return None
-
-    def call(fraction, *_):
-        progress(fraction)
-        return True
-    return call
-
-
 def register_source(source, target, progress=None, rig: SourceRig = None, tgt: TargetMesh = None) -> Result:
     """Register the source neutral onto the target (landmarks stored on the target); value: the correspondence."""
     rig = rig or read_source_rig(source)
     tgt = tgt or read_target(target)
     pairs = _landmarks_for(source, target, rig, tgt)
     result = core.register(rig.neutral, rig.triangles, tgt.neutral, tgt.triangles, pairs,
-                           progress=_progress_adapter(progress))
+                           progress=progress)
     if result.value is None or result.status == Status.FAILED:
         raise ShapeSpaceError(f"registration of {source.name!r} onto {target.name!r} failed: "
                               f"{result.message or 'no result'}", ErrorCode.DEGENERATE)
@@ -657,27 +651,47 @@ def _undo_write(target, old_keys: set, groups: list, made_key: bool, old_meta) -
             target.vertex_groups.remove(g)
 
 
-def transfer_shapes(source, target, naming: str = "source", existing: str = "refuse", unmatched_parts: str = "keep",
-                    progress=None) -> TransferReport:
-    """Transfer every shape key of ``source`` onto ``target`` (validate → compute → write).
+@dataclass
+class TransferPlan:
+    """Everything a transfer needs, read from Blender (:func:`read_transfer`); no Blender references."""
 
-    Parameters
-    ----------
-    source, target : bpy.types.Object
-        Meshes; the target may have any topology and vertex count and needs ≥ 5 landmark pairs.
-    naming : {"source", "arkit", "suffix", "pascal"}
-    existing : {"refuse", "skip", "overwrite"}
-        Target keys (and mask vertex groups) that already have a new name: refuse naming them (default),
-        keep them (their in-betweens/combinations are skipped too), or replace them.
-    unmatched_parts : {"keep", "refuse"}
-        Separate parts of the target the source does not have (eyes, teeth): they stay still, or refuse.
-    progress : callable(fraction) or None
+    source: str
+    target: str
+    rig: SourceRig
+    tgt: TargetMesh
+    pairs: object                        # core.LandmarkPairs
+    names: dict                          # source key name → new name
+    write: list                          # source keys to write, in order
+    replace: list                        # target keys they replace
+    skipped: list
+    groups_clash: list
+    existing: str
+    unmatched_parts: str
+    signature: tuple                     # the target as read (see _target_signature)
+    started: float
 
-    Raises
-    ------
-    core.ShapeSpaceError
-        Before anything is written; the file is unchanged.
-    """
+
+@dataclass
+class TransferOutcome:
+    """What :func:`compute_transfer` computed; :func:`write_transfer` writes it."""
+
+    plan: TransferPlan
+    full: np.ndarray                     # (n, q, 3) transferred sculpt of every source key (zero for unwritten)
+    masks: dict                          # vertex-group name → (q,) mapped weights
+    report: TransferReport
+
+
+def _target_signature(target) -> tuple:
+    """What a transfer's write depends on: mode, link state, vertices (the neutral), shape keys and groups."""
+    key = target.data.shape_keys
+    keys = tuple(kb.name for kb in key.key_blocks) if key is not None else ()
+    return (target.mode, target.library is not None or target.data.library is not None, len(target.data.vertices),
+            _neutral(target).tobytes(), keys, tuple(g.name for g in target.vertex_groups))
+
+
+def read_transfer(source, target, naming: str = "source", existing: str = "refuse",
+                  unmatched_parts: str = "keep") -> TransferPlan:
+    """Step 1 of :func:`transfer_shapes` (main thread): validate and read everything; writes nothing."""
     start = time.perf_counter()
     if source is not None and target is not None and source == target:
         raise ShapeSpaceError("the source rig and the target are the same object", ErrorCode.SAME_KEY)
@@ -692,29 +706,45 @@ def transfer_shapes(source, target, naming: str = "source", existing: str = "ref
     if not write:
         raise ShapeSpaceError(f"{target.name!r} already has every shape of {source.name!r}: nothing to transfer",
                               ErrorCode.NO_TARGETS)
-    report = TransferReport(source=source.name, target=target.name, skipped=[names[n] for n in skipped])
-    notify = progress or (lambda fraction: None)
-    notify(0.0)
-    result = register_source(source, target, lambda f: notify(0.6 * f), rig=rig, tgt=tgt)
+    pairs = _landmarks_for(source, target, rig, tgt)
+    return TransferPlan(source=source.name, target=target.name, rig=rig, tgt=tgt, pairs=pairs, names=names,
+                        write=write, replace=replace, skipped=skipped, groups_clash=groups_clash, existing=existing,
+                        unmatched_parts=unmatched_parts, signature=_target_signature(target), started=start)
+
+
+def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
+    """Step 2 (any thread; touches no Blender data): registration, deformation transfer, mapped masks.
+
+    ``progress(fraction)`` (:mod:`core.progress`) is called through the registration and between the shape
+    chunks; raising :class:`~core.progress.Cancelled` from it stops the work before anything is written.
+    """
+    rig, tgt, names, write = plan.rig, plan.tgt, plan.names, plan.write
+    report = TransferReport(source=plan.source, target=plan.target, skipped=[names[n] for n in plan.skipped])
+    notify(progress, 0.0)
+    result = core.register(rig.neutral, rig.triangles, tgt.neutral, tgt.triangles, plan.pairs,
+                           progress=scaled(progress, 0.0, 0.6))
+    if result.value is None or result.status == Status.FAILED:
+        raise ShapeSpaceError(f"registration of {plan.source!r} onto {plan.target!r} failed: "
+                              f"{result.message or 'no result'}", ErrorCode.DEGENERATE)
     corr = result.value
-    report.landmarks = len(landmark_pairs(target, source)[0])
+    report.landmarks = len(plan.pairs)
     report.registration_residual_mm = float(getattr(corr, "residual_mm", result.diagnostics.get("residual_mm", 0.0)))
     report.registration_status = {Status.OK: "ok", Status.WARNING: "warning",
                                   Status.NOT_CONVERGED: "not_converged"}.get(result.status, "ok")
     if result.status != Status.OK and result.message:
         report.warnings.append(f"registration: {result.message}")
     transfer = core.Transfer(rig.neutral, rig.triangles, tgt.neutral, tgt.triangles, corr,
-                             unmatched_parts=unmatched_parts)
+                             unmatched_parts=plan.unmatched_parts)
     for issue in getattr(transfer, "issues", []) or []:
         report.warnings.append(getattr(issue, "message", str(issue)))
-    notify(0.7)
+    notify(progress, 0.7)
     rows = [rig.names.index(n) for n in write]
     sculpts = rig.full_sculpts()[rows]
     chunk = 8                                    # the core solves 8 shapes at a time: same numbers, progress between
     solved = np.zeros((len(rows),) + tgt.neutral.shape)
     for c0 in range(0, len(rows), chunk):
         solved[c0:c0 + chunk] = transfer.solve(sculpts[c0:c0 + chunk])
-        notify(0.7 + 0.2 * min(len(rows), c0 + chunk) / len(rows))
+        notify(progress, 0.7 + 0.25 * min(len(rows), c0 + chunk) / len(rows))
     if not np.isfinite(solved).all():
         bad = write[int(np.argwhere(~np.isfinite(solved))[0][0])]
         raise ShapeSpaceError(f"the transfer of {bad!r} produced non-finite positions: nothing was written",
@@ -728,14 +758,75 @@ def transfer_shapes(source, target, naming: str = "source", existing: str = "ref
         group = rig.groups.get(n)
         if group is not None and group not in masks:
             masks[group] = _map_weights(corr, rig.triangles, rig.group_weights[group])
-    notify(0.9)
-    _write(target, rig, names, write, replace, full, tgt.neutral, masks, existing == "overwrite", report)
+    notify(progress, 1.0)
+    return TransferOutcome(plan=plan, full=full, masks=masks, report=report)
+
+
+def write_transfer(outcome: TransferOutcome) -> TransferReport:
+    """Step 3 (main thread): write the new keys (and mask groups) in one step; returns the report.
+
+    Refused, with nothing written, when the target is gone or changed (mode, vertices, shape keys, vertex
+    groups) since :func:`read_transfer`.
+    """
+    plan, report = outcome.plan, outcome.report
+    target = bpy.data.objects.get(plan.target)
+    if target is None or target.type != "MESH" or _target_signature(target) != plan.signature:
+        raise ShapeSpaceError(f"{plan.target!r} changed while the transfer computed (mode, mesh, shape keys or "
+                              "vertex groups): nothing was written; transfer again", ErrorCode.RIG_CHANGED)
+    _write(target, plan.rig, plan.names, plan.write, plan.replace, outcome.full, plan.tgt.neutral, outcome.masks,
+           plan.existing == "overwrite", report)
     clear_preview(target)                       # it served its purpose; the result file does not keep it
-    report.skipped = [names[n] for n in skipped] + ([f"vertex group {g} (kept)" for g in groups_clash]
-                                                  if existing == "skip" else [])
-    notify(1.0)
-    report.seconds = time.perf_counter() - start
+    report.skipped = [plan.names[n] for n in plan.skipped] + (
+        [f"vertex group {g} (kept)" for g in plan.groups_clash] if plan.existing == "skip" else [])
+    report.seconds = time.perf_counter() - plan.started
     return report
+
+
+def start_transfer_job(plan: TransferPlan) -> BackgroundJob:
+    """Start :func:`compute_transfer` of ``plan`` in a worker thread (a modal operator polls the job and
+    cancels it on Esc); :func:`finish_transfer_job` writes its outcome once it is done."""
+    return BackgroundJob(lambda progress: compute_transfer(plan, progress), name="ShapeSpace transfer").start()
+
+
+def finish_transfer_job(job: BackgroundJob) -> TransferReport:
+    """Write a finished job's outcome (main thread, one step) and return its report.
+
+    Re-raises what stopped the job (:class:`~core.progress.Cancelled` when it was cancelled, its
+    :class:`ShapeSpaceError`); nothing is written then."""
+    try:
+        outcome = job.result()
+    except MemoryError:
+        raise ShapeSpaceError("not enough memory for this transfer (decimate the target, or transfer fewer "
+                              "shapes)", ErrorCode.TOO_LARGE) from None
+    return write_transfer(outcome)
+
+
+def transfer_shapes(source, target, naming: str = "source", existing: str = "refuse", unmatched_parts: str = "keep",
+                    progress=None) -> TransferReport:
+    """Transfer every shape key of ``source`` onto ``target``: :func:`read_transfer` → :func:`compute_transfer`
+    → :func:`write_transfer` (validate → compute → write).
+
+    Parameters
+    ----------
+    source, target : bpy.types.Object
+        Meshes; the target may have any topology and vertex count and needs ≥ 5 landmark pairs.
+    naming : {"source", "arkit", "suffix", "pascal"}
+    existing : {"refuse", "skip", "overwrite"}
+        Target keys (and mask vertex groups) that already have a new name: refuse naming them (default),
+        keep them (their in-betweens/combinations are skipped too), or replace them.
+    unmatched_parts : {"keep", "refuse"}
+        Separate parts of the target the source does not have (eyes, teeth): they stay still, or refuse.
+    progress : callable(fraction) or None
+        :mod:`core.progress` protocol; raising :class:`~core.progress.Cancelled` from it stops the transfer
+        with nothing written.
+
+    Raises
+    ------
+    core.ShapeSpaceError
+        Before anything is written; the file is unchanged.
+    """
+    plan = read_transfer(source, target, naming, existing, unmatched_parts)
+    return write_transfer(compute_transfer(plan, progress))
 
 
 # ------------------------------------------------------------------ a source rig from another .blend (command line)

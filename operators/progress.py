@@ -1,5 +1,20 @@
-"""Window-manager progress (the percentage on the cursor) for operators that can take a while."""
+"""Progress for operators that can take a while.
+
+- :func:`window_progress` — window-manager progress (the percentage on the cursor) around a synchronous block;
+- :class:`JobModal` — a modal operator whose computation runs in a :class:`core.jobs.BackgroundJob`: progress
+  and a status-bar line while it runs, Esc cancels it (nothing is written), the result is written on the main
+  thread once the job finished.
+"""
 from contextlib import contextmanager
+
+from ..core.progress import Cancelled
+
+#: Seconds between a modal job's progress updates.
+TICK = 0.1
+
+#: Events passed on to Blender while a job computes (view navigation only; everything else waits).
+NAVIGATION = {"MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "MOUSEMOVE", "INBETWEEN_MOUSEMOVE", "TRACKPADPAN",
+              "TRACKPADZOOM", "NDOF_MOTION"}
 
 
 @contextmanager
@@ -18,3 +33,76 @@ def window_progress(context, steps: int = 100):
         yield update
     finally:
         wm.progress_end()
+
+
+def status_text(context, text) -> None:
+    """Show ``text`` in the status bar (``None`` clears it); nothing without a workspace (background)."""
+    workspace = getattr(context, "workspace", None)
+    if workspace is not None and getattr(context, "window", None) is not None:
+        workspace.status_text_set(text)
+
+
+class JobModal:
+    """Mixin for an operator that computes in a :class:`core.jobs.BackgroundJob` and writes on the main thread.
+
+    ``invoke`` reads on the main thread, starts the job and returns :meth:`start_job`; the mixin's ``modal``
+    then shows the job's progress (mapped onto ``[shown_from, 1]`` of the bar) and a status line, passes view
+    navigation on, cancels on Esc (the worker stops at its next progress call; nothing was written), and calls
+    :meth:`job_finished` (the subclass writes the result there and returns the operator's result) once the
+    job is done.  :attr:`job_title` names the work in the reports ("Retarget", "Transfer").
+    """
+
+    job_title = "Job"
+
+    def start_job(self, context, job, label: str, shown_from: float = 0.0):
+        """Poll ``job`` from a modal timer; returns ``{'RUNNING_MODAL'}`` for ``invoke``."""
+        wm = context.window_manager
+        self._job, self._label, self._shown_from = job, label, float(shown_from)
+        self._timer = wm.event_timer_add(TICK, window=context.window)
+        wm.progress_begin(0, 100)
+        wm.progress_update(int(round(100 * self._shown_from)))
+        wm.modal_handler_add(self)
+        status_text(context, f"{label}: starting… (Esc to cancel)")
+        return {"RUNNING_MODAL"}
+
+    def job_finished(self, context, job):
+        """Write the finished job's result (main thread); return the operator's result set."""
+        raise NotImplementedError
+
+    def _cancelled_report(self):
+        self.report({"INFO"}, f"{self.job_title} cancelled: nothing was changed")
+        return {"CANCELLED"}
+
+    def modal(self, context, event):
+        job = self._job
+        if event.type == "ESC":
+            job.cancel()                      # the worker stops at its next progress call; nothing was written
+            self.stop_job(context)
+            return self._cancelled_report()
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"} if event.type in NAVIGATION else {"RUNNING_MODAL"}
+        if not job.done:
+            shown = self._shown_from + (1.0 - self._shown_from) * job.fraction
+            context.window_manager.progress_update(int(round(100 * shown)))
+            status_text(context, f"{self._label}: {100 * shown:.0f} %, {job.elapsed():.0f} s (Esc to cancel)")
+            return {"RUNNING_MODAL"}
+        self.stop_job(context)
+        try:
+            return self.job_finished(context, job)
+        except Cancelled:
+            return self._cancelled_report()
+
+    def cancel(self, context):
+        """Blender ends the operator (file closed, window gone): stop the worker, write nothing."""
+        if getattr(self, "_job", None) is not None:
+            self._job.cancel()
+        self.stop_job(context)
+
+    def stop_job(self, context):
+        """Remove the timer, end the progress and clear the status line (once)."""
+        wm = context.window_manager
+        if getattr(self, "_timer", None) is not None:
+            wm.event_timer_remove(self._timer)
+            self._timer = None
+            wm.progress_end()
+            status_text(context, None)

@@ -9,7 +9,7 @@ import tracemalloc
 import numpy as np
 
 from bench_support import ASSETS, shared_data
-from synthetic_rigs import redundant_rig
+from synthetic_rigs import arkit_columns, redundant_head_rig
 
 
 def _problem(F, n, m3, seed=0, dtype=np.float64):
@@ -204,6 +204,23 @@ def key_reduction(quick):
             "keys_reduction_curves": len(names), "keys_reduction_tol": tol}
 
 
+def _one_exact_solve_s(args, kwargs, res, reps=3) -> float:
+    """Seconds of ONE exact solve with the final active set held (a block-tridiagonal Cholesky factor and
+    its two sweeps, O(f n³)): the floor of any exact active-set method on this problem, to set beside the
+    unbounded solve (whose per-mode tridiagonal sweeps are O(f n²) in a few compiled calls)."""
+    from shapespace.core.blas_threads import single_threaded
+    from shapespace.core.retarget import spacetime_solver as ss
+    B, b0, S, sig, lam = args[:5]
+    lo, hi = np.broadcast_to(kwargs["lo"], sig.shape), np.broadcast_to(kwargs["hi"], sig.shape)
+    system = ss.SpacetimeSystem(np.asarray(B, dtype=np.float64), np.asarray(sig), lam, S.shape[0],
+                                kwargs.get("relative", False), kwargs.get("beta", 0.0))
+    W = res.weights[1:-1]
+    held = (W <= lo + 1e-12) | (W >= hi - 1e-12)
+    r = np.random.default_rng(0).normal(size=held.shape)
+    with single_threaded():
+        return min(_timed(lambda: ss.BlockCholesky(system, held).solve(r)) for _ in range(reps))
+
+
 def landmark_cases():
     """The facecap capture as a mesh performance onto other topologies through landmarks placed from the
     shapes the rigs share (peak vertices), then rigid + thin-plate warp and closest points: FBHead
@@ -230,6 +247,7 @@ def landmark_cases():
         timed["unbounded"] = min(_timed(lambda: original(*args, **free)) for _ in range(3))
         res = original(*args, **kwargs)
         timed["iterations"] = res.iterations
+        timed["one_exact"] = _one_exact_solve_s(args, kwargs, res)
         return res
 
     cases = (("facecap_fbhead_landmarks", "FBHead"), ("facecap_ict_landmarks", "ICTFace"))
@@ -249,6 +267,7 @@ def landmark_cases():
     out["unbounded_s_real_fbhead"] = timed["unbounded"]
     out["bounded_over_unbounded_real_fbhead"] = timed["bounded"] / timed["unbounded"]
     out["bounded_iterations_real_fbhead"] = timed["iterations"]
+    out["one_exact_solve_over_unbounded_real_fbhead"] = timed["one_exact"] / timed["unbounded"]
     return out
 
 
@@ -339,8 +358,9 @@ def longtake(quick):
     """Production scale (#11).  The batch command, timed whole in a child process (start-up and file load
     included; ``…_source_s`` is its own per-source time), on the shipped Live Link Face take looped to 1,640
     frames, each method onto FBHead (30 fps) and ICT FaceKit (27k vertices, 24 fps), key reduction at 0.01;
-    then 36,000 frames (10 minutes at 60 fps: 20 minutes of capture at FBHead's 30 fps) with spacetime, wall
-    time and peak RSS of the command.  In-process on the same 1,640 frames with nothing to clip (sliders
+    then 36,000 frames (10 minutes at 60 fps: 20 minutes of capture at FBHead's 30 fps, 25 at ICT's 24), every
+    method onto FBHead and onto ICT FaceKit (``--quick``: spacetime onto FBHead only), wall time and peak RSS
+    of the command.  In-process on the same 1,640 frames with nothing to clip (sliders
     widened): the end-of-take drift of space-time and the position errors — ``position_err_<m>_longtake_noclip``
     per vertex (RMS over vertices and frames, mm with the head scaled to a 30 cm bounding-box diagonal) and
     ``position_err_total_<m>_longtake_noclip`` today's report figure (RMS over frames of the whole-mesh
@@ -369,17 +389,20 @@ def longtake(quick):
                 out[f"longtake_keys_kept_frac_{method}_{label}_1640"] = run["result"].get("keys_kept_frac")
                 if method == "spacetime":
                     out[f"longtake_converged_spacetime_{label}_1640"] = run["result"].get("converged")
-    csv = _tiled_csv(folder, 36000, 30.0)
-    for method in ("spacetime",) if quick else ("copy", "perframe", "spacetime"):
-        run = _batch(fbhead, csv, method, timeout=240.0 if quick else 1800.0)     # a timeout is recorded, not hidden
-        out[f"longtake_s_{method}_fbhead_36000"] = run["s"] if run["rc"] == 0 else None
-        out[f"longtake_peak_gb_{method}_fbhead_36000" if method != "spacetime" else
-            "longtake_peak_gb_fbhead_36000"] = run["peak_gb"]
-        out[f"longtake_36000_{method}_timed_out"] = run["timed_out"]
-        if run["result"]:
-            out["longtake_frames_fbhead_36000"] = run["result"]["frames"]
-            if method == "spacetime":
-                out["longtake_converged_spacetime_fbhead_36000"] = run["result"].get("converged")
+    # 36,000 frames: every method onto FBHead (30 fps) and, in the full run, onto ICT FaceKit (its own 24 fps)
+    for label, path, obj, fps in targets if not quick else targets[:1]:
+        csv = _tiled_csv(folder, 36000, fps)
+        for method in ("spacetime",) if quick else ("copy", "perframe", "spacetime"):
+            run = _batch(path, csv, method, obj, timeout=240.0 if quick else 1800.0)  # a timeout is recorded
+            out[f"longtake_s_{method}_{label}_36000"] = run["s"] if run["rc"] == 0 else None
+            out[f"longtake_s_{method}_{label}_36000_source_s"] = run["source_s"]
+            out[f"longtake_peak_gb_{method}_{label}_36000" if (method, label) != ("spacetime", "fbhead") else
+                "longtake_peak_gb_fbhead_36000"] = run["peak_gb"]
+            out[f"longtake_36000_{method}{'' if label == 'fbhead' else '_' + label}_timed_out"] = run["timed_out"]
+            if run["result"]:
+                out[f"longtake_frames_{label}_36000"] = run["result"]["frames"]
+                if method == "spacetime":
+                    out[f"longtake_converged_spacetime_{label}_36000"] = run["result"].get("converged")
     # in-process: no clipping, drift and position errors; key reduction alone
     ob, names, frames, src, issues = _tiled_llf(1640)
     model = shapekeys.read_blendshape_model(ob)
@@ -410,46 +433,102 @@ def longtake(quick):
     return out
 
 
-def _spacetime_natural_residual(B, b0, S, sig, lam_abs, W, lo, hi):
+def _spacetime_natural_residual(B, b0, S, sig, lam_abs, W, lo, hi, beta=0.0):
     """The KKT test of the anchored bounded space-time problem, rebuilt from its definition (not from the solver):
     natural residual ‖y − clip(y − ∇f)‖∞ in the whitened weights y = W/σ, over max(1, ‖∇f(0)‖∞), for
-    ``f = ½‖D(W Bᵀ − S)‖² + ½λ‖(W − W⁰)/σ‖²`` (W⁰ the per-frame ridge fit), interior frames, ends fixed."""
+    ``f = ½‖D(W Bᵀ − S)‖² + ½β‖W Bᵀ − S‖² + ½λ‖(W − W⁰)/σ‖²`` (W⁰ the per-frame ridge fit), interior frames,
+    ends fixed."""
     W0 = np.linalg.solve(B.T @ B + lam_abs * np.diag(1.0 / sig ** 2), B.T @ (S - b0).T).T
 
     def grad(Wi):
         Wf = np.vstack([W[0], Wi, W[-1]])
         E = Wf @ B.T - (S - b0)
-        second = 2 * E[1:-1] - E[:-2] - E[2:]
+        second = 2 * E[1:-1] - E[:-2] - E[2:] + beta * E[1:-1]
         return sig * (second @ B + lam_abs * (Wi - W0[1:-1]) / sig ** 2)
     y = W[1:-1] / sig
     nat = np.abs(y - np.clip(y - grad(W[1:-1]), lo / sig, hi / sig)).max()
     return float(nat / max(1.0, float(np.abs(grad(np.zeros_like(W[1:-1]))).max())))
 
 
+def _redundant_head():
+    """FBHead grown to a 124-key avatar face (``synthetic_rigs.redundant_head_rig``: its ARKit keys, exact, scaled
+    and near duplicates, visemes, empty keys; rank ≈ 90) and the shipped Live Link Face take at 24 fps (131
+    frames), its 52 ARKit channels copied onto the ARKit keys: ``(model, rig, ideal weights (131, 124))``."""
+    import bpy
+    from shapespace.bridge import assets, retarget, shapekeys
+    from shapespace.core.blendshape import BlendshapeModel
+    assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
+    scene = bpy.context.scene
+    scene.render.fps, scene.render.fps_base = 24, 1.0
+    base = shapekeys.read_blendshape_model(bpy.data.objects["FBHead"])
+    csv = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+    channels, frames, src, issues = retarget.read_source(csv, scene)
+    rig = redundant_head_rig(arkit_columns(base.delta_matrix, base.names, channels), base.neutral, channels)
+    model = BlendshapeModel(base.neutral, rig["B"], rig["names"])          # sliders [0, 1]
+    ideal = np.zeros((src.shape[0], model.n_targets))
+    ideal[:, :len(channels)] = src
+    return model, rig, ideal
+
+
 def _redundant_rig(quick):
-    """The 124-key redundant rig (rank ~75 of 124): per-frame and bounded space-time, each timed whole and checked
-    against its KKT conditions rebuilt here (``redundant_rig_converged_*``: natural residual ≤ the solver's
-    tolerance, and the solver says so).  The tie-break among equal-geometry answers is the ridge's minimum norm
-    (per-frame) / the anchor to the per-frame ridge fit (space-time): exact duplicates share a motion equally."""
-    from shapespace.core.retarget import spacetime
-    from shapespace.core.retarget.perframe import fit_frames
-    B, Wsrc, base = redundant_rig()
-    S = Wsrc @ base.T
-    n = B.shape[1]
-    lo, hi, b0 = np.zeros(n), np.ones(n), np.zeros(B.shape[0])
-    out = {"redundant_rig_s_perframe_131": _timed(lambda: fit_frames(B, b0, S, lo, hi))}
+    """The 124-key redundant face built from FBHead (:func:`_redundant_head`, rank ~90 of 124) and the 131-frame
+    take: ``perframe`` and bounded ``spacetime`` as the retarget command fits them
+    (``performance.retarget_weights``), each timed whole and checked against its KKT conditions rebuilt here
+    (``redundant_rig_converged_*``: per-frame natural residual ≤ 1e-7 of the frame's gradient scale, the level
+    the per-frame fit accepts; space-time ≤ the solver's 1e-8, and the solver says so).  The tie-break among
+    equal-geometry answers is the ridge's minimum norm (per-frame: exact duplicates share equally) / the anchor
+    to the σ-weighted per-frame ridge fit (space-time: duplicates share in proportion to σ²)."""
+    from shapespace.core.blendshape import normalised_unit
+    from shapespace.core.retarget import performance, perframe
+    model, rig, ideal = _redundant_head()
+    live = np.abs(model.delta_matrix).max(axis=0) > 0
+    general, real_bvls = [], perframe._bvls
+
+    def counting_bvls(*args):                              # a general solver on a frame: counted, not changed
+        general.append(1)
+        return real_bvls(*args)
+    perframe._bvls = counting_bvls
+    try:
+        t = time.perf_counter()
+        W = performance.retarget_weights(model, ideal, "perframe").weights
+        out = {"redundant_rig_s_perframe_131": time.perf_counter() - t}
+    finally:
+        perframe._bvls = real_bvls
+    out["redundant_rig_perframe_general_solves"] = len(general)
+    unit = normalised_unit(model)
+    B = model.delta_matrix[:, live] / unit
+    S = ideal @ model.delta_matrix.T / unit
     G = B.T @ B
-    W = fit_frames(B, b0, S, lo, hi)
-    grad = 2 * (W @ G - S @ B) + 2e-6 * np.trace(G) / n * W
-    nat = float(np.abs(W - np.clip(W - grad, lo, hi)).max())
-    out["redundant_rig_converged_perframe"] = bool(nat <= 1e-7 * max(1.0, float(np.abs(2 * S @ B).max())))
-    out["redundant_rig_rank"] = int(np.linalg.matrix_rank(B))
-    sig = np.ones(n)
-    t = time.perf_counter()
-    res = spacetime(B, b0, S, sig, 1e-7, lo=lo, hi=hi, relative=True, anchor=True)
-    out["redundant_rig_s_spacetime_131"] = time.perf_counter() - t
-    lam_abs = 1e-7 * float(np.linalg.eigvalsh(G).clip(0).mean())
-    nat = _spacetime_natural_residual(B, b0, S, sig, lam_abs, res.weights, lo, hi)
+    a = 1e-6 * np.trace(G) / G.shape[0]
+    Wl = W[:, live]
+    grad = 2 * (Wl @ G - S @ B) + 2 * a * Wl
+    nat = np.abs(Wl - np.clip(Wl - grad, 0.0, 1.0)).max(axis=1) / np.maximum(1.0, np.abs(2 * S @ B).max(axis=1))
+    out["redundant_rig_natural_residual_perframe"] = float(nat.max())
+    out["redundant_rig_converged_perframe"] = bool(nat.max() <= 1e-7)
+    out["redundant_rig_perframe_bound_violation"] = float(max(0.0, -W.min(), W.max() - 1.0))
+    out["redundant_rig_rank"] = int(rig["rank"])
+    out["redundant_rig_rank_rtol"] = float(rig["rank_rtol"])
+    out["redundant_rig_keys"] = int(model.n_targets)
+    out["redundant_rig_frames"] = int(ideal.shape[0])
+    calls, real_spacetime = [], performance.spacetime
+
+    def recording(*args, **kwargs):                        # the problem the retarget poses, recorded
+        calls.append((args, kwargs))
+        return real_spacetime(*args, **kwargs)
+    performance.spacetime = recording
+    try:
+        t = time.perf_counter()
+        fit = performance.retarget_weights(model, ideal, "spacetime")
+        out["redundant_rig_s_spacetime_131"] = time.perf_counter() - t
+    finally:
+        performance.spacetime = real_spacetime
+    (args, kwargs), res = calls[0], fit.solver
+    Bs, b0, Ss, sig = (np.asarray(x, dtype=np.float64) for x in args[:4])
+    lam = float(args[4]) if len(args) > 4 else float(kwargs.get("lam", 1e-3))
+    if kwargs.get("relative"):
+        lam *= float(np.linalg.eigvalsh(sig[:, None] * (Bs.T @ Bs) * sig[None, :]).clip(0).mean())
+    nat = _spacetime_natural_residual(Bs, b0, Ss, sig, lam, fit.weights[:, live], kwargs["lo"], kwargs["hi"],
+                                      float(kwargs.get("beta", 0.0)))
     out["redundant_rig_natural_residual_spacetime"] = nat
     out["redundant_rig_converged_spacetime"] = bool(res.converged and nat <= 1e-8)
     out["redundant_rig_spacetime_iterations"] = res.iterations
@@ -477,6 +556,7 @@ def _bounded_longtake(quick):
         timed["unbounded"] = min(_timed(lambda: original(*args, **free)) for _ in range(reps))
         res = original(*args, **kwargs)
         timed["res"] = res
+        timed["one_exact"] = _one_exact_solve_s(args, kwargs, res, reps)
         return res
     performance.spacetime = timing_spacetime
     try:
@@ -486,8 +566,54 @@ def _bounded_longtake(quick):
     res = timed["res"]
     return {"bounded_s_longtake": timed["bounded"], "unbounded_s_longtake": timed["unbounded"],
             "bounded_over_unbounded_longtake": timed["bounded"] / timed["unbounded"],
+            "one_exact_solve_over_unbounded_longtake": timed["one_exact"] / timed["unbounded"],
             "bounded_solves_longtake": res.diagnostics.get("solves"),
             "bounded_converged_longtake": bool(res.converged)}
+
+
+def cancel_latency(quick):
+    """Cancel (Esc) latency of a long retarget: the worker stops at its next progress call, so the longest
+    gap between progress calls is the worst case.  The retarget operator's own worker work
+    (``bridge.retarget.compute_retarget``) on the 1,640-frame take onto ICT FaceKit (27k vertices) with
+    space-time, and the facecap mesh performance onto ICT through landmarks (dense, 268 frames): the
+    longest gap (``cancel_latency_s_<case>``), and a real cancel half-way through a ``BackgroundJob``
+    (``cancel_measured_s_<case>``: from ``cancel()`` to the worker's end; nothing is written either way)."""
+    import tempfile
+    import bpy
+    from shapespace.bridge import assets, retarget
+    from shapespace.core.jobs import BackgroundJob
+    ict = shared_data(os.path.join("ict_facekit", "ict_facekit_expressions.glb"), "the cancel latency case")
+    if not ict:
+        return {}
+    out = {}
+    folder = tempfile.mkdtemp(prefix="shapespace_cancel_")
+    assets.load(ict)
+    assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"), replace=False)
+    scene, ob = bpy.context.scene, bpy.data.objects["ICTFace"]
+    csv = _tiled_csv(folder, 1640, 24.0)
+    plans = {"llf_ict_1640": lambda: retarget.read_retarget(ob, csv, method="spacetime", scene=scene)}
+    if not quick:
+        def dense_plan():
+            scene.frame_start, scene.frame_end = 1, 268
+            retarget.landmarks_from_shapes(bpy.data.objects["Mesh_2"], ob)
+            return retarget.read_retarget_dense(ob, bpy.data.objects["Mesh_2"], method="spacetime", scene=scene)
+        plans["facecap_ict_landmarks"] = dense_plan
+    for case, make in plans.items():
+        plan = make()
+        stamps = [time.perf_counter()]
+        retarget.compute_retarget(plan, lambda f: stamps.append(time.perf_counter()))
+        stamps.append(time.perf_counter())
+        whole = stamps[-1] - stamps[0]
+        out[f"cancel_latency_s_{case}"] = float(np.diff(stamps).max())
+        out[f"cancel_work_s_{case}"] = whole
+        job = BackgroundJob(lambda progress: retarget.compute_retarget(plan, progress)).start()
+        time.sleep(0.5 * whole)
+        asked = time.perf_counter()
+        job.cancel()
+        while not job.done:
+            time.sleep(0.001)
+        out[f"cancel_measured_s_{case}"] = time.perf_counter() - asked
+    return out
 
 
 def run(quick=False, plot_path=None) -> dict:
@@ -498,4 +624,5 @@ def run(quick=False, plot_path=None) -> dict:
     metrics.update(landmark_cases())
     metrics.update(key_reduction(quick))
     metrics.update(longtake(quick))
+    metrics.update(cancel_latency(quick))
     return metrics

@@ -1,24 +1,44 @@
 """Automatic landmark proposal for a target head that has no shapes (issue #13 §1).
 
 The source rig's shapes tell where its landmarks are (the vertex each shape moves most: eyelid, mouth
-corner, chin, brow …).  The target has no shapes, so its landmarks are found geometrically:
+corner, chin, brow …; strongest shapes first, none closer than 2 % of the head's diagonal to another).
+The target has no shapes, so its landmarks are found geometrically:
 
 1. each head gets a frame from its mirror plane (:func:`~core.authoring.mesh.symmetry_plane`: the normal is
    the left–right axis) and the two principal axes of its vertices within that plane;
 2. the frames are matched under the 8 proper rotations that keep the left–right axis an axis (in-plane
    quarter turns, and the half turn that swaps left and right) and three starting scales, each refined by
-   similarity ICP (Umeyama on closest points, the worst 30 % of pairs trimmed); the hypothesis with the
-   smallest trimmed residual measured both ways (source → target and target → source) wins;
-3. each source landmark, moved by that similarity, is snapped to the nearest target vertex.
+   similarity ICP of the whole skin (Umeyama on closest points, the worst 30 % of pairs trimmed);
+3. each fit is then refined on the source's *face* — the skin its shapes move (≥ 10 % of a shape's peak) —
+   alone (10 % trimmed, pairs whose vertex normals are 90° or more apart dropped, the scale kept within
+   ×0.7…×1.43 of the whole-skin fit, so the face cannot shrink onto a patch);
+4. the fit with the smallest score wins: the face's trimmed RMS distance to the target plus the trimmed RMS
+   distance from the target to the moved source skin over the target points the source *covers* (those
+   whose closest source vertex is not on the source's open border);
+5. each source landmark, moved by that similarity, is snapped to the nearest target vertex that faces the
+   same way (normals less than 90° apart; else the nearest).
 
-Limits: this is a rigid + uniform-scale fit, and the best fit is not always the right one: a face-only mask
-can fit the smooth back of a whole head (facecap ↔ ICT FaceKit: landmarks ~60 mm off, on the wrong side —
-the status can still be OK when the residual is small; a curvature-agreement score was tried and was not
-reliable across the shared heads).  The proposal is only as good as the two heads are alike after scaling
-(a long-nosed cartoon on a realistic head misplaces mouth and eye corners by the difference);
-a head that is far from mirror-symmetric (sculpted asymmetric, posed, with a body attached) can get a wrong
-frame (the residual in ``diagnostics`` says how well it fits).  The artist corrects the pairs before
-registering; :func:`~core.authoring.registration.register` then refines the whole surface.
+Why steps 3 to 5: heads differ beyond the face (a face mask against a whole head with neck and back of the
+head, longer necks, other skull shapes, an inner mouth).  A whole-skin fit then places the face by the
+skull and neck and misses it by 1–1.5 cm (FBHead → ICT FaceKit), and a score measured both ways over the
+whole of both heads prefers the mask on the *back* of a whole head (facecap → ICT: 60 mm off), because the
+target's extra surface is far from the source wherever the source goes.  The face is what landmarks are on
+and what shapes move; the target surface the source does not reach says nothing about the fit.  Closest
+points that face the other way are the inside of the lips and ICT's mouth socket just behind them: without
+the normal test the lips and chin were pulled onto them and landmarks snapped there.  Measured on the shared
+heads (median distance of the proposed target landmarks to the ones found from the shapes both rigs share,
+per shape name, mm at a 30 cm head; before → now): facecap → ICT 62 → 3.0, FBHead → ICT 8.0 → 3.1,
+ICT → facecap 62 → 5.6, ICT → FBHead 6.1 → 4.7, facecap → FBHead 1.9 → 1.0, FBHead → facecap 1.7 → 3.3.
+Spacing: near-duplicate landmarks (eyeBlink and eyeLookUp on one eyelid) that snap a few mm apart shear the
+landmark warp locally; with 2 % the mean relative transfer error with proposed landmarks
+(``tools/bench_transfer.py``, ``transfer_rel_auto_*``) was facecap → FBHead 0.80 instead of 0.91, the other
+pairs within ±0.02.
+
+Limits: this is a rigid + uniform-scale fit.  The proposal is only as good as the two heads are alike after
+scaling (a long-nosed cartoon on a realistic head misplaces mouth and eye corners by the difference); a head
+that is far from mirror-symmetric (sculpted asymmetric, posed, with a body attached) can get a wrong frame
+(the residual in ``diagnostics`` says how well it fits).  The artist corrects the pairs before registering;
+:func:`~core.authoring.registration.register` then refines the whole surface.
 """
 from __future__ import annotations
 
@@ -31,7 +51,7 @@ from scipy.spatial import cKDTree
 from .. import validate
 from ..result import Result, Status
 from .landmarks import MIN_LANDMARKS, LandmarkPairs
-from .mesh import bbox_diagonal, check_mesh, symmetry_plane, triangle_parts
+from .mesh import bbox_diagonal, boundary_vertices, check_mesh, symmetry_plane, triangle_parts, vertex_normals
 from .registration import similarity
 
 __all__ = ["propose_landmark_pairs", "head_frame"]
@@ -91,9 +111,49 @@ def _similarity_icp(S, T, tree, s, R, t, iterations, trim):
     return s, R, t, max(there, back)
 
 
+def _face_refine(F, FN, T, TN, tree, s, R, t, iterations, trim, bounds):
+    """Similarity ICP of the face points F (normals FN) onto the target points T (normals TN, tree over T): pairs
+    whose normals are 90° or more apart are dropped (the inside of the lips, the mouth socket), the scale is kept
+    within ``bounds`` × the starting scale."""
+    lo, hi = bounds[0] * s, bounds[1] * s
+    for _ in range(iterations):
+        d, idx = tree.query(s * F @ R.T + t)
+        keep = (d <= np.quantile(d, 1.0 - trim)) & (np.einsum("ij,ij->i", FN @ R.T, TN[idx]) > 0.0)
+        X, Y = F[keep], T[idx[keep]]
+        if X.shape[0] < 3:
+            break
+        s, R, t = similarity(X, Y)
+        s = float(np.clip(s, lo, hi))
+        t = Y.mean(axis=0) - s * R @ X.mean(axis=0)
+    return s, R, t
+
+
+def _covered_rms(moved_skin, border, Ts, trim):
+    """Trimmed RMS distance from the target points to the moved source skin, over the target points whose
+    closest source vertex is not on the source's open border (the part of the target the source covers)."""
+    d, j = cKDTree(moved_skin).query(Ts)
+    inside = ~border[j]
+    if inside.sum() < 10:
+        return np.inf
+    return _trimmed_rms(d[inside], trim)
+
+
+def _snap_facing(points, normals, T, t_normals, tree, k):
+    """For each point (m, 3) with its normal, the index into T of the nearest of its ``k`` closest vertices
+    whose normal is less than 90° from it (else the closest)."""
+    k = max(1, min(int(k), T.shape[0]))
+    _, j = tree.query(points, k=k)
+    j = j.reshape(len(points), k)
+    facing = np.einsum("mkc,mc->mk", t_normals[j], normals) > 0.0
+    first = np.where(facing.any(axis=1), np.argmax(facing, axis=1), 0)
+    return j[np.arange(len(points)), first]
+
+
 def propose_landmark_pairs(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas: ArrayLike,
                            src_names: Sequence[str], dst_verts: ArrayLike, dst_tris: ArrayLike, *,
-                           iterations: int = 25, trim: float = 0.3, sample: int = 2500) -> Result:
+                           iterations: int = 25, trim: float = 0.3, sample: int = 2500, face: float = 0.1,
+                           face_trim: float = 0.1, scale_bounds: tuple = (0.7, 1.43), snap: int = 16,
+                           spacing: float = 0.02) -> Result:
     """Landmark pairs for a target head without shapes, proposed from the source rig's shapes and geometry.
 
     Parameters
@@ -110,12 +170,27 @@ def propose_landmark_pairs(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas
         Fraction of the worst closest-point pairs ignored (parts one head has and the other has not).
     sample : int
         Vertices used per head for the fit.
+    face : float
+        The source's face: skin vertices some shape moves by at least this fraction of its peak.
+    face_trim : float
+        Fraction of the worst pairs ignored when refining on the face and scoring a fit.
+    scale_bounds : (float, float)
+        The face refinement keeps the scale within these factors of the whole-skin fit's.
+    spacing : float
+        Source landmarks closer than this × the source's diagonal to a landmark of a stronger shape are
+        dropped (two landmarks a few mm apart add nothing but a chance of disagreeing, which the landmark
+        warp turns into a local shear).
+    snap : int
+        A moved source landmark snaps to the nearest of this many closest target vertices that faces the same
+        way (vertex normals at less than 90°), else to the closest: not to the inside of the lips or the mouth
+        socket behind them.
 
     Returns
     -------
     Result
         ``value``: :class:`LandmarkPairs` named after the source shapes; ``diagnostics``: ``fit_residual``
-        (trimmed RMS / target diagonal), ``similarity`` ``(s, R, t)``, ``plane_error`` (source, target).
+        (the larger of the face's and the covered target's trimmed RMS distance / target diagonal),
+        ``similarity`` ``(s, R, t)``, ``plane_error`` (source, target).
         WARNING when the fit residual exceeds 2 % of the diagonal or a head has no clear mirror plane;
         FAILED when fewer than 5 source shapes move the skin.
     """
@@ -128,11 +203,12 @@ def propose_landmark_pairs(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas
     mag = np.linalg.norm(D[:, skin_s], axis=2) if D.shape[0] else np.zeros((0, skin_s.size))
     peak = mag.max(axis=1) if mag.size else np.zeros(0)
     idx, names = [], []
+    gap = spacing * bbox_diagonal(S[skin_s]) if skin_s.size else 0.0
     for k in np.argsort(-peak):
         if peak[k] <= 0.05 * peak.max():
             continue
         v = int(skin_s[np.argmax(mag[k])])
-        if v not in idx:
+        if v not in idx and (not idx or np.linalg.norm(S[idx] - S[v], axis=1).min() >= gap):
             idx.append(v)
             names.append(str(src_names[k]))
     if len(idx) < MIN_LANDMARKS:
@@ -145,18 +221,30 @@ def propose_landmark_pairs(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas
     ct, At, et = head_frame(T[skin_t])
     scale = bbox_diagonal(T[skin_t]) / max(bbox_diagonal(S[skin_s]), 1e-300)
     tree = cKDTree(Ts)
+    rel_move = (mag / np.where(peak > 0, peak, 1.0)[:, None]).max(axis=0) if mag.size else np.zeros(skin_s.size)
+    face_v = skin_s[rel_move >= face]
+    if face_v.size < 3 * MIN_LANDMARKS:
+        face_v = skin_s
+    face_v = face_v if face_v.size <= sample else rng.choice(face_v, sample, replace=False)
+    F, FN = S[face_v], vertex_normals(S, ST)[face_v]
+    T_skin, TN_skin = T[skin_t], vertex_normals(T, TT)[skin_t]
+    skin_tree = cKDTree(T_skin)
+    border = boundary_vertices(S.shape[0], ST)[skin_s]
     best = None
     for H in _hypotheses():
         for f in (0.75, 1.0, 1.33):
             R0 = At.T @ H @ As
             t0 = ct - f * scale * R0 @ cs
-            fit = _similarity_icp(Ss, Ts, tree, f * scale, R0, t0, iterations, trim)
-            if best is None or fit[3] < best[3]:
-                best = fit
-    s, R, t, resid = best
+            s0, R1, t1, _ = _similarity_icp(Ss, Ts, tree, f * scale, R0, t0, iterations, trim)
+            s1, R1, t1 = _face_refine(F, FN, T_skin, TN_skin, skin_tree, s0, R1, t1, iterations, face_trim,
+                                      scale_bounds)
+            there = _trimmed_rms(skin_tree.query(s1 * F @ R1.T + t1)[0], face_trim)
+            back = _covered_rms(s1 * S[skin_s] @ R1.T + t1, border, Ts, face_trim)
+            if best is None or there + back < best[4]:
+                best = (s1, R1, t1, max(there, back), there + back)
+    s, R, t, resid, _ = best
     moved = s * S[idx] @ R.T + t
-    _, j = cKDTree(T[skin_t]).query(moved)
-    dst_idx = skin_t[j]
+    dst_idx = skin_t[_snap_facing(moved, vertex_normals(S, ST)[idx] @ R.T, T_skin, TN_skin, skin_tree, snap)]
     keep = np.unique(dst_idx, return_index=True)[1]
     keep.sort()
     pairs = LandmarkPairs(S[np.array(idx)[keep]].copy(), T[dst_idx[keep]].copy(), np.array(idx)[keep],

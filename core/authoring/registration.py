@@ -26,7 +26,6 @@ point) to the target surface, in mm with the target head scaled to a 30 cm bound
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,6 +36,7 @@ from scipy.spatial import cKDTree
 
 from .. import validate
 from ..errors import ErrorCode
+from ..progress import ProgressFn, notify
 from ..rbf import fit_rbf
 from ..result import Result, ShapeSpaceError, Status
 from .landmarks import LandmarkPairs, check_landmarks, layout
@@ -239,7 +239,7 @@ def register(src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, ds
              landmarks: LandmarkPairs, *, stiffness: tuple = (8.0, 4.0, 2.0, 1.0, 0.5), inner: int = 3,
              iterations: int = 150, landmark_weight: float = 3.0, max_distance: float = 0.05,
              part_tolerance: float = 0.015, tol: float = 1e-4, warp_smoothing: float = 1e-3, anderson: int = 5,
-             progress: Callable[[float, str], bool] | None = None) -> Result:
+             progress: ProgressFn | None = None) -> Result:
     """Register the source neutral onto the target neutral and build the dense map.
 
     Parameters
@@ -283,8 +283,9 @@ def register(src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, ds
         exactly bakes that into the registration, which the ICP then cannot undo tangentially.  Measured on
         the shared heads (mean relative transfer error): exact 0.635 / 0.635, 10⁻³ 0.621 / 0.435 for
         facecap → FBHead / FBHead → facecap.
-    progress : callable (fraction, text) -> bool, optional
-        Return False to cancel (the result is then FAILED, message "cancelled").
+    progress : callable (fraction) -> None, optional
+        :mod:`core.progress` protocol: called with fractions in [0, 1]; raising
+        :class:`~core.progress.Cancelled` from it stops the registration (the exception reaches the caller).
 
     Returns
     -------
@@ -302,9 +303,6 @@ def register(src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, ds
     if not diag > 0:
         raise ShapeSpaceError("the target mesh has zero size", ErrorCode.DEGENERATE)
     mm = mm_per_unit(T)
-
-    def report(frac, text):
-        return progress is None or progress(frac, text) is not False
 
     Y0, sim = warp_points(landmarks, S, warp_smoothing)
     s_part, _ = triangle_parts(S.shape[0], ST)
@@ -427,8 +425,7 @@ def register(src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, ds
             rhs = (alpha * alpha) * (LtL @ Yn0) + w[:, None] * c + eps * Yn0 + lm_rhs
             Y_new = lu.solve(rhs)
             move = float(np.abs(Y_new - Y).max())
-            if not report(0.8 * min(1.0, (li + k / cap) / n_levels), f"registration stiffness {alpha:g}, step {k}"):
-                return Result(None, status=Status.FAILED, message="cancelled", iterations=it)
+            notify(progress, 0.8 * min(1.0, (li + k / cap) / n_levels))
             if frozen and (move < tol or abs(rel_change) < tol):
                 Y = Y_new
                 converged = True
@@ -496,5 +493,5 @@ def register(src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, ds
         a, mv = capped[0]
         msg += (f"; stiffness {a:g} stopped at {cap} iterations (the last still moved a vertex "
                 f"{mv * diag * mm:.2g} mm)" + (f", {len(capped) - 1} more level(s) too" if len(capped) > 1 else ""))
-    report(1.0, "registered")
+    notify(progress, 1.0)
     return Result(corr, status=status, message=msg, iterations=it, diagnostics=diagnostics)

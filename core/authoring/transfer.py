@@ -28,7 +28,7 @@ refused with ``unmatched_parts="refuse"``.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,6 +39,7 @@ from scipy.sparse.linalg import splu
 from .. import validate
 from ..errors import ErrorCode
 from ..names import canonical_name
+from ..progress import ProgressFn, notify
 from ..result import Issue, Result, ShapeSpaceError, Status
 from .mesh import check_mesh, face_normals
 from .registration import Correspondence
@@ -292,7 +293,7 @@ def transfer_shapes(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas: Array
                     dst_verts: ArrayLike, dst_tris: ArrayLike, corr: Correspondence, *, naming: str = "arkit",
                     metadata: Sequence[dict] | None = None, existing_names: Sequence[str] = (),
                     unmatched_parts: str = "keep", empty_tol: float = 1e-9,
-                    progress: Callable[[float, str], bool] | None = None) -> Result:
+                    progress: ProgressFn | None = None) -> Result:
     """Transfer every source shape onto the target mesh (deformation transfer, factorised once).
 
     Parameters
@@ -315,7 +316,8 @@ def transfer_shapes(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas: Array
     unmatched_parts : {"keep", "refuse"}
     empty_tol : float
         A source shape whose largest displacement is ≤ ``empty_tol`` × the source's size is empty.
-    progress : callable (fraction, text) -> bool, optional
+    progress : callable (fraction) -> None, optional
+        :mod:`core.progress` protocol; raising :class:`~core.progress.Cancelled` from it stops the transfer.
 
     Returns
     -------
@@ -346,8 +348,7 @@ def transfer_shapes(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas: Array
     if clash:
         raise ShapeSpaceError(f"the target already has a shape key {clash[0]!r} ({len(clash)} clash in all): "
                               f"rename or delete them first; nothing was overwritten", ErrorCode.DUPLICATE_NAME)
-    if progress is not None and progress(0.0, "factorising") is False:
-        return Result(None, status=Status.FAILED, message="cancelled")
+    notify(progress, 0.0)
     tr = Transfer(src_verts, src_tris, dst_verts, dst_tris, corr, unmatched_parts=unmatched_parts)
     size = max(float(np.ptp(S, axis=0).max()), 1e-300)
     peak = np.abs(D).reshape(D.shape[0], -1).max(axis=1) if D.size else np.zeros(0)
@@ -358,9 +359,7 @@ def transfer_shapes(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas: Array
     for i in range(0, live.size, step):
         idx = live[i:i + step]
         out[idx] = tr.solve(D[idx])
-        if progress is not None and progress(min(1.0, (i + step) / max(live.size, 1)),
-                                             f"transferred {min(live.size, i + step)}/{live.size}") is False:
-            return Result(None, status=Status.FAILED, message="cancelled")
+        notify(progress, min(1.0, (i + step) / max(live.size, 1)))
     rename = dict(zip(names, new))
     meta_out = [_rename_meta({**m, "name": m.get("name", n)}, rename) for m, n in zip(meta, names)]
     issues = list(tr.issues)

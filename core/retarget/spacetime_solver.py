@@ -57,8 +57,13 @@ bounds exactly.
 Ties.  On a rig with duplicate or dependent keys the geometric terms do not
 decide between the keys; the regulariser does: towards zero (``λ Σ (w/σ)²``,
 the smallest σ-weighted norm) or, with ``anchor``, towards the per-frame ridge
-fit (itself the smallest-norm split), so exact duplicates share a motion
-equally (the retarget command leaves keys that move nothing out of the fit).
+fit (the smallest σ-weighted-norm split).  Among exact
+duplicates the motion is shared in proportion to ``σ_k²``: with the retarget
+command's σ (each slider's spread in the source, floored), a key the source
+drives takes the motion and a vendor duplicate no channel drives stays near
+zero; duplicates with equal σ share equally.  The default end frames use the
+same weighting (:func:`_end_frames`), so a split does not jump at frame 1.
+The retarget command leaves keys that move nothing out of the fit.
 
 Progress.  :func:`spacetime` takes ``progress`` (:mod:`core.progress`):
 called per chunk of source rows and per bounded iteration; a
@@ -97,6 +102,10 @@ CHUNK_ROWS = 2048
 #: Default β of the retarget command's space-time method (position term, per frame²; #11).
 DRIFT_BETA = 1e-3
 
+#: Ridge of the default end frames' per-frame fits in the whitened variables w/σ (relative to tr(ΣBᵀBΣ)/n, as
+#: the retarget command's λ): small enough that the ends are the least-squares fits to ~1e-7 of the weights on a
+#: rig without ties, large enough to split ties (by σ²) to float precision.
+END_RIDGE = 1e-7
 
 @dataclass(kw_only=True)
 class SpacetimeResult(Result):
@@ -517,6 +526,9 @@ class BlockCholesky:
     previous : BlockCholesky, optional
         A factor of the same system with another held set (no shift): its blocks before the first frame
         whose held entries differ are taken over (and it can no longer be used).
+    progress : callable, optional
+        Called every :data:`PROGRESS_BLOCKS` frames of the factorisation (:mod:`core.progress`; a long take's
+        factor takes seconds, and a cancel is honoured there).
 
     Raises
     ------
@@ -525,7 +537,7 @@ class BlockCholesky:
     """
 
     def __init__(self, system: SpacetimeSystem, held: np.ndarray | None = None, shift: np.ndarray | None = None,
-                 previous: BlockCholesky | None = None):
+                 previous: BlockCholesky | None = None, progress: ProgressFn | None = None):
         N, n = system.shape
         self.shape = (N, n)
         M = system.M
@@ -549,6 +561,8 @@ class BlockCholesky:
         diag = np.diag_indices(n)
         keep = self.keep
         for t in range(start, N):
+            if progress is not None and t % PROGRESS_BLOCKS == 0:
+                notify(progress, t / N)
             if touched[t] or shift is not None:
                 At = A.copy()
                 if shift is not None:
@@ -609,6 +623,13 @@ PEAK_PATIENCE = 5
 
 #: Largest block-Cholesky factor (bytes: (f − 2) · n² · 8) the exact route builds; beyond it CG is used.
 BLOCK_BYTES_LIMIT = 2 * 2 ** 30
+
+#: Frames factored between two progress calls of :class:`BlockCholesky` (when given one).
+PROGRESS_BLOCKS = 4096
+
+#: :func:`clipped_solve` is tried first when no entry of the unbounded solution violates its bound by more than
+#: this fraction of the slider's range (tiny dips below 0 where the source rests; never real clipping).
+SHALLOW_VIOLATION = 1e-3
 
 #: Up to this size (bytes, (f − 2) · n² · 8) :class:`BlockCholesky` also keeps the ``C_t`` (faster solves);
 #: beyond it they are recomputed by triangular solves, so the memory stays one factor.
@@ -714,6 +735,43 @@ def reduced_step(system: SpacetimeSystem, act: np.ndarray, r: np.ndarray, scale:
 def _natural(Y: np.ndarray, mult: np.ndarray, ylo: np.ndarray, yhi: np.ndarray) -> float:
     """Natural residual ``‖y − clip(y − ∇f)‖∞`` (``mult = −∇f``); it also measures any bound violation."""
     return float(np.abs(Y - np.clip(Y + mult, ylo, yhi)).max(initial=0.0))
+
+
+def shallow_violation(Y: np.ndarray, ylo: np.ndarray, yhi: np.ndarray) -> bool:
+    """Whether the unbounded solution leaves its bounds, and only by a sliver: every violation within
+    :data:`SHALLOW_VIOLATION` of the slider's range (σ-scaled), or of 1 where the range is unbounded."""
+    width = np.where(np.isfinite(yhi - ylo), yhi - ylo, 1.0)
+    depth = np.maximum(ylo - Y, Y - yhi)
+    return bool(depth.max(initial=0.0) > 0.0 and np.all(depth <= SHALLOW_VIOLATION * width))
+
+
+def clipped_solve(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo: np.ndarray, yhi: np.ndarray,
+                  tol: float, scale: float, progress: ProgressFn | None = None) -> tuple:
+    """One exact solve with every violated entry of the unbounded solution held at its bound.
+
+    On a take with nothing to clip, the unbounded solution still dips below a slider's 0 by a sliver
+    wherever the source rests at 0 (the per-frame ridge fit it is anchored to mixes keys): 357,000 entries
+    by at most 1e-4 on 36,000 frames onto ICT FaceKit.  Holding them all is then already the KKT point to
+    the tolerance — the held entries whose multiplier has the wrong sign are held by a multiplier as small as
+    their violation — where growing the active set from run peaks (:func:`peak_active_set`) needs a
+    factorisation per pass over hundreds of thousands of runs.  Used only for a :func:`shallow_violation`
+    (deep clipping makes most held entries wrong; the peak iteration is the route there).
+
+    Returns
+    -------
+    Y : ndarray (f − 2, n)
+    converged : bool
+        Whether the natural residual meets ``tol · scale`` (else the caller starts over from ``Y``).
+    """
+    upper, lower = Y > yhi, Y < ylo
+    Yh = np.where(upper, yhi, np.where(lower, ylo, Y))
+    try:
+        factor = BlockCholesky(system, upper | lower, progress=progress)
+    except np.linalg.LinAlgError:
+        return Y, False
+    system.solves += 1
+    Yn = Yh + factor.solve(R0 - system.apply(Yh))
+    return Yn, _natural(Yn, R0 - system.apply(Yn), ylo, yhi) <= tol * scale
 
 
 def peak_active_set(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo: np.ndarray, yhi: np.ndarray,
@@ -1035,7 +1093,11 @@ def _solve_bounded(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, lo: n
     # a rank-deficient rig (duplicate keys: M singular) has many bounded ties only λ tells apart, on which active-set
     # iterations cycle; the interior point goes straight through them
     degenerate = float(system.mu.min()) <= DEGENERATE_RATIO * float(system.mu.max())
-    if exact and not degenerate:
+    clipped = exact and shallow_violation(Y, ylo, yhi)
+    if clipped:                              # nothing really clips: hold every sliver, one solve (usually final)
+        Ys, done = clipped_solve(system, Y, R0, ylo, yhi, tol, scale, scaled(progress, 0.0, 0.5))
+        Ys = Ys if done else Y
+    if exact and not degenerate and not done:
         Ys, peak_iterations, done = peak_active_set(system, Y, R0, ylo, yhi, tol, max_iter, scale,
                                                     scaled(progress, 0.0, 0.5))
     if not done and exact and bool(np.all(lo < hi)):
@@ -1052,10 +1114,21 @@ def _solve_bounded(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, lo: n
     return SpacetimeResult(_assemble(Ys, sig, first, last, lo, hi), status=status, message=message,
                            iterations=peak_iterations + ipm_iterations + pdas_iterations + newton_iterations,
                            diagnostics={"natural_residual": nat, "solves": system.solves,
+                                        "clipped_solve": bool(clipped),
                                         "peak_iterations": peak_iterations,
                                         "interior_point_iterations": ipm_iterations,
                                         "active_set_iterations": pdas_iterations,
                                         "newton_iterations": newton_iterations})
+
+
+def _end_frames(B: np.ndarray, b0: np.ndarray, S: np.ndarray, sig: np.ndarray, lo: np.ndarray,
+                hi: np.ndarray) -> np.ndarray:
+    """The default fixed end frames (2, n): the per-frame bounded fits of the first and last source frames
+    (:func:`~.perframe.fit_frames`, ridge :data:`END_RIDGE`) in the interior's whitened variables ``w / σ``, so a tie
+    between duplicate keys splits in proportion to ``σ²`` at the ends as in between (no jump at frame 1);
+    on a rig without ties the ridge is negligible either way."""
+    W = fit_frames(B * sig, b0, S[[0, -1]].astype(np.float64), lo / sig, hi / sig, reg=END_RIDGE) * sig
+    return np.clip(W, lo, hi)              # (lo/σ)·σ can round past lo
 
 
 def _bound(x: ArrayLike | None, name: str, n: int, default: float) -> np.ndarray:
@@ -1115,7 +1188,7 @@ def spacetime(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayL
 
     Minimises ``‖D (W Bᵀ − S)‖² + β ‖W Bᵀ − S‖² + λ Σ_f Σ_k (w_fk / σ_k)²`` over the interior
     frames, with ``W[0] = first`` and ``W[-1] = last`` fixed (default: the
-    per-frame fits of the end frames, :func:`~.perframe.fit_frames`), where
+    per-frame fits of the end frames in the variables ``w / σ``, :func:`_end_frames`), where
     ``S`` are the source positions at the corresponding points relative to the
     target neutral and ``D`` the temporal first difference; with ``lo``/``hi``
     subject to ``lo ≤ w ≤ hi``.  See the module docstring for the method.
@@ -1184,8 +1257,7 @@ def spacetime(B: ArrayLike, neutral: ArrayLike, frames: ArrayLike, sigma: ArrayL
         raise ShapeSpaceError(f"beta must be ≥ 0, got {beta}", "range")
     F, n = S.shape[0], B.shape[1]
     if first is None or last is None:
-        ends = fit_frames(B, b0, S[[0, -1]].astype(np.float64), lo if bounded else np.full(n, -1e6),
-                          hi if bounded else np.full(n, 1e6))
+        ends = _end_frames(B, b0, S, sig, lo if bounded else np.full(n, -1e6), hi if bounded else np.full(n, 1e6))
         first = ends[0] if first is None else first
         last = ends[1] if last is None else last
     first, last = array(first, "first", shape=(n,)), array(last, "last", shape=(n,))

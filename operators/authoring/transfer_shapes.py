@@ -1,32 +1,64 @@
+"""Transfer Shapes: read (main thread) → register and transfer (a worker thread when invoked from the UI) →
+write (main thread).
+
+From the UI (``invoke``) the computation runs in a :class:`core.jobs.BackgroundJob` while a modal timer shows
+window-manager progress and a status-bar line; Esc cancels it and nothing is written (the same
+:class:`~operators.progress.JobModal` as Retarget).  Scripts, redo and ``EXEC_DEFAULT`` (``execute``) run the
+same three steps synchronously, with window-manager progress.
+"""
 import bpy
 
 from ...bridge import authoring
-from ...core.result import ShapeSpaceError
+from ..progress import JobModal, window_progress
+from ..reporting import FAILED, attempt
 from ._polls import transfer_target
-from ..progress import window_progress
 
 
-class SHAPESPACE_OT_transfer_shapes(bpy.types.Operator):
+class SHAPESPACE_OT_transfer_shapes(JobModal, bpy.types.Operator):
     """Give the active mesh the source rig's shape keys by model transfer (registration on the landmark
-pairs, then deformation transfer): in-betweens, combinations, slider ranges and masks included"""
+pairs, then deformation transfer): in-betweens, combinations, slider ranges and masks included (Esc cancels;
+nothing is written then)"""
 
     bl_idname = "shapespace.transfer_shapes"
     bl_label = "Transfer Shapes"
     bl_options = {"REGISTER", "UNDO"}
+    job_title = "Transfer"
 
     @classmethod
     def poll(cls, context):
         return transfer_target(cls, context, need_landmarks=authoring.MIN_LANDMARKS) is not None
 
-    def execute(self, context):
+    def _read(self, context):
         ob = context.active_object
         st = ob.shapespace_authoring
-        try:
-            with window_progress(context) as progress:
-                rep = authoring.transfer_shapes(st.source, ob, naming=st.naming, existing=st.existing,
-                                                unmatched_parts=st.unmatched_parts, progress=progress)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        return attempt(self, authoring.read_transfer, st.source, ob, naming=st.naming, existing=st.existing,
+                       unmatched_parts=st.unmatched_parts)
+
+    def execute(self, context):
+        plan = self._read(context)
+        if plan is FAILED:
+            return {"CANCELLED"}
+        with window_progress(context) as progress:
+            outcome = attempt(self, authoring.compute_transfer, plan, progress)
+        if outcome is FAILED:
+            return {"CANCELLED"}
+        return self._done(attempt(self, authoring.write_transfer, outcome))
+
+    def invoke(self, context, event):
+        if getattr(context, "window", None) is None:          # no event loop to poll from: run it here
+            return self.execute(context)
+        plan = self._read(context)
+        if plan is FAILED:
+            return {"CANCELLED"}
+        label = f"Transferring {len(plan.write)} shapes of {plan.source} onto {plan.target}"
+        return self.start_job(context, authoring.start_transfer_job(plan), label)
+
+    def job_finished(self, context, job):
+        return self._done(attempt(self, authoring.finish_transfer_job, job))
+
+    def _done(self, rep):
+        """Report a written transfer (or a failure) and give the operator's return value."""
+        if rep is FAILED:
             return {"CANCELLED"}
         for warning in rep.warnings:
             self.report({"WARNING"}, warning)
@@ -38,6 +70,6 @@ pairs, then deformation transfer): in-betweens, combinations, slider ranges and 
         if rep.empty:
             extra.append(f"empty on the source: {', '.join(rep.empty[:4])}")
         tail = f" ({'; '.join(extra)})" if extra else ""
-        self.report({"INFO"}, f"{len(rep.created)} shape keys transferred onto {ob.name} in {rep.seconds:.1f} s, "
+        self.report({"INFO"}, f"{len(rep.created)} shape keys transferred onto {rep.target} in {rep.seconds:.1f} s, "
                               f"registration residual {rep.registration_residual_mm:.2f} mm{tail}")
         return {"FINISHED"}

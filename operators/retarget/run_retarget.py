@@ -5,56 +5,29 @@ window-manager progress and a status-bar line; Esc cancels it and nothing is wri
 ``EXEC_DEFAULT`` (``execute``) run the same three steps synchronously, with window-manager progress.
 """
 import os
-from contextlib import contextmanager
 
 import bpy
 
 from ...bridge import retarget
-from ...core.progress import Cancelled, scaled
+from ...core.progress import scaled
 from ...core.retarget.report import format_ranges
 from ...properties import KEY_SHAPES, RETARGET_METHODS
 from ..polls import active_rig
+from ..progress import JobModal, window_progress
 from ..reporting import FAILED, attempt
-
-#: Seconds between the modal handler's progress updates.
-TICK = 0.1
 
 #: The part of the progress bar for reading the source (main thread); the computation has the rest.
 READ_SHARE = 0.1
 
-#: Events passed on to Blender while a retarget computes (view navigation only; everything else waits).
-NAVIGATION = {"MIDDLEMOUSE", "WHEELUPMOUSE", "WHEELDOWNMOUSE", "MOUSEMOVE", "INBETWEEN_MOUSEMOVE", "TRACKPADPAN",
-              "TRACKPADZOOM", "NDOF_MOTION"}
 
-
-@contextmanager
-def window_progress(context, steps: int = 100):
-    """Window-manager progress (the cursor's percentage) while the block runs; yields ``progress(fraction)``."""
-    wm = getattr(context, "window_manager", None)
-    if wm is None:
-        yield None
-        return
-    wm.progress_begin(0, steps)
-    try:
-        yield lambda fraction: wm.progress_update(int(round(steps * min(max(float(fraction), 0.0), 1.0))))
-    finally:
-        wm.progress_end()
-
-
-def status_text(context, text) -> None:
-    """Show ``text`` in the status bar (``None`` clears it); nothing without a workspace (background)."""
-    workspace = getattr(context, "workspace", None)
-    if workspace is not None and getattr(context, "window", None) is not None:
-        workspace.status_text_set(text)
-
-
-class SHAPESPACE_OT_retarget(bpy.types.Operator):
+class SHAPESPACE_OT_retarget(JobModal, bpy.types.Operator):
     """Retarget a Live Link Face CSV, an action or a mesh performance onto the active mesh's shape keys, into a new
 action (Esc cancels a long retarget; nothing is written then)"""
 
     bl_idname = "shapespace.retarget"
     bl_label = "Retarget"
     bl_options = {"REGISTER", "UNDO"}
+    job_title = "Retarget"
 
     filepath: bpy.props.StringProperty(name="CSV File", subtype="FILE_PATH",
                                        description="Live Link Face CSV (leave empty to use an action)")
@@ -123,51 +96,11 @@ action (Esc cancels a long retarget; nothing is written then)"""
             plan = self._read(context, scaled(progress, 0.0, READ_SHARE))
         if plan is FAILED:
             return {"CANCELLED"}
-        wm = context.window_manager
-        self._job = retarget.start_retarget_job(plan)
-        self._label = f"Retargeting {os.path.basename(plan.report.source)} onto {plan.obj_name} ({plan.method})"
-        self._timer = wm.event_timer_add(TICK, window=context.window)
-        wm.progress_begin(0, 100)
-        wm.progress_update(int(100 * READ_SHARE))
-        wm.modal_handler_add(self)
-        status_text(context, f"{self._label}: starting… (Esc to cancel)")
-        return {"RUNNING_MODAL"}
+        label = f"Retargeting {os.path.basename(plan.report.source)} onto {plan.obj_name} ({plan.method})"
+        return self.start_job(context, retarget.start_retarget_job(plan), label, READ_SHARE)
 
-    def modal(self, context, event):
-        job = self._job
-        if event.type == "ESC":
-            job.cancel()                      # the worker stops at its next progress call; nothing was written
-            self._stop(context)
-            self.report({"INFO"}, "Retarget cancelled: nothing was changed")
-            return {"CANCELLED"}
-        if event.type != "TIMER":
-            return {"PASS_THROUGH"} if event.type in NAVIGATION else {"RUNNING_MODAL"}
-        if not job.done:
-            shown = READ_SHARE + (1.0 - READ_SHARE) * job.fraction
-            context.window_manager.progress_update(int(round(100 * shown)))
-            status_text(context, f"{self._label}: {100 * shown:.0f} %, {job.elapsed():.0f} s (Esc to cancel)")
-            return {"RUNNING_MODAL"}
-        self._stop(context)
-        try:
-            rep = attempt(self, retarget.finish_retarget_job, job, context.scene)
-        except Cancelled:
-            self.report({"INFO"}, "Retarget cancelled: nothing was changed")
-            return {"CANCELLED"}
-        return self._done(rep)
-
-    def cancel(self, context):
-        """Blender ends the operator (file closed, window gone): stop the worker, write nothing."""
-        if getattr(self, "_job", None) is not None:
-            self._job.cancel()
-        self._stop(context)
-
-    def _stop(self, context):
-        wm = context.window_manager
-        if getattr(self, "_timer", None) is not None:
-            wm.event_timer_remove(self._timer)
-            self._timer = None
-            wm.progress_end()
-            status_text(context, None)
+    def job_finished(self, context, job):
+        return self._done(attempt(self, retarget.finish_retarget_job, job, context.scene))
 
 
 def result_message(rep) -> str:

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from core import authoring
 from core.authoring import (LandmarkPairs, Transfer, check_landmarks, convert_name, landmarks_from_indices,
                             landmarks_from_shared_shapes, register, transfer_shapes, triangulate)
+from core.progress import Cancelled
 from core.result import ShapeSpaceError, Status
 
 
@@ -334,7 +335,7 @@ def test_proposal_needs_five_moving_shapes(head):
 
 def test_registration_reports_iteration_limit_and_can_be_cancelled(head):
     """A target that differs beyond the landmarks (a bulge): one iteration stops short → NOT_CONVERGED, never
-    OK; a progress callback returning False cancels (FAILED, no value)."""
+    OK; a progress callback raising Cancelled stops it (the exception reaches the caller)."""
     V, T, _, lm = head
     TV = V + 0.08 * np.exp(-np.sum((V - [0.5, 0.5, 0.5]) ** 2, axis=1) / 0.05)[:, None] * V
     pairs = landmarks_from_indices(V, TV, lm, lm)
@@ -344,8 +345,15 @@ def test_registration_reports_iteration_limit_and_can_be_cancelled(head):
     full = register(V, T, TV, T, pairs)
     assert full.value.residual_mm < res.value.residual_mm
     calls = []
-    cancelled = register(V, T, TV, T, pairs, progress=lambda f, text: calls.append(f) or len(calls) < 2)
-    assert cancelled.status == Status.FAILED and cancelled.message == "cancelled" and cancelled.value is None
+
+    def progress(fraction):                       # core.progress protocol: raising Cancelled stops the work
+        calls.append(fraction)
+        if len(calls) >= 2:
+            raise Cancelled()
+
+    with pytest.raises(Cancelled):
+        register(V, T, TV, T, pairs, progress=progress)
+    assert len(calls) == 2 and all(0.0 <= f < 1.0 for f in calls)
 
 
 def test_free_surface_point_landmarks(head):

@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 from core.animation import curve_slopes, hermite, reduce_keys, reduce_keys_bezier
 from core.retarget import (closest_points, cloning_matrix, copy_weights, fit_frames, key_poses, landmark_layout,
                            landmark_warp, peak_landmarks, procrustes, spacetime)
+from core.retarget.spacetime_solver import END_RIDGE
 from core.result import ShapeSpaceError
 
 
@@ -378,11 +379,16 @@ def test_spacetime_default_ends_are_per_frame_fits():
     frames = neutral + smooth_weights(rng, F, n) @ B.T + 0.05 * rng.standard_normal((F, m3))
     sigma = rng.uniform(0.5, 1.5, n)
     res = spacetime(B, neutral, frames, sigma, lam=1e-3)
-    # per-frame fit of the end frames (ridge 1e-6, no active bound), computed independently; 1e-6 is the
-    # per-frame fit tolerance used throughout (fit_frames' box-QP stops near 1e-9 for a ridge this small)
-    np.testing.assert_allclose(res.weights[0], ridge_lstsq(B, frames[0] - neutral, 1e-6), rtol=0, atol=1e-6)
-    np.testing.assert_allclose(res.weights[-1], ridge_lstsq(B, frames[-1] - neutral, 1e-6), rtol=0, atol=1e-6)
-    ends = fit_frames(B, neutral, frames[[0, -1]], np.full(n, -1e6), np.full(n, 1e6))
+    # per-frame fit of the end frames in the whitened variables w/σ (ridge END_RIDGE·tr(ΣBᵀBΣ)/n on w/σ, the
+    # interior's weighting, so ties split alike; no active bound), computed independently by lstsq
+    Bs = B * sigma
+    a = END_RIDGE * np.trace(Bs.T @ Bs) / n
+    for row in (0, -1):
+        want = ridge_lstsq(Bs, frames[row] - neutral, a) * sigma
+        np.testing.assert_allclose(res.weights[row], want, rtol=0, atol=1e-9)
+    # exactly: the per-frame fit in the whitened variables w/σ (ties split like the interior's σ-weighted ridge)
+    ends = fit_frames(B * sigma, neutral, frames[[0, -1]], np.full(n, -1e6) / sigma, np.full(n, 1e6) / sigma,
+                      reg=END_RIDGE) * sigma
     np.testing.assert_allclose(res.weights[[0, -1]], ends, rtol=0, atol=1e-12)
     # the interior is the Kronecker solution with those ends
     ref = spacetime_reference(B, neutral, frames, sigma, 1e-3, res.weights[0], res.weights[-1])
@@ -511,9 +517,11 @@ def test_spacetime_bounded_default_ends_are_bounded_fits():
     lo, hi = np.zeros(3), np.ones(3)
     res = spacetime(B, neutral, frames, sigma, lam=1e-2, lo=lo, hi=hi)
     assert res.status == 0
-    a = 1e-6 * np.trace(B.T @ B) / 3                           # the per-frame fit's ridge
-    np.testing.assert_allclose(res.weights[0], bvls_ridge(B, frames[0] - neutral, a, lo, hi), rtol=0, atol=1e-6)
-    np.testing.assert_allclose(res.weights[-1], bvls_ridge(B, frames[-1] - neutral, a, lo, hi), rtol=0, atol=1e-6)
+    Bs = B * sigma                                             # the end frames' fit is on w/σ (see _end_frames)
+    a = END_RIDGE * np.trace(Bs.T @ Bs) / 3
+    for row in (0, -1):
+        want = bvls_ridge(Bs, frames[row] - neutral, a, lo / sigma, hi / sigma) * sigma
+        np.testing.assert_allclose(res.weights[row], want, rtol=0, atol=1e-6)
     assert np.all(res.weights >= lo) and np.all(res.weights <= hi)
 
 

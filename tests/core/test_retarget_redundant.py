@@ -11,7 +11,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 
 
 def _redundant_rig(seed=0, m=400):
-    """The benchmark's redundant rig (tools/synthetic_rigs.py), so the test and the bench check the same rig."""
+    """The synthetic redundant rig (tools/synthetic_rigs.py, Gaussian bumps: this tier has no Blender); the bench
+    and tests/bridge/test_retarget_redundant_head.py build the same kind of rig from FBHead's real keys."""
     path = os.path.join(ROOT, "tools", "synthetic_rigs.py")
     spec = importlib.util.spec_from_file_location("shapespace_synthetic_rigs", path)
     module = importlib.util.module_from_spec(spec)

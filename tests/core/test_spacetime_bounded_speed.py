@@ -226,3 +226,37 @@ def test_single_threaded_restores_the_blas_thread_counts():
         np.linalg.cholesky(np.eye(200) * 2.0)
     after = [int(get()) for _, get in blas_threads._controls]
     assert all(c == 1 for c in inside) and after == before
+
+
+def test_slivers_below_zero_are_settled_by_one_solve_with_every_violation_held():
+    """A take with nothing to clip whose unbounded solution still dips a sliver below 0 where the source rests
+    at 0 (as on a 36,000-frame take onto ICT FaceKit): one exact solve with every violated entry held meets the
+    KKT test; the answer is the box-QP minimiser (quadprog on the explicit problem) to the tolerance's order."""
+    rng = np.random.default_rng(41)
+    F, n, m3 = 36, 4, 12
+    B = rng.normal(size=(m3, n))
+    t = np.linspace(0, 1, F)[:, None]
+    W = np.clip(np.sin(2 * np.pi * rng.uniform(0.5, 1.5, n) * t + rng.uniform(0, 6, n)), 0.0, None) * 0.6
+    S = W @ B.T + 1e-9 * rng.normal(size=(F, m3))     # rests at exactly 0 for stretches; a whisper of noise
+    sig = np.full(n, 0.3)
+    lo, hi = np.zeros(n), np.ones(n)
+    system = SpacetimeSystem(B, sig, 1e-7, F, relative=True)       # the retarget command's λ
+    ends = W[[0, -1]]
+    Y = system.solve(system.rhs(S, np.zeros(m3), ends[0], ends[1], anchor=True))
+    ylo, yhi = np.broadcast_to(lo / sig, Y.shape), np.broadcast_to(hi / sig, Y.shape)
+    assert st.shallow_violation(Y, ylo, yhi)                  # slivers only: the case this route is for
+    assert np.sum(Y < ylo) >= 10
+    res = spacetime(B, np.zeros(m3), S, sig, 1e-7, first=ends[0], last=ends[1], lo=lo, hi=hi, relative=True,
+                    anchor=True)
+    assert res.status == Status.OK
+    assert res.diagnostics["clipped_solve"] and res.diagnostics["solves"] == 1
+    assert res.diagnostics["peak_iterations"] == 0 and res.diagnostics["interior_point_iterations"] == 0
+    want = _dense_qp(B, np.zeros(m3), S, sig, _relative_lam(B, sig, 1e-7), 0.0, True, ends[0], ends[1], lo, hi)
+    np.testing.assert_allclose(res.weights[1:-1], want, rtol=0, atol=1e-7)
+    assert res.weights.min() >= 0.0 and res.weights.max() <= 1.0
+
+
+def test_deep_clipping_does_not_take_the_sliver_route():
+    B, b0, S = _take(5)
+    res = spacetime(B, b0, S, np.ones(B.shape[1]), 1e-3, lo=0.0, hi=1.0, relative=True, anchor=True)
+    assert res.status == Status.OK and not res.diagnostics["clipped_solve"]
