@@ -365,10 +365,32 @@ def _span_fails(t: np.ndarray, V: np.ndarray, M: np.ndarray, c: np.ndarray, i: n
     return out
 
 
+#: Starts per chunk of stage 1 (:func:`_valid_segments`): its temporaries stay in the cache.
+_CHUNK_STARTS = 4096
+
+
 def _valid_segments(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span: int) -> np.ndarray:
     """Stage 1's valid segments of every curve, ``ok[c, i, d]`` shape (c, f, min(max_span, f − 1) + 1): the
     Hermite of curve c (row of ``V`` (c, f), slopes ``M``) from sample i to i + d stays within ``tol`` of every
-    sample between.
+    sample between.  Computed in chunks of :data:`_CHUNK_STARTS` starts (:func:`_valid_window`: the same
+    arithmetic for every segment, in cache-sized pieces)."""
+    C, n = V.shape
+    span = min(max_span, n - 1)
+    dt = np.diff(t)
+    uniform = bool(np.all(np.abs(dt - dt[0]) <= 1e-12 * abs(dt[0])))
+    if n <= _CHUNK_STARTS + span:
+        return _valid_window(t, V, M, tol, span, uniform)
+    valid = np.zeros((C, n, span + 1), dtype=bool)
+    for lo in range(0, n - 1, _CHUNK_STARTS):
+        hi = min(lo + _CHUNK_STARTS + span, n)
+        w = min(_CHUNK_STARTS, n - lo)
+        valid[:, lo:lo + w] = _valid_window(t[lo:hi], V[:, lo:hi], M[:, lo:hi], tol, span, uniform)[:, :w]
+    return valid
+
+
+def _valid_window(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span: int, uniform: bool) -> np.ndarray:
+    """:func:`_valid_segments` on the samples of ``t`` (f,) (spans up to ``span``; ``uniform`` time steps), shape
+    (c, f, span + 1).
 
     Vectorised over curves and starts for each span d (slices, no gathers).  A segment is accepted at once
     when a bound proves it (the curve stays in the end values' range widened by 4/27 · h · (|m_i| + |m_j|), so
@@ -376,12 +398,9 @@ def _valid_segments(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max
     interior sample, longer ones at their middle sample, and the survivors (gathered) on 4, every 8th, then
     all interior samples (failing anywhere is failing).  Exactly the segments whose max error is ≤ tol."""
     C, n = V.shape
-    span = min(max_span, n - 1)
-    dt = np.diff(t)
-    uniform = bool(np.all(np.abs(dt - dt[0]) <= 1e-12 * abs(dt[0])))
     top, bottom = V.copy(), V.copy()                                  # range of the samples in [i, i + d]
     valid = np.zeros((C, n, span + 1), dtype=bool)
-    for d in range(1, span + 1):
+    for d in range(1, min(span, n - 1) + 1):
         w = n - d
         np.maximum(top[:, :w], V[:, d:], out=top[:, :w])
         np.minimum(bottom[:, :w], V[:, d:], out=bottom[:, :w])
@@ -418,11 +437,14 @@ def _fewest_keys(ok: np.ndarray) -> list:
     i, d = np.nonzero(ok)                                             # sorted by start: CSR order
     graph = csr_matrix((np.ones(i.size), i + d, np.r_[0, np.cumsum(ok.sum(axis=1))]), shape=(n, n))
     dist = dijkstra(graph, directed=True, indices=0, unweighted=True)
+    prev, start = np.full(n, -1), np.arange(n)                       # each sample's earliest previous key
+    for d in range(1, span + 1):                                      # longer spans overwrite: earlier starts
+        hit = ok[:n - d, d] & (dist[:n - d] == dist[d:] - 1)
+        prev[d:][hit] = start[:n - d][hit]
+    prev = prev.tolist()
     keys = [n - 1]
     while keys[-1] > 0:
-        j = keys[-1]
-        before = np.arange(max(0, j - span), j)
-        keys.append(int(before[ok[before, j - before] & (dist[before] == dist[j] - 1)][0]))
+        keys.append(prev[keys[-1]])
     return keys[::-1]
 
 
@@ -474,11 +496,13 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
                               refine: bool = True, *, progress: ProgressFn | None = None) -> list:
     """:func:`reduce_keys_bezier` for many curves sampled at the same times, vectorised over the curves.
 
-    Stage 1 tests each span for every curve and start at once; stage 2 runs the curves' sweeps in lock
-    step, one absorption test per curve and step solved for all curves together (least squares by the
-    normal equations, the minimax fits by a batched exchange algorithm, :func:`chebyshev_fit`'s); a
-    test whose keys have not changed since it failed is not repeated.  Memory and time are linear in the
-    number of samples (curves are processed in blocks of at most :data:`_BLOCK_SAMPLES` samples).
+    Stage 1 tests each span for every curve and start at once (in cache-sized chunks of starts); stage 2
+    runs the curves' sweeps in lock step, each sweep split into lanes of keys that hand over where they meet
+    (:func:`_absorb_keys`: exactly the sequential sweep), one absorption test per lane and step solved for all
+    lanes together (least squares by the normal equations, the minimax fits by a batched exchange algorithm,
+    :func:`chebyshev_fit`'s); a test whose keys have not changed since it failed is not repeated.  Memory and
+    time are linear in the number of samples (curves are processed in blocks of at most
+    :data:`_BLOCK_SAMPLES` samples).
 
     Parameters
     ----------
@@ -582,16 +606,23 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
     return x, err
 
 
-def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list, km: list, tol: float) -> list:
+def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list, km: list, tol: float,
+                  curves: list | None = None, sigs: list | None = None) -> list:
     """Stage 2's absorption tests, one per entry of ``tests`` ``(curve, p, a, b)``: can keys p − 1 and p + 1
     of that curve (values and slopes refitted, keys a = max(p − 2, 0) and b = min(p + 2, last) held) absorb
     key p with max error ≤ tol?  Exactly the test of the scalar path (:func:`_absorb_system` rows, least
     squares then, if ‖r‖₂ / √m allows it, the minimax fit), solved for all tests together.  Returns the new
-    (v, m, v, m) of keys p − 1, p + 1 per test, or None."""
+    (v, m, v, m) of keys p − 1, p + 1 per test, or None.  ``curves``: the row of ``V`` of each test when
+    its first entry indexes the key lists but not ``V`` (default: the same); ``sigs``: per test, the indices of
+    keys a, p − 1, p + 1, b then the values and slopes of a and b, when the caller has them."""
     B = len(tests)
-    K = np.array([[idx[c][a], idx[c][p - 1], idx[c][p + 1], idx[c][b]] for c, p, a, b in tests])
-    held = np.array([[kv[c][a], km[c][a], kv[c][b], km[c][b]] for c, p, a, b in tests])
-    curve = np.array([c for c, _, _, _ in tests])
+    if sigs is None:
+        K = np.array([[idx[c][a], idx[c][p - 1], idx[c][p + 1], idx[c][b]] for c, p, a, b in tests])
+        held = np.array([[kv[c][a], km[c][a], kv[c][b], km[c][b]] for c, p, a, b in tests])
+    else:
+        both = np.array(sigs, dtype=np.float64).reshape(B, 8)
+        K, held = both[:, :4].astype(np.int64), both[:, 4:]
+    curve = np.array([c for c, _, _, _ in tests] if curves is None else curves)
     has = np.column_stack([K[:, 0] < K[:, 1], np.ones(B, dtype=bool), K[:, 3] > K[:, 2]])    # segments L, M, R
     seg_test, seg_kind = np.nonzero(has)                              # grouped by test, in order L, M, R
     s0, s1 = K[seg_test, seg_kind], K[seg_test, seg_kind + 1]
@@ -662,7 +693,7 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
     # rank-deficient or tiny systems: the scalar path
     for gg in np.flatnonzero(~good | ((err > tol) & (norm <= tol * np.sqrt(rows)) & ~startable)):
         c, p, _, _ = tests[gg]
-        out[gg] = _absorb_one(t, V[c], idx[c], kv[c], km[c], p, tol)
+        out[gg] = _absorb_one(t, V[curve[gg]], idx[c], kv[c], km[c], p, tol)
     return out
 
 
@@ -698,50 +729,176 @@ def _absorb_system(t: np.ndarray, v: np.ndarray, idx: list, kv: list, km: list, 
     return np.vstack(blocks), np.concatenate(rhs)
 
 
+#: Keys per lane of :func:`_absorb_keys`: each curve's sweep is split into lanes of about this many keys.
+_LANE_KEYS = 128
+#: Most absorption tests solved together by :func:`_absorb_batch` (its temporaries stay in cache).
+_BATCH_TESTS = 256
+
+
+class _Lane:
+    """A piece of one curve's sweep in :func:`_absorb_keys`: the sweep as if it started at key ``start`` of the
+    sweep's keys ``g`` (index, value and slope lists), on its own copy of them from ``base`` = max(start − 2, 0)
+    on, copied as the cursor ``q`` advances (keys right of the cursor are untouched by the sweep so far).
+    ``seen`` maps each cursor key (sample index) to the keys q − 2 … q (indices, values, slopes) then and q."""
+
+    __slots__ = ("curve", "g", "start_key", "i", "v", "m", "q", "nxt", "seen", "top", "state", "after", "cut",
+                 "into", "frm", "merge_key")
+
+    def __init__(self, curve: int, g: tuple, start: int, after: int):
+        base = max(start - 2, 0)
+        self.curve, self.g, self.start_key = curve, g, g[0][start]
+        self.i, self.v, self.m = g[0][base:start + 1], g[1][base:start + 1], g[2][base:start + 1]
+        self.q, self.nxt = start - base, start + 1
+        self.seen, self.top = {}, -1
+        self.state = 0                       # 0 running, 1 reached the curve's end, 2 handed over, 3 not needed
+        self.after = after                   # index of the next lane of the curve to compare with
+        self.cut = self.into = self.frm = self.merge_key = None
+
+
+def _lane_compare(lanes: list, lane: _Lane, c: int):
+    """The later lane's record at cursor key ``c`` that ``lane`` continues into when its keys q − 2 … q equal
+    it: (lane, record), None when no later lane covers ``c``, or ``False`` to wait for a lane not there yet."""
+    while lane.after < len(lanes):
+        k = lanes[lane.after]
+        if k.state == 2 and c >= k.merge_key:                         # from there on, k is a later lane
+            lane.after += 1
+            continue
+        if k.start_key > c:
+            return None
+        rec = k.seen.get(c)
+        if rec is not None:
+            return k, rec
+        return False if k.state == 0 and k.top < c else None
+    return None
+
+
+def _lanes_done(lanes: list):
+    """The sweep's keys (index, value, slope lists) when the lanes from the first one on reach the curve's end
+    through their hand-overs, else None."""
+    lane, pos, parts = lanes[0], 0, []
+    while lane.state == 2:
+        parts.append((lane, pos, lane.cut))
+        lane, pos = lane.into, lane.frm
+    if lane.state != 1:
+        return None
+    parts.append((lane, pos, len(lane.i)))
+    return tuple([x for ln, a, b in parts for x in getattr(ln, f)[a:b]] for f in ("i", "v", "m"))
+
+
+def _start_lanes(curve: int, g: tuple) -> list:
+    """The lanes of one sweep over keys ``g`` (lane k starts at key 1 + k · :data:`_LANE_KEYS`)."""
+    starts = range(1, len(g[0]) - 1, _LANE_KEYS)
+    return [_Lane(curve, g, s, k + 1) for k, s in enumerate(starts)]
+
+
+def _lane_advance(lanes: list, lane: _Lane, failed: dict):
+    """Move ``lane`` to its next absorption test: ``(q, a, b, sig)``, or None when it reached the curve's end,
+    handed over to a later lane (its keys q − 2 … q equal that lane's at the same cursor key: from there on
+    the sweep is that lane's) or waits for one.  Tests known to fail (``failed``) are skipped."""
+    gi, gv, gm = lane.g
+    n = len(gi)
+    i, v, m = lane.i, lane.v, lane.m
+    while True:
+        q = lane.q
+        while len(i) < q + 3 and lane.nxt < n:
+            i.append(gi[lane.nxt])
+            v.append(gv[lane.nxt])
+            m.append(gm[lane.nxt])
+            lane.nxt += 1
+        if q >= len(i) - 1:
+            lane.state = 1
+            return None
+        c = i[q]
+        a = max(q - 2, 0)
+        win = (*i[a:q + 1], *v[a:q + 1], *m[a:q + 1])
+        lane.seen[c] = (win, q)
+        lane.top = c
+        look = _lane_compare(lanes, lane, c)
+        if look is False:
+            return None
+        if look is not None and look[1][0] == win:
+            lane.state, lane.cut, lane.into, lane.frm, lane.merge_key = 2, a, look[0], look[1][1] - 2, c
+            return None
+        b = min(q + 2, len(i) - 1)
+        sig = (i[a], i[q - 1], i[q + 1], i[b], v[a], m[a], v[b], m[b])
+        if failed.get(c) != sig:
+            return q, a, b, sig
+        lane.q += 1
+
+
 def _absorb_keys(t: np.ndarray, V: np.ndarray, idx: list, kv: list, km: list, tol: float,
                  max_sweeps: int = 4, progress: ProgressFn | None = None) -> None:
     """Stage 2 of :func:`reduce_keys_bezier`, in place on the key lists of every curve (rows of ``V``): each
     curve sweeps its keys left to right, dropping every key its neighbours can absorb, until a sweep drops
-    none (at most ``max_sweeps``); the curves advance in lock step, their current tests solved together.
-    A test is skipped when the keys it reads are exactly those of its last failure."""
+    none (at most ``max_sweeps``).  A test is skipped when the keys it reads are exactly those of its last
+    failure (it would fail again).
+
+    Each sweep is split into lanes (:class:`_Lane`) of :data:`_LANE_KEYS` keys, all lanes of all curves
+    advancing in lock step with their current tests solved together (:func:`_absorb_batch`).  A lane is the
+    sweep as if it started at its first key.  The sweep's future from a cursor depends only on the keys from
+    q − 2 on, and everything right of q is still the sweep's input, so when a lane reaches a cursor key that
+    the next lane has passed with the same keys q − 2 … q (indices, values and slopes), the two sweeps are
+    the same from there on and the lane hands over; otherwise it goes on (waiting for the next lane if it is
+    ahead of it).  The lanes chained from the first one are exactly the sequential sweep: the same keys, each
+    test the same pure function of the keys it reads, in a number of steps set by the lane length instead of
+    the take's."""
     C = len(idx)
-    p, sweep, changed = [1] * C, [0] * C, [False] * C
+    sweep = [0] * C
     failed = [{} for _ in range(C)]
-    active = list(range(C))
+    lanes = [_start_lanes(c, (list(idx[c]), list(kv[c]), list(km[c]))) for c in range(C)]
+    for c in range(C):
+        if not lanes[c]:
+            lanes[c] = None
+    running = [ln for c in range(C) if lanes[c] for ln in lanes[c]]
     step = 0
-    while active:
+    while running:
         step += 1
         if progress is not None and step % 32 == 0:                  # the first sweep dominates the work
-            notify(progress, sum(1.0 if c not in active else (0.9 if sweep[c] else 0.9 * p[c] / len(idx[c]))
-                                 for c in range(C)) / C)
-        tests, sigs, still = [], [], []
-        for c in active:
-            ik, vk, mk = idx[c], kv[c], km[c]
-            while True:
-                q = p[c]
-                if q >= len(ik) - 1:
-                    if not changed[c] or sweep[c] + 1 >= max_sweeps:
-                        q = None
-                        break
-                    sweep[c], changed[c], p[c] = sweep[c] + 1, False, 1
-                    continue
-                a, b = max(q - 2, 0), min(q + 2, len(ik) - 1)
-                sig = (ik[a], ik[q - 1], ik[q + 1], ik[b], vk[a], mk[a], vk[b], mk[b])
-                if failed[c].get(ik[q]) != sig:
-                    break
-                p[c] += 1
-            if q is not None:
-                still.append(c)
-                tests.append((c, q, a, b))
+            notify(progress, sum(1.0 if lanes[c] is None else 0.9 * (sweep[c] > 0 or sum(
+                ln.state != 0 for ln in lanes[c]) / len(lanes[c])) for c in range(C)) / C)
+        tests, sigs, owners, still, touched = [], [], [], [], set()
+        for lane in running:
+            if lane.state != 0:
+                continue
+            nxt = _lane_advance(lanes[lane.curve], lane, failed[lane.curve])
+            if nxt is not None:
+                q, a, b, sig = nxt
+                tests.append((len(owners), q, a, b))
+                owners.append(lane)
                 sigs.append(sig)
-        active = still
-        if not tests:
-            return
-        for (c, q, _, _), sig, x in zip(tests, sigs, _absorb_batch(t, V, tests, idx, kv, km, tol)):
-            if x is None:
-                failed[c][idx[c][q]] = sig
-                p[c] += 1
+            if lane.state == 0:
+                still.append(lane)
             else:
-                kv[c][q - 1], km[c][q - 1], kv[c][q + 1], km[c][q + 1] = x
-                del idx[c][q], kv[c][q], km[c][q]
-                changed[c] = True
+                touched.add(lane.curve)
+        if tests:
+            res = []
+            for lo in range(0, len(tests), _BATCH_TESTS):             # cache-sized batches
+                part = owners[lo:lo + _BATCH_TESTS]
+                res += _absorb_batch(t, V, [(k, q, a, b) for k, (_, q, a, b) in enumerate(tests[lo:lo + _BATCH_TESTS])],
+                                     [ln.i for ln in part], [ln.v for ln in part], [ln.m for ln in part], tol,
+                                     [ln.curve for ln in part], sigs[lo:lo + _BATCH_TESTS])
+            for (_, q, _, _), sig, lane, x in zip(tests, sigs, owners, res):
+                if x is None:
+                    failed[lane.curve][lane.i[q]] = sig
+                    lane.q += 1
+                else:
+                    lane.v[q - 1], lane.m[q - 1], lane.v[q + 1], lane.m[q + 1] = x
+                    del lane.i[q], lane.v[q], lane.m[q]
+        for c in touched:
+            if lanes[c] is None:
+                continue
+            out = _lanes_done(lanes[c])
+            if out is None:
+                continue
+            for ln in lanes[c]:                                       # lanes off the chain: not needed
+                if ln.state == 0:
+                    ln.state = 3
+            changed = len(out[0]) < len(lanes[c][0].g[0])
+            idx[c][:], kv[c][:], km[c][:] = out
+            sweep[c] += 1
+            lanes[c] = _start_lanes(c, out) if changed and sweep[c] < max_sweeps else []
+            if not lanes[c]:
+                lanes[c] = None
+            else:
+                still += lanes[c]
+        running = [ln for ln in still if ln.state == 0]
