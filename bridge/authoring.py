@@ -419,19 +419,52 @@ def _triangle_mesh(name: str, verts: np.ndarray, tris: np.ndarray):
     return me
 
 
-def show_preview(source, target, progress=None) -> tuple:
-    """Register and show the registered source neutral as a wireframe object over the target.
+@dataclass
+class PreviewPlan:
+    """What a registration preview needs, read from Blender (:func:`read_preview`); no Blender references."""
 
-    The preview is one object (parented to the target, not selectable, not rendered), replaced by the next
-    preview and removed with its mesh by :func:`clear_preview` and by a transfer.  Returns
-    ``(preview object, registration result)``.
-    """
+    source: str
+    target: str
+    rig: SourceRig
+    tgt: TargetMesh
+    pairs: object                        # core.LandmarkPairs
+    signature: tuple                     # the target as read (see _target_signature)
+
+
+def read_preview(source, target) -> PreviewPlan:
+    """Step 1 of :func:`show_preview` (main thread): read the source rig, the target and its landmark pairs."""
     rig = read_source_rig(source)
-    result = register_source(source, target, progress, rig=rig)
-    corr = result.value
+    tgt = read_target(target)
+    pairs = _landmarks_for(source, target, rig, tgt)
+    return PreviewPlan(source=source.name, target=target.name, rig=rig, tgt=tgt, pairs=pairs,
+                       signature=_target_signature(target))
+
+
+def compute_preview(plan: PreviewPlan, progress=None) -> Result:
+    """Step 2 (any thread; touches no Blender data): the registration; raising
+    :class:`~core.progress.Cancelled` from ``progress`` stops it."""
+    result = core.register(plan.rig.neutral, plan.rig.triangles, plan.tgt.neutral, plan.tgt.triangles, plan.pairs,
+                           progress=progress)
+    if result.value is None or result.status == Status.FAILED:
+        raise ShapeSpaceError(f"registration of {plan.source!r} onto {plan.target!r} failed: "
+                              f"{result.message or 'no result'}", ErrorCode.DEGENERATE)
+    return result
+
+
+def write_preview(plan: PreviewPlan, result: Result) -> tuple:
+    """Step 3 (main thread): replace the target's preview object by the registered source neutral.
+
+    Refused, with nothing written, when the target is gone or changed since :func:`read_preview`.  The preview
+    is one object (parented to the target, not selectable, not rendered), removed with its mesh by
+    :func:`clear_preview` and by a transfer.  Returns ``(preview object, registration result)``.
+    """
+    target = bpy.data.objects.get(plan.target)
+    if target is None or target.type != "MESH" or _target_signature(target) != plan.signature:
+        raise ShapeSpaceError(f"{plan.target!r} changed while the registration computed: nothing was shown; "
+                              "preview again", ErrorCode.RIG_CHANGED)
     clear_preview(target)
     name = f"{target.name} Registration Preview"
-    me = _triangle_mesh(name, np.asarray(corr.registered, dtype=np.float64), rig.triangles)
+    me = _triangle_mesh(name, np.asarray(result.value.registered, dtype=np.float64), plan.rig.triangles)
     ob = bpy.data.objects.new(name, me)
     ob[PREVIEW_PROP] = target.name
     ob.display_type = "WIRE"
@@ -443,6 +476,25 @@ def show_preview(source, target, progress=None) -> tuple:
     ob.parent = target
     ob.matrix_parent_inverse.identity()
     return ob, result
+
+
+def show_preview(source, target, progress=None) -> tuple:
+    """Register and show the registered source neutral as a wireframe object over the target (the three steps
+    :func:`read_preview`, :func:`compute_preview`, :func:`write_preview` in one go)."""
+    plan = read_preview(source, target)
+    return write_preview(plan, compute_preview(plan, progress))
+
+
+def start_preview_job(plan: PreviewPlan) -> BackgroundJob:
+    """Start :func:`compute_preview` of ``plan`` in a worker thread (a modal operator polls it and cancels it on
+    Esc); :func:`finish_preview_job` shows the result once it is done."""
+    return BackgroundJob(lambda progress: compute_preview(plan, progress), name="ShapeSpace registration").start()
+
+
+def finish_preview_job(job: BackgroundJob, plan: PreviewPlan) -> tuple:
+    """Show a finished job's registration (main thread); re-raises what stopped the job (``Cancelled``, its
+    :class:`ShapeSpaceError`), nothing is written then."""
+    return write_preview(plan, job.result())
 
 
 # ------------------------------------------------------------------ transfer
