@@ -440,7 +440,15 @@ def read_preview(source, target) -> PreviewPlan:
                        signature=_target_signature(target))
 
 
-def compute_preview(plan: PreviewPlan, progress=None) -> Result:
+@dataclass
+class PreviewOutcome:
+    """What :func:`compute_preview` computed; :func:`write_preview` shows it."""
+
+    plan: PreviewPlan
+    result: Result                       # the registration (value: the correspondence)
+
+
+def compute_preview(plan: PreviewPlan, progress=None) -> PreviewOutcome:
     """Step 2 (any thread; touches no Blender data): the registration; raising
     :class:`~core.progress.Cancelled` from ``progress`` stops it."""
     result = core.register(plan.rig.neutral, plan.rig.triangles, plan.tgt.neutral, plan.tgt.triangles, plan.pairs,
@@ -448,16 +456,17 @@ def compute_preview(plan: PreviewPlan, progress=None) -> Result:
     if result.value is None or result.status == Status.FAILED:
         raise ShapeSpaceError(f"registration of {plan.source!r} onto {plan.target!r} failed: "
                               f"{result.message or 'no result'}", ErrorCode.DEGENERATE)
-    return result
+    return PreviewOutcome(plan=plan, result=result)
 
 
-def write_preview(plan: PreviewPlan, result: Result) -> tuple:
+def write_preview(outcome: PreviewOutcome) -> tuple:
     """Step 3 (main thread): replace the target's preview object by the registered source neutral.
 
     Refused, with nothing written, when the target is gone or changed since :func:`read_preview`.  The preview
     is one object (parented to the target, not selectable, not rendered), removed with its mesh by
     :func:`clear_preview` and by a transfer.  Returns ``(preview object, registration result)``.
     """
+    plan, result = outcome.plan, outcome.result
     target = bpy.data.objects.get(plan.target)
     if target is None or target.type != "MESH" or _target_signature(target) != plan.signature:
         raise ShapeSpaceError(f"{plan.target!r} changed while the registration computed: nothing was shown; "
@@ -481,8 +490,7 @@ def write_preview(plan: PreviewPlan, result: Result) -> tuple:
 def show_preview(source, target, progress=None) -> tuple:
     """Register and show the registered source neutral as a wireframe object over the target (the three steps
     :func:`read_preview`, :func:`compute_preview`, :func:`write_preview` in one go)."""
-    plan = read_preview(source, target)
-    return write_preview(plan, compute_preview(plan, progress))
+    return write_preview(compute_preview(read_preview(source, target), progress))
 
 
 def start_preview_job(plan: PreviewPlan) -> BackgroundJob:
@@ -491,10 +499,10 @@ def start_preview_job(plan: PreviewPlan) -> BackgroundJob:
     return BackgroundJob(lambda progress: compute_preview(plan, progress), name="ShapeSpace registration").start()
 
 
-def finish_preview_job(job: BackgroundJob, plan: PreviewPlan) -> tuple:
+def finish_preview_job(job: BackgroundJob) -> tuple:
     """Show a finished job's registration (main thread); re-raises what stopped the job (``Cancelled``, its
     :class:`ShapeSpaceError`), nothing is written then."""
-    return write_preview(plan, job.result())
+    return write_preview(job.result())
 
 
 # ------------------------------------------------------------------ transfer

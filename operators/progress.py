@@ -8,6 +8,7 @@
 from contextlib import contextmanager
 
 from ..core.progress import Cancelled
+from .reporting import FAILED, attempt
 
 #: Seconds between a modal job's progress updates.
 TICK = 0.1
@@ -106,3 +107,36 @@ class JobModal:
             self._timer = None
             wm.progress_end()
             status_text(context, None)
+
+
+class ThreeStepJob(JobModal):
+    """Mixin for an operator whose work is read → compute → write through bridge functions (Transfer Shapes,
+    Preview Registration): ``execute`` runs the steps in one go with window-manager progress (scripts, redo, no
+    window); ``invoke`` computes in a :class:`core.jobs.BackgroundJob` polled by :class:`JobModal`.
+
+    Subclasses give ``read_plan(context)`` (the plan, or :data:`~operators.reporting.FAILED` after reporting),
+    ``job_label(plan)``, ``done(written)`` (report; return the operator's result set) and the bridge steps as
+    static methods: ``compute_step(plan, progress) -> outcome``, ``write_step(outcome)``, ``start_step(plan) ->
+    job`` (running ``compute_step``) and ``finish_step(job)`` (``write_step`` of the job's outcome).
+    """
+
+    def execute(self, context):
+        plan = self.read_plan(context)
+        if plan is FAILED:
+            return {"CANCELLED"}
+        with window_progress(context) as progress:
+            outcome = attempt(self, self.compute_step, plan, progress)
+        if outcome is FAILED:
+            return {"CANCELLED"}
+        return self.done(attempt(self, self.write_step, outcome))
+
+    def invoke(self, context, event):
+        if getattr(context, "window", None) is None:          # no event loop to poll from: run it here
+            return self.execute(context)
+        plan = self.read_plan(context)
+        if plan is FAILED:
+            return {"CANCELLED"}
+        return self.start_job(context, self.start_step(plan), self.job_label(plan))
+
+    def job_finished(self, context, job):
+        return self.done(attempt(self, self.finish_step, job))

@@ -8,12 +8,12 @@ same three steps synchronously.
 import bpy
 
 from ...bridge import authoring
-from ._polls import transfer_target
-from ..progress import JobModal, window_progress
+from ..progress import ThreeStepJob
 from ..reporting import FAILED, attempt
+from ._polls import transfer_target
 
 
-class SHAPESPACE_OT_preview_registration(JobModal, bpy.types.Operator):
+class SHAPESPACE_OT_preview_registration(ThreeStepJob, bpy.types.Operator):
     """Register the source rig's neutral onto the active mesh and show it as a wireframe over it (one preview
 object, removed by Clear Preview and by Transfer Shapes; Esc cancels)"""
 
@@ -21,39 +21,24 @@ object, removed by Clear Preview and by Transfer Shapes; Esc cancels)"""
     bl_label = "Preview Registration"
     bl_options = {"REGISTER", "UNDO"}
     job_title = "Registration preview"
+    compute_step = staticmethod(authoring.compute_preview)
+    write_step = staticmethod(authoring.write_preview)
+    start_step = staticmethod(authoring.start_preview_job)
+    finish_step = staticmethod(authoring.finish_preview_job)
 
     @classmethod
     def poll(cls, context):
         return transfer_target(cls, context, need_landmarks=authoring.MIN_LANDMARKS) is not None
 
-    def _read(self, context):
+    def read_plan(self, context):
         ob = context.active_object
         return attempt(self, authoring.read_preview, ob.shapespace_authoring.source, ob)
 
-    def execute(self, context):
-        plan = self._read(context)
-        if plan is FAILED:
-            return {"CANCELLED"}
-        with window_progress(context) as progress:
-            result = attempt(self, authoring.compute_preview, plan, progress)
-        if result is FAILED:
-            return {"CANCELLED"}
-        return self._done(attempt(self, authoring.write_preview, plan, result))
+    @staticmethod
+    def job_label(plan):
+        return f"Registering {plan.source} onto {plan.target}"
 
-    def invoke(self, context, event):
-        if getattr(context, "window", None) is None:          # no event loop to poll from: run it here
-            return self.execute(context)
-        plan = self._read(context)
-        if plan is FAILED:
-            return {"CANCELLED"}
-        self._plan = plan
-        label = f"Registering {plan.source} onto {plan.target}"
-        return self.start_job(context, authoring.start_preview_job(plan), label)
-
-    def job_finished(self, context, job):
-        return self._done(attempt(self, authoring.finish_preview_job, job, self._plan))
-
-    def _done(self, shown):
+    def done(self, shown):
         """Report the preview shown (or a failure) and give the operator's return value."""
         if shown is FAILED:
             return {"CANCELLED"}

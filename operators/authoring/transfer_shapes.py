@@ -9,12 +9,12 @@ same three steps synchronously, with window-manager progress.
 import bpy
 
 from ...bridge import authoring
-from ..progress import JobModal, window_progress
+from ..progress import ThreeStepJob
 from ..reporting import FAILED, attempt
 from ._polls import transfer_target
 
 
-class SHAPESPACE_OT_transfer_shapes(JobModal, bpy.types.Operator):
+class SHAPESPACE_OT_transfer_shapes(ThreeStepJob, bpy.types.Operator):
     """Give the active mesh the source rig's shape keys by model transfer (registration on the landmark
 pairs, then deformation transfer): in-betweens, combinations, slider ranges and masks included (Esc cancels;
 nothing is written then)"""
@@ -23,40 +23,26 @@ nothing is written then)"""
     bl_label = "Transfer Shapes"
     bl_options = {"REGISTER", "UNDO"}
     job_title = "Transfer"
+    compute_step = staticmethod(authoring.compute_transfer)
+    write_step = staticmethod(authoring.write_transfer)
+    start_step = staticmethod(authoring.start_transfer_job)
+    finish_step = staticmethod(authoring.finish_transfer_job)
 
     @classmethod
     def poll(cls, context):
         return transfer_target(cls, context, need_landmarks=authoring.MIN_LANDMARKS) is not None
 
-    def _read(self, context):
+    def read_plan(self, context):
         ob = context.active_object
         st = ob.shapespace_authoring
         return attempt(self, authoring.read_transfer, st.source, ob, naming=st.naming, existing=st.existing,
                        unmatched_parts=st.unmatched_parts)
 
-    def execute(self, context):
-        plan = self._read(context)
-        if plan is FAILED:
-            return {"CANCELLED"}
-        with window_progress(context) as progress:
-            outcome = attempt(self, authoring.compute_transfer, plan, progress)
-        if outcome is FAILED:
-            return {"CANCELLED"}
-        return self._done(attempt(self, authoring.write_transfer, outcome))
+    @staticmethod
+    def job_label(plan):
+        return f"Transferring {len(plan.write)} shapes of {plan.source} onto {plan.target}"
 
-    def invoke(self, context, event):
-        if getattr(context, "window", None) is None:          # no event loop to poll from: run it here
-            return self.execute(context)
-        plan = self._read(context)
-        if plan is FAILED:
-            return {"CANCELLED"}
-        label = f"Transferring {len(plan.write)} shapes of {plan.source} onto {plan.target}"
-        return self.start_job(context, authoring.start_transfer_job(plan), label)
-
-    def job_finished(self, context, job):
-        return self._done(attempt(self, authoring.finish_transfer_job, job))
-
-    def _done(self, rep):
+    def done(self, rep):
         """Report a written transfer (or a failure) and give the operator's return value."""
         if rep is FAILED:
             return {"CANCELLED"}

@@ -38,7 +38,7 @@ def test_esc_mid_registration_leaves_the_file_and_the_old_preview_as_they_were(r
     assert job.wait(300)
     assert 0.1 <= max(job.reported) < 1.0
     with pytest.raises(Cancelled):
-        authoring.finish_preview_job(job, plan)
+        authoring.finish_preview_job(job)
     assert blend_fingerprint() == before and _state(tgt) == state
     np.testing.assert_array_equal(_preview_positions(tgt), old)
 
@@ -48,7 +48,7 @@ def test_job_run_shows_the_core_registration(registered):
     plan = authoring.read_preview(src, tgt)
     job = authoring.start_preview_job(plan)
     assert job.wait(300)
-    ob, result = authoring.finish_preview_job(job, plan)
+    ob, result = authoring.finish_preview_job(job)
     assert ob.parent == tgt and ob.display_type == "WIRE" and ob.hide_render
     assert job.reported[-1] == 1.0 and all(b >= a for a, b in zip(job.reported, job.reported[1:]))
     # the same registration computed independently from the same inputs
@@ -68,7 +68,7 @@ def test_target_changed_while_registering_is_refused_and_nothing_shown(registere
     tgt.data.vertices[0].co.x += 0.01
     before, state = blend_fingerprint(), _state(tgt)
     with pytest.raises(ShapeSpaceError, match="changed while the registration computed") as info:
-        authoring.finish_preview_job(job, plan)
+        authoring.finish_preview_job(job)
     assert info.value.code == "rig_changed"
     assert blend_fingerprint() == before and _state(tgt) == state and authoring.preview_object(tgt) is None
 
