@@ -373,17 +373,10 @@ def _landmarks_for(source, target, rig: SourceRig, tgt: TargetMesh):
 
 
 # ------------------------------------------------------------------ registration and its preview
-def register_source(source, target, progress=None, rig: SourceRig = None, tgt: TargetMesh = None) -> Result:
-    """Register the source neutral onto the target (landmarks stored on the target); value: the correspondence."""
-    rig = rig or read_source_rig(source)
-    tgt = tgt or read_target(target)
-    pairs = _landmarks_for(source, target, rig, tgt)
-    result = core.register(rig.neutral, rig.triangles, tgt.neutral, tgt.triangles, pairs,
-                           progress=progress)
-    if result.value is None or result.status == Status.FAILED:
-        raise ShapeSpaceError(f"registration of {source.name!r} onto {target.name!r} failed: "
-                              f"{result.message or 'no result'}", ErrorCode.DEGENERATE)
-    return result
+def register_source(source, target, progress=None) -> Result:
+    """Register the source neutral onto the target (landmarks stored on the target); value: the correspondence
+    (:func:`read_preview` and :func:`compute_preview` in one go, nothing shown)."""
+    return compute_preview(read_preview(source, target), progress).result
 
 
 def preview_object(target):

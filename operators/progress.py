@@ -49,8 +49,9 @@ class JobModal:
     ``invoke`` reads on the main thread, starts the job and returns :meth:`start_job`; the mixin's ``modal``
     then shows the job's progress (mapped onto ``[shown_from, 1]`` of the bar) and a status line, passes view
     navigation on, cancels on Esc (the worker stops at its next progress call; nothing was written), and calls
-    :meth:`job_finished` (the subclass writes the result there and returns the operator's result) once the
-    job is done.  :attr:`job_title` names the work in the reports ("Retarget", "Transfer").
+    ``job_finished(context, job)`` — which every subclass defines: it writes the result on the main thread and
+    returns the operator's result set — once the job is done.  :attr:`job_title` names the work in the reports
+    ("Retarget", "Transfer").
     """
 
     job_title = "Job"
@@ -65,10 +66,6 @@ class JobModal:
         wm.modal_handler_add(self)
         status_text(context, f"{label}: starting… (Esc to cancel)")
         return {"RUNNING_MODAL"}
-
-    def job_finished(self, context, job):
-        """Write the finished job's result (main thread); return the operator's result set."""
-        raise NotImplementedError
 
     def _cancelled_report(self):
         self.report({"INFO"}, f"{self.job_title} cancelled: nothing was changed")

@@ -3,8 +3,8 @@ import bpy
 from ...bridge import posespace
 from ...core.result import Status
 from ..polls import psd_sculpt
-from ..reporting import FAILED, attempt, report_issues
-from ..progress import window_progress
+from ..reporting import FAILED, report_issues
+from ._apply import apply_active_sculpt
 
 
 class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
@@ -22,15 +22,10 @@ class SHAPESPACE_OT_psd_apply_example(bpy.types.Operator):
         return psd_sculpt(cls, context) is not None
 
     def execute(self, context):
-        ob = context.active_object
-        st = ob.shapespace_psd
-        name = st.examples[st.active_example].name
-        with window_progress(context) as progress:
-            result = attempt(self, posespace.apply_example, ob, name, progress=progress)
-        if result is FAILED:
+        applied = apply_active_sculpt(self, context, posespace.apply_example)
+        if applied is FAILED:
             return {"CANCELLED"}
-        if self.remove_copy:
-            posespace.remove_sculpt_copy(ob, name)
+        ob, name, result = applied
         report_issues(self, posespace.flag_examples(ob))
         level = {"INFO"} if result.status == Status.OK else {"WARNING"}
         self.report(level, f"{name}: {result.message} (largest error {result.residual:.3g})")

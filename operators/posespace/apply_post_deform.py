@@ -1,11 +1,10 @@
 import bpy
 
-from ...bridge import posespace
 from ...bridge.posespace import postdeform
 from ...core.result import Status
 from ..polls import psd_sculpt
-from ..reporting import FAILED, attempt
-from ..progress import window_progress
+from ..reporting import FAILED
+from ._apply import apply_active_sculpt
 
 
 class SHAPESPACE_OT_apply_post_deform(bpy.types.Operator):
@@ -25,15 +24,10 @@ re-weighting without re-inversion)"""
         return psd_sculpt(cls, context) is not None
 
     def execute(self, context):
-        ob = context.active_object
-        st = ob.shapespace_psd
-        name = st.examples[st.active_example].name
-        with window_progress(context) as progress:
-            result = attempt(self, postdeform.apply_post_deform, ob, name, progress=progress)
-        if result is FAILED:
+        applied = apply_active_sculpt(self, context, postdeform.apply_post_deform)
+        if applied is FAILED:
             return {"CANCELLED"}
-        if self.remove_copy:
-            posespace.remove_sculpt_copy(ob, name)
+        _, name, result = applied
         level = {"INFO"} if result.status == Status.OK else {"WARNING"}
         self.report(level, f"{name}: post-deformation corrective stored (modifier '{postdeform.MODIFIER}')")
         return {"FINISHED"}
