@@ -87,6 +87,13 @@ def read_skinning(obj) -> SkinningRig:
     return SkinningRig(mesh_world=world_matrix(obj), deformers=deformers)
 
 
+def bone_parents(arm_obj) -> list:
+    """Parent index of every bone in ``data.bones`` order (−1 for roots)."""
+    bones = arm_obj.data.bones
+    index = {b.name: i for i, b in enumerate(bones)}
+    return [index[b.parent.name] if b.parent is not None else -1 for b in bones]
+
+
 def pose_matrices(arm_obj) -> np.ndarray:
     """``PoseBone.matrix`` (armature space) of every bone in ``data.bones`` order, (b, 4, 4)."""
     pose = arm_obj.pose.bones

@@ -69,9 +69,12 @@ class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
         name="Distance",
         items=[("SKIN", "Skin Weighted", "Weighted PSD as published: each vertex sees its own joints' part of the "
                 "pose"),
-               ("BLEND", "Blended", "Per region, a blend of the skin-weighted and the whole-pose distance chosen by "
-                "leave-one-out cross validation over the examples (for correctives that depend on joints a "
-                "vertex is not skinned to)")],
+               ("BLEND", "Blended", "Per region, by leave-one-out cross validation over the examples: the "
+                "skin-weighted distance, a blend of it with the whole-pose distance (correctives that depend on "
+                "joints a vertex is not skinned to) or the bone-pair distance"),
+               ("PAIRS", "Bone Pairs", "Each vertex sees how its bones turn relative to each other (what skinning "
+                "artefacts grow with), plus a quarter of each bone's own rotation: fewer examples for joint "
+                "correctives")],
         default="SKIN",
         description="Weighted PSD's pose distance (files made before this option use Skin Weighted)")
     readers: bpy.props.CollectionProperty(type=SHAPESPACE_PG_reader)

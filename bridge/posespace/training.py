@@ -5,6 +5,7 @@ import numpy as np
 
 from ...core.errors import ErrorCode
 from ...core.posespace.examples import example_issues
+from ...core.posespace.pairs import bone_pairs
 from ...core.posespace.psd import skin_group_inputs, train_psd
 from ...core.result import Issue, ShapeSpaceError
 from .. import skin
@@ -41,11 +42,26 @@ def trained_deformer(obj) -> tuple:
     method = st.method.lower()
     kwargs = {}
     if method == "wpsd":
-        d = skin.read_skinning(obj).deformers[0]
-        kwargs = skin_group_inputs(rs, d.bone_names, d.weights.bone_index, d.weights.weight)
-        if st.wpsd_distance == "BLEND":        # per-region blend with the global distance (#16)
-            kwargs["blend"] = "auto"
+        kwargs = _wpsd_inputs(obj, rs, st.wpsd_distance)
     return train_psd(np.array(poses), D, method, **kwargs), [ex.name for ex in active]
+
+
+def _wpsd_inputs(obj, rs, distance: str) -> dict:
+    """Weighted PSD's skinning inputs and distance option: SKIN (as published), BLEND (per region, by
+    leave-one-out: the skin-weighted distance blended with the global one, or the bone-pair distance) or
+    PAIRS (the bone-pair distance everywhere)."""
+    d = skin.read_skinning(obj).deformers[0]
+    kwargs = skin_group_inputs(rs, d.bone_names, d.weights.bone_index, d.weights.weight)
+    if distance in ("BLEND", "PAIRS"):
+        arm = skin.armature_modifiers(obj)[0].object
+        kwargs["pairs"] = bone_pairs(rs, d.bone_names, d.rest, skin.bone_parents(arm), kwargs["vertex_groups"],
+                                     kwargs["vertex_weights"])
+        if distance == "PAIRS" and kwargs["pairs"] is None:
+            raise ShapeSpaceError(f"the Bone Pairs distance of {obj.name!r} has no pair to measure: no vertex is "
+                                  "skinned to two bones whose rotation the pose space reads (add rotation readers "
+                                  "of neighbouring bones, or use Skin Weighted)", ErrorCode.WPSD_INPUTS)
+        kwargs["blend"] = "auto" if distance == "BLEND" else "pairs"
+    return kwargs
 
 
 def flag_examples(obj) -> list:

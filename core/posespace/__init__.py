@@ -3,6 +3,7 @@
 - :mod:`.readers` — the pose space: :class:`PoseReader` and the features a rig's pose maps to (7.3, 8.1);
 - :mod:`.psd` — PSD, Shape-by-Example and weighted PSD: :func:`train_psd`, :class:`PoseSpaceDeformer`
   (ch. 8, Eq. 8.3–8.4);
+- :mod:`.pairs` — weighted PSD's bone-pair distance: relative rotations between a vertex's bones (8.1);
 - :mod:`.examples` — duplicate, conflicting and outlier examples (8.2.1, 8.2.3);
 - :mod:`.drivers` — scalar targets driven from pose space (7.3.3);
 - :mod:`.inversion` — rest-space inversion of posed sculpts (7.2.1);
@@ -13,6 +14,7 @@ from .confidence import GP_KERNELS, GPConfidence, gp_variance, heat_map_colors, 
 from .drivers import ScalarDriver, train_driver, train_target_driver
 from .examples import example_issues
 from .inversion import InversionResult, invert_deformation, vertex_jacobians
+from .pairs import BonePairs, bone_pairs
 from .mirror import mirror_displacements, mirror_features, mirror_name, mirror_partners, mirror_pose
 from .psd import (AMPLIFICATION_LIMIT, METHODS, PoseSpaceDeformer, affine_determined, default_epsilon,
                   regularisation, skin_group_inputs, train_psd)
@@ -23,7 +25,7 @@ __all__ = [
     "PoseReader", "READER_DIMS", "quaternion_distance", "quaternion_to_matrix", "swing_twist", "reader_features",
     "pose_features", "feature_groups",
     "METHODS", "AMPLIFICATION_LIMIT", "PoseSpaceDeformer", "train_psd", "default_epsilon", "affine_determined",
-    "regularisation", "skin_group_inputs",
+    "regularisation", "skin_group_inputs", "BonePairs", "bone_pairs",
     "example_issues",
     "ScalarDriver", "train_driver", "train_target_driver",
     "InversionResult", "vertex_jacobians", "invert_deformation",

@@ -24,6 +24,10 @@ The rigger sculpts correctives at example poses; each is stored in rest space
   λ chosen per region (the vertices a joint dominates) by leave-one-out cross
   validation over the examples.  λ = 0 is weighted PSD, λ = 1 a normalised
   Gaussian PSD over the whole pose.
+- **Bone-pair distance** (weighted PSD option, :mod:`.pairs`): a vertex sees how its bones turn
+  *relative to each other* — the relative rotations ``C_aᵀ C_b`` whose differences skinning artefacts grow
+  with — weighted ``w_va w_vb``, plus a quarter of each bone's own rotation weighted ``w_va²``; with
+  ``blend="auto"`` it is one more per-region candidate of the leave-one-out choice.
 - **Evaluation at memory speed** (:meth:`PoseSpaceDeformer.evaluate_fast`):
   float32 coefficients in one contiguous block; vertices whose coefficients
   cancel strongly (an ill-conditioned vertex system) keep float64, so the
@@ -45,10 +49,12 @@ from numpy.typing import ArrayLike
 from .. import rbf, validate
 from ..errors import ErrorCode
 from ..result import ShapeSpaceError
+from .pairs import BonePairs, pair_metric
 from .readers import PoseReader, feature_groups
 
 __all__ = ["METHODS", "AMPLIFICATION_LIMIT", "BLEND_CANDIDATES", "BLEND_MARGIN", "WIDTH_CANDIDATES",
-           "GLOBAL_DISTANCE_SCALE", "FAST_TOLERANCE", "PoseSpaceDeformer", "train_psd", "default_epsilon",
+           "PAIR_WIDTH_CANDIDATES", "GLOBAL_DISTANCE_SCALE", "FAST_TOLERANCE", "PoseSpaceDeformer", "train_psd",
+           "default_epsilon",
            "affine_determined", "regularisation", "skin_group_inputs", "blend_regions", "loo_errors_wpsd"]
 
 METHODS = ("psd", "sbe", "wpsd")
@@ -65,6 +71,10 @@ BLEND_MARGIN = 0.1
 #: Blended weighted PSD ("auto"): the kernel-width factors tried per region with each λ (the leave-one-out
 #: score prefers wider kernels than the held-out test poses do on RobotExpressive's hand, so only today's).
 WIDTH_CANDIDATES = (1.0,)
+#: Bone-pair distance: the kernel-width factors tried per region by leave-one-out cross validation (its
+#: distances are shorter than the skin-weighted ones — a pair weighs ``w_a w_b`` ≤ ¼ — and the best width
+#: differs between rigs: about 1 on RobotExpressive's hand, 2 on the RPM hand).
+PAIR_WIDTH_CANDIDATES = (1.0, 1.4, 2.0)
 #: Fast evaluation: largest difference from the float64 evaluation, as a fraction of the size given to
 #: :meth:`PoseSpaceDeformer.prepare_fast` (4× below the 1e-6 promised).
 FAST_TOLERANCE = 2.5e-7
@@ -154,6 +164,10 @@ class PoseSpaceDeformer:
         Weighted PSD: per-vertex λ_v of the blended distance (None: the skin-weighted distance, λ = 0).
     width : ndarray, shape (p,), or None
         Weighted PSD: per-vertex kernel-width factor ε_v / ε (None: 1 everywhere).
+    pairs : BonePairs or None
+        Weighted PSD: the bone pairs of the bone-pair distance (None: not used).
+    pair_share : ndarray, shape (p,), or None
+        Weighted PSD: π_v, the bone-pair distance's share of each vertex's metric.
     diagnostics : dict
         ``smoothing``, ``degree``, ``loo_rms``, ``unweighted_vertices``, ``ridged_vertices``, ``blend_regions``
         as applicable.
@@ -172,6 +186,9 @@ class PoseSpaceDeformer:
     diagnostics: dict = field(default_factory=dict)
     blend: np.ndarray = None             # (p,) λ_v of the blended distance, None = 0
     width: np.ndarray = None             # (p,) per-vertex kernel-width factor (ε_v / ε), None = 1
+    pairs: BonePairs = None              # bone pairs of the bone-pair distance, None = not used
+    pair_share: np.ndarray = None        # (p,) π_v of the bone-pair distance
+    _space_ref: np.ndarray = None        # the examples in the distance's feature space (pair features appended)
     _fast: object = None                 # _FastWPSD
     _W: object = None                    # sparse (p × joints[+1]) metric weights
 
@@ -186,16 +203,33 @@ class PoseSpaceDeformer:
             raise ShapeSpaceError("weighted PSD has per-vertex weights; use vertex_weights_at()", ErrorCode.METHOD)
         return self.interpolant.cardinal(np.asarray(pose, dtype=np.float64)[None])[0]
 
-    def _group_d2(self, pose):
-        """Per-joint squared distances to the examples (G[+1], K); with a blend, the global distance last."""
+    def _space(self, pose) -> np.ndarray:
+        """A pose (d,) in the distance's feature space: with bone pairs, their relative rotations appended."""
         x = np.asarray(pose, dtype=np.float64)
-        g2 = np.stack([np.sum((x[cols] - self.poses[:, cols]) ** 2, axis=1) for cols in self.group_columns])
-        return g2 if self.blend is None else np.vstack([g2, g2.sum(axis=0, keepdims=True)])
+        return x if self.pairs is None else np.concatenate([x, self.pairs.features(x[None])[0]])
+
+    def _space_poses(self) -> np.ndarray:
+        """The examples in the distance's feature space, (K, d [+ 9P])."""
+        if self._space_ref is None:
+            self._space_ref = _with_pair_features(self.poses, self.pairs)
+        return self._space_ref
+
+    def _columns(self) -> list:
+        """Feature columns of every distance term: the G pose sources, then the P bone pairs."""
+        return _distance_columns(self.group_columns, self.poses.shape[1], self.pairs)
+
+    def _group_d2(self, pose):
+        """Squared distances to the examples per distance term (G [+ P] [+1], K); with a blend, the global
+        distance (over the G pose sources) last."""
+        x, ref = self._space(pose), self._space_poses()
+        g2 = np.stack([np.sum((x[cols] - ref[:, cols]) ** 2, axis=1) for cols in self._columns()])
+        G = len(self.group_columns)
+        return g2 if self.blend is None else np.vstack([g2, g2[:G].sum(axis=0, keepdims=True)])
 
     def vertex_weights_at(self, pose: ArrayLike) -> np.ndarray:
         """Weighted PSD: normalised kernel values per vertex and example at ``pose`` (d,), shape (p, K)."""
         g2 = self._group_d2(pose)                               # (G, K)
-        if self.blend is None and self.width is None:
+        if self.blend is None and self.width is None and self.pairs is None:
             gi = np.where(self.vertex_groups >= 0, self.vertex_groups, 0)
             d2 = np.einsum("pm,pmk->pk", self.vertex_weights, g2[gi])
         else:
@@ -208,7 +242,7 @@ class PoseSpaceDeformer:
     def _prepare_fast_weights(self):
         """Sparse (p × joints) metric weights: skin weights, scaled by 1 − λ_v, and λ_v/4 on the global distance."""
         self._W = _metric_matrix(self.vertex_groups, self.vertex_weights, len(self.group_columns), self.blend,
-                                 self.width)
+                                 self.width, self.pairs, self.pair_share)
 
     @property
     def fast_ready(self) -> bool:
@@ -251,8 +285,9 @@ class PoseSpaceDeformer:
             return self.evaluate(pose).astype(np.float32)
         if self._fast is None:
             self.prepare_fast()
-        return self._fast(self._fast.group_d2(pose, self.poses, self.group_columns, self.blend is not None),
-                          self.epsilon)
+        g2 = self._fast.group_d2(self._space(pose), self._space_poses(), self._columns(), self.blend is not None,
+                                 len(self.group_columns))
+        return self._fast(g2, self.epsilon)
 
     def evaluate(self, pose: ArrayLike) -> np.ndarray:
         """Rest-space corrective displacement at ``pose`` (d,), shape (p, 3): ``Σ_k c_k(x) Δ_k``."""
@@ -262,26 +297,41 @@ class PoseSpaceDeformer:
         return np.tensordot(w, self.correctives, axes=1)
 
 
-def _metric_matrix(vertex_groups, vertex_weights, n_groups, blend, width=None):
-    """Sparse (p × G[+1]) weights of the per-joint squared distances in each vertex's metric (a per-vertex
-    kernel width folded in as ``(ε_v / ε)²``)."""
+def _with_pair_features(X: np.ndarray, pairs: BonePairs | None) -> np.ndarray:
+    """Poses (K, d) with the bone pairs' relative-rotation features appended (K, d + 9P)."""
+    return X if pairs is None else np.hstack([X, pairs.features(X)])
+
+
+def _distance_columns(group_columns, d: int, pairs: BonePairs | None) -> list:
+    """Feature columns of the G pose sources, then of the P bone pairs (after the d pose features)."""
+    extra = [] if pairs is None else [np.arange(d + 9 * k, d + 9 * k + 9) for k in range(pairs.n_pairs)]
+    return [np.asarray(c) for c in group_columns] + extra
+
+
+def _metric_matrix(vertex_groups, vertex_weights, n_groups, blend, width=None, pairs=None, pair_share=None):
+    """Sparse (p × (G [+ P] [+1])) weights of the squared distance terms in each vertex's metric.
+
+    Row v is ``α_v Σ_j w_vj d_j² + λ_v ¼ Σ_j d_j² + π_v (bone-pair distance)`` with ``α_v = 1 − λ_v − π_v``,
+    times ``(ε_v / ε)²`` (a per-vertex kernel width).  Columns: the G pose sources, the P bone pairs when
+    ``pairs`` is given, the global distance when ``blend`` is."""
     import scipy.sparse as sp
     p, m = vertex_groups.shape
+    n_pairs = 0 if pairs is None else pairs.n_pairs
+    lam = np.zeros(p) if blend is None else np.asarray(blend, dtype=np.float64)
+    pi = np.zeros(p) if pair_share is None else np.asarray(pair_share, dtype=np.float64)
     ok = (vertex_groups >= 0).ravel()
     rows = np.repeat(np.arange(p), m)[ok]
-    cols = vertex_groups.ravel()[ok]
-    vals = vertex_weights.ravel()[ok]
+    skin = sp.csr_matrix(((vertex_weights.ravel()[ok] * (1.0 - lam - pi)[rows]), (rows, vertex_groups.ravel()[ok])),
+                         shape=(p, n_groups + n_pairs))
+    if pairs is not None:
+        skin = skin + sp.diags(pi) @ pair_metric(pairs, vertex_groups, vertex_weights, n_groups)
+    if blend is not None:
+        skin = sp.hstack([skin, sp.csr_matrix(GLOBAL_DISTANCE_SCALE * lam[:, None])], format="csr")
     if width is not None:
-        vals = vals * np.asarray(width, dtype=np.float64)[rows] ** 2
-    if blend is None:
-        return sp.csr_matrix((vals, (rows, cols)), shape=(p, n_groups))
-    lam = np.asarray(blend, dtype=np.float64)
-    vals = vals * (1.0 - lam[rows])
-    rows = np.concatenate([rows, np.arange(p)])
-    cols = np.concatenate([cols, np.full(p, n_groups)])
-    glob = GLOBAL_DISTANCE_SCALE * lam * (1.0 if width is None else np.asarray(width, dtype=np.float64) ** 2)
-    vals = np.concatenate([vals, glob])
-    return sp.csr_matrix((vals, (rows, cols)), shape=(p, n_groups + 1))
+        skin = sp.diags(np.asarray(width, dtype=np.float64) ** 2) @ skin
+    skin = sp.csr_matrix(skin)
+    skin.eliminate_zeros()
+    return skin
 
 
 #: Exponent floors: exp stays a normal number (float32: e⁻⁸⁰ ≈ 1.8e-35; float64: e⁻⁷⁰⁰).
@@ -312,7 +362,7 @@ class _FastWPSD:
         self.C64 = np.ascontiguousarray(folded[self.idx64].transpose(0, 2, 1))
         self.wmax32, self.wmax64 = self._row_max(self.W32), self._row_max(self.W64)
 
-    def group_d2(self, pose, poses, group_columns, with_total):
+    def group_d2(self, pose, poses, group_columns, with_total, n_joint=None):
         """:meth:`PoseSpaceDeformer._group_d2` in one vectorised pass (columns gathered once, summed per joint)."""
         if not hasattr(self, "_cols"):
             lengths = np.array([len(c) for c in group_columns])
@@ -328,7 +378,7 @@ class _FastWPSD:
             if sq.shape[1] else np.zeros((len(self._starts), poses.shape[0]))
         if self._empty.any():
             g2[self._empty] = 0.0
-        return np.vstack([g2, g2.sum(axis=0, keepdims=True)]) if with_total else g2
+        return np.vstack([g2, g2[:n_joint].sum(axis=0, keepdims=True)]) if with_total else g2
 
     @staticmethod
     def _row_max(W) -> float:
@@ -382,7 +432,8 @@ def train_psd(poses: ArrayLike, correctives: ArrayLike, method: str = "psd", eps
               smoothing: float = 0.0, kernel: str | None = None, pseudo_poses: Mapping[int, ArrayLike] | None = None,
               vertex_groups: ArrayLike | None = None, vertex_weights: ArrayLike | None = None,
               group_columns: Sequence[ArrayLike] | None = None, vertex_ridge: float = 1e-3,
-              chunk: int = 4096, blend: float | str | ArrayLike | None = None) -> PoseSpaceDeformer:
+              chunk: int = 4096, blend: float | str | ArrayLike | None = None,
+              pairs: BonePairs | None = None) -> PoseSpaceDeformer:
     """Train pose-space correctives (thesis ch. 7–8).
 
     Parameters
@@ -425,6 +476,11 @@ def train_psd(poses: ArrayLike, correctives: ArrayLike, method: str = "psd", eps
         (:func:`blend_regions`), each vertex then taking its skin-weighted average of its joints' values
         (no seams where regions meet).  None or 0: the
         skin-weighted distance (weighted PSD as published); 1: a normalised Gaussian PSD over the whole pose.
+        ``"pairs"``: the bone-pair distance (:mod:`.pairs`) for every vertex; with ``pairs`` given, ``"auto"``
+        also tries it per region.
+    pairs : BonePairs, optional
+        Weighted PSD: the rig's bone pairs (:func:`core.posespace.pairs.bone_pairs`), needed by
+        ``blend="pairs"`` and tried by ``blend="auto"``.
 
     Returns
     -------
@@ -441,7 +497,7 @@ def train_psd(poses: ArrayLike, correctives: ArrayLike, method: str = "psd", eps
     if method in ("psd", "sbe"):
         return _train_rbf(X, D, method, epsilon, smoothing, kernel)
     return _train_wpsd(X, D, epsilon, smoothing, vertex_groups, vertex_weights, group_columns, vertex_ridge, chunk,
-                       blend)
+                       blend, pairs)
 
 
 def _train_rbf(X, D, method, epsilon, smoothing, kernel) -> PoseSpaceDeformer:
@@ -491,7 +547,7 @@ def _normalised_skin(vertex_groups, vertex_weights, group_columns, p):
 
 
 def _train_wpsd(X, D, epsilon, smoothing, vertex_groups, vertex_weights, group_columns, vertex_ridge,
-                chunk, blend=None) -> PoseSpaceDeformer:
+                chunk, blend=None, pairs=None) -> PoseSpaceDeformer:
     """Weighted PSD: one normalised-RBF system per vertex in its skin-weighted (or blended) pose metric,
     folded into the correctives."""
     K, p = X.shape[0], D.shape[1]
@@ -502,13 +558,19 @@ def _train_wpsd(X, D, epsilon, smoothing, vertex_groups, vertex_weights, group_c
         epsilon = 2.0 * default_epsilon(X)
     columns = [np.asarray(c) for c in group_columns]
     diagnostics = {"smoothing": smoothing, "unweighted_vertices": n_unweighted}
-    # squared distances between examples, per joint: (G, K, K)
-    pair = np.stack([rbf.pairwise_distances(X[:, c], X[:, c]) ** 2 for c in columns])
-    lam, width = _blend_per_vertex(blend, X, D, gi, gw, pair, float(epsilon), smoothing, diagnostics)
+    pairs = _pairs_in_use(blend, pairs, columns)
+    # squared distances between examples, per distance term (pose source, then bone pair): (G [+ P], K, K)
+    Xs = _with_pair_features(X, pairs)
+    pair = np.stack([rbf.pairwise_distances(Xs[:, c], Xs[:, c]) ** 2
+                     for c in _distance_columns(columns, X.shape[1], pairs)])
+    lam, width, share = _blend_per_vertex(blend, X, D, gi, gw, pair, float(epsilon), smoothing, diagnostics,
+                                          pairs, len(columns), vertex_ridge)
+    pairs = pairs if share is not None else None
+    pair = pair if pairs is not None else pair[:len(columns)]
     model = PoseSpaceDeformer("wpsd", X, D, float(epsilon), None, gi, gw, columns, diagnostics=diagnostics,
-                              blend=lam, width=width)
+                              blend=lam, width=width, pairs=pairs, pair_share=share)
     if lam is not None:
-        pair = np.concatenate([pair, pair.sum(axis=0, keepdims=True)])
+        pair = np.concatenate([pair, pair[:len(columns)].sum(axis=0, keepdims=True)])
     folded = np.empty((p, K, 3))
     pair_flat = pair.reshape(pair.shape[0], -1)                            # (G[+1], K·K)
     model._prepare_fast_weights()
@@ -521,40 +583,64 @@ def _train_wpsd(X, D, epsilon, smoothing, vertex_groups, vertex_weights, group_c
         if smoothing > 0:
             A = A + smoothing * np.eye(K)
         rhs = np.transpose(D[:, sl, :], (1, 0, 2))                         # (chunk, K, 3)
-        folded[sl], n = _solve_vertex_systems(A, rhs, vertex_ridge)
-        ridged += n
+        folded[sl], ridge = _solve_vertex_systems(A, rhs, vertex_ridge)
+        ridged += int(np.count_nonzero(ridge))
     model.folded = folded
     model.diagnostics["ridged_vertices"] = ridged
     return model
 
 
-def _blend_per_vertex(blend, X, D, gi, gw, pair, epsilon, smoothing, diagnostics):
-    """λ_v (p,) and the width factor ε_v/ε (p,) from the caller's ``blend``; None where they change nothing
-    (λ = 0, factor 1: the skin-weighted distance)."""
+def _pairs_in_use(blend, pairs, columns):
+    """The bone pairs a ``blend`` choice can use (None when it cannot), checked against the pose space."""
+    if isinstance(blend, str):
+        validate.choice(blend, "blend", ("auto", "pairs"))
+    wants = isinstance(blend, str)
+    if wants and blend == "pairs" and pairs is None:
+        raise ShapeSpaceError("blend='pairs' needs the rig's bone pairs (pairs=bone_pairs(...)): no vertex is "
+                              "skinned to two bones that the pose space reads rotations of", ErrorCode.WPSD_INPUTS)
+    if not wants or pairs is None:
+        return None
+    if pairs.groups.size and int(pairs.groups.max()) >= len(columns):
+        raise ShapeSpaceError(f"pairs refers to pose source {int(pairs.groups.max())} of {len(columns)}",
+                              ErrorCode.SHAPE)
+    return pairs
+
+
+def _blend_per_vertex(blend, X, D, gi, gw, pair, epsilon, smoothing, diagnostics, pairs=None, n_joint=None,
+                      vertex_ridge=0.0):
+    """λ_v (p,), the width factor ε_v/ε (p,) and the bone-pair share π_v (p,) from the caller's ``blend``;
+    None where they change nothing (λ = 0, factor 1, π = 0: the skin-weighted distance)."""
     p = D.shape[1]
+    G = pair.shape[0] if n_joint is None else n_joint
+    share = None
     if blend is None:
-        return None, None
+        return None, None, None
     width = None
     if isinstance(blend, str):
-        validate.choice(blend, "blend", ("auto",))
-        lam_g, width_g = blend_regions(D, gi, gw, pair, epsilon, smoothing)
+        rows = None if pairs is None else pair_metric(pairs, gi, gw, G)
+        lam_g, width_g, pairs_g = blend_regions(D, gi, gw, pair, epsilon, smoothing, pair_rows=rows, n_joint=G,
+                                                pairs_only=blend == "pairs", vertex_ridge=vertex_ridge)
         diagnostics["blend_regions"] = {int(g): (float(v), float(w)) for g, (v, w) in enumerate(zip(lam_g, width_g))}
-        G = pair.shape[0]
+        diagnostics["pair_regions"] = [int(g) for g in np.flatnonzero(pairs_g)]
         index = np.where(gi >= 0, gi, G)                                   # −1 padding → index G (weight 0)
         lam = np.einsum("pm,pm->p", gw, np.append(lam_g, 0.0)[index])
         width = np.einsum("pm,pm->p", gw, np.append(width_g, 0.0)[index])
         width = np.where(width > 0, width, 1.0)
         width = None if np.all(width == 1.0) else width
+        if blend == "pairs":
+            share = np.ones(p)
+        elif pairs_g.any():
+            share = np.clip(np.einsum("pm,pm->p", gw, np.append(pairs_g.astype(np.float64), 0.0)[index]), 0.0, 1.0)
     else:
         lam = np.broadcast_to(np.asarray(blend, dtype=np.float64), (p,)).copy()
         if not np.isfinite(lam).all() or lam.min() < 0.0 or lam.max() > 1.0:
             raise ShapeSpaceError("the distance blend λ must lie in [0, 1]", ErrorCode.RANGE)
     lam = np.clip(lam, 0.0, 1.0)
-    return (None if not lam.any() else lam), width
+    return (None if not lam.any() else lam), width, share
 
 
 def loo_errors_wpsd(D: np.ndarray, weights: np.ndarray, pair: np.ndarray, epsilon: float,
-                    smoothing: float = 0.0) -> np.ndarray:
+                    smoothing: float = 0.0, vertex_ridge: float = 0.0) -> np.ndarray:
     """Leave-one-out errors of the normalised-RBF interpolant of each vertex, in closed form.
 
     Leaving example k out of vertex v's system ``A c = Δ`` (rows ``A_ik = φ_ik / Σ_l φ_il``) removes row and
@@ -572,6 +658,10 @@ def loo_errors_wpsd(D: np.ndarray, weights: np.ndarray, pair: np.ndarray, epsilo
     pair : ndarray, shape (G, K, K)
         Per-joint squared distances between the examples.
     epsilon, smoothing : float
+    vertex_ridge : float
+        Score each vertex with the ridge its training solve would need (:func:`train_psd`'s
+        ``vertex_ridge`` rule; 0: none), added to the smoothing: a metric that leaves a vertex's examples
+        nearly coincident is scored as the tamed model it trains to, not as the exact interpolant.
 
     Returns
     -------
@@ -585,8 +675,10 @@ def loo_errors_wpsd(D: np.ndarray, weights: np.ndarray, pair: np.ndarray, epsilo
     A = np.exp(-(epsilon ** 2) * d2)
     A /= A.sum(axis=2, keepdims=True)
     As = A + smoothing * np.eye(K) if smoothing > 0 else A
-    B = np.linalg.inv(As + 1e-12 * np.eye(K))
     rhs = np.transpose(D, (1, 0, 2))                                       # (n, K, 3)
+    if vertex_ridge > 0:
+        As = As + _solve_vertex_systems(As, rhs, vertex_ridge)[1][:, None, None] * np.eye(K)
+    B = np.linalg.inv(As + 1e-12 * np.eye(K))
     keep = 1.0 - A                                                         # (n, i, k): row i's renormalisation
     r = np.transpose(keep, (0, 2, 1))[:, :, :, None] * rhs[:, None]        # (n, k, j, 3): r_k
     Br = np.matmul(B[:, None], r)                                          # (n, k, i, 3): B r_k for every k
@@ -601,44 +693,56 @@ def loo_errors_wpsd(D: np.ndarray, weights: np.ndarray, pair: np.ndarray, epsilo
 
 def blend_regions(D: np.ndarray, vertex_groups: np.ndarray, vertex_weights: np.ndarray, pair: np.ndarray,
                   epsilon: float, smoothing: float = 0.0, candidates: Sequence[float] = BLEND_CANDIDATES,
-                  widths: Sequence[float] = WIDTH_CANDIDATES, max_vertices: int = 128) -> tuple:
-    """λ and kernel-width factor per joint region of the blended distance, by leave-one-out cross validation.
+                  widths: Sequence[float] = WIDTH_CANDIDATES, max_vertices: int = 128, pair_rows: Any = None,
+                  n_joint: int | None = None, pairs_only: bool = False, vertex_ridge: float = 0.0) -> tuple:
+    """λ, kernel-width factor and distance kind per joint region, by leave-one-out cross validation.
 
     A region is the set of vertices whose largest (normalised) skin weight is on one joint.  For each, the
     ``max_vertices`` vertices with the largest correctives are scored with :func:`loo_errors_wpsd` for every
-    pair (λ, f) of candidates (distance ``f² ((1 − λ) Σ_j w_vj d_j² + λ ¼ Σ_j d_j²)``); the pair with the
-    smallest total wins if it beats today's (λ = 0, f = 1) by :data:`BLEND_MARGIN` (ties: the smaller λ).
-    Regions without correctives keep λ = 0, f = 1.
+    pair (λ, f) of candidates (distance ``f² ((1 − λ) Σ_j w_vj d_j² + λ ¼ Σ_j d_j²)``) and, with
+    ``pair_rows``, for the bone-pair distance (:mod:`.pairs`) at each width factor of
+    :data:`PAIR_WIDTH_CANDIDATES`; the candidate with the smallest total wins if
+    it beats today's (λ = 0, f = 1) by :data:`BLEND_MARGIN` (ties: the skin-weighted blend with the smaller
+    λ).  Regions without correctives keep λ = 0, f = 1.
 
     Parameters
     ----------
     D : ndarray, shape (K, p, 3)
     vertex_groups, vertex_weights : ndarray, shape (p, m)
         Normalised skinning (−1 padding).
-    pair : ndarray, shape (G, K, K)
-        Per-joint squared distances between the examples.
+    pair : ndarray, shape (G [+ P], K, K)
+        Squared distances between the examples per joint (then per bone pair).
     epsilon, smoothing : float
     candidates, widths : sequence of float
         λ and width factors tried.
     max_vertices : int
+    pair_rows : sparse matrix, shape (p, G + P), optional
+        The bone-pair distance's weights per vertex (:func:`core.posespace.pairs.pair_metric`).
+    n_joint : int, optional
+        G (default: every term of ``pair``).
+    pairs_only : bool
+        Choose only the bone-pair distance's width factor (:data:`PAIR_WIDTH_CANDIDATES`) per region.
+    vertex_ridge : float
+        The training's ridge rule, applied in the scores (:func:`loo_errors_wpsd`).
 
     Returns
     -------
-    (ndarray, ndarray), each shape (G,)
-        λ and the width factor per joint.
+    (ndarray, ndarray, ndarray), each shape (G,)
+        λ, the width factor and whether the bone-pair distance won, per joint.
     """
-    G = pair.shape[0]
+    G = pair.shape[0] if n_joint is None else n_joint
+    T = pair.shape[0]                      # distance terms: G joints [+ P bone pairs]
     K, p = D.shape[0], D.shape[1]
-    lam_out, width_out = np.zeros(G), np.ones(G)
+    lam_out, width_out, pairs_out = np.zeros(G), np.ones(G), np.zeros(G, dtype=bool)
     if K < 3:
-        return lam_out, width_out
+        return lam_out, width_out, pairs_out
     dense = np.zeros((p, G + 1))
     np.add.at(dense, (np.repeat(np.arange(p), vertex_groups.shape[1]),
                       np.where(vertex_groups >= 0, vertex_groups, G).ravel()), vertex_weights.ravel())
     dense = dense[:, :G]
     dominant = dense.argmax(axis=1)
     size = np.abs(D).max(axis=(0, 2))
-    pg = np.concatenate([pair, pair.sum(axis=0)[None]])
+    pg = np.concatenate([pair, pair[:G].sum(axis=0)[None]])
     combos = sorted(((lam, f) for lam in candidates for f in widths),
                     key=lambda c: (c != (0.0, 1.0), c[0], abs(np.log(c[1]))))
     for g in range(G):
@@ -646,21 +750,30 @@ def blend_regions(D: np.ndarray, vertex_groups: np.ndarray, vertex_weights: np.n
         if members.size == 0:
             continue
         members = members[np.argsort(-size[members], kind="stable")[:max_vertices]]
-        w = dense[members]
-        scores = []
+        w = np.hstack([dense[members], np.zeros((members.size, T - G))])
+        rows = []
         for lam, f in combos:
-            blended = np.concatenate([(1.0 - lam) * w, np.full((members.size, 1), GLOBAL_DISTANCE_SCALE * lam)], 1)
-            scores.append(float(loo_errors_wpsd(D[:, members], f * f * blended, pg, epsilon, smoothing).sum()))
-        scores = np.array(scores)
+            rows.append(f * f * np.concatenate([(1.0 - lam) * w, np.full((members.size, 1),
+                                                                        GLOBAL_DISTANCE_SCALE * lam)], 1))
+        if pair_rows is not None:
+            pr = np.hstack([pair_rows[members].toarray(), np.zeros((members.size, 1))])
+            rows.extend(f * f * pr for f in PAIR_WIDTH_CANDIDATES)
+        scores = np.array([float(loo_errors_wpsd(D[:, members], r, pg, epsilon, smoothing, vertex_ridge).sum())
+                           for r in rows])
+        if pairs_only:                                           # the bone-pair distance: its best width
+            scores[:len(combos)] = np.inf
         best = int(np.flatnonzero(scores <= scores.min() * (1 + 1e-9))[0])
-        if scores[best] < (1.0 - BLEND_MARGIN) * scores[0]:     # combos[0] is today's (λ = 0, f = 1)
-            lam_out[g], width_out[g] = combos[best]
-    return lam_out, width_out
+        if pairs_only or scores[best] < (1.0 - BLEND_MARGIN) * scores[0]:     # rows[0] is today's (λ = 0, f = 1)
+            if best < len(combos):
+                lam_out[g], width_out[g] = combos[best]
+            else:
+                pairs_out[g], width_out[g] = True, PAIR_WIDTH_CANDIDATES[best - len(combos)]
+    return lam_out, width_out, pairs_out
 
 
 def _solve_vertex_systems(A, rhs, vertex_ridge):
-    """Solve the per-vertex K × K systems; returns the coefficients (chunk, K, 3) and how many vertices
-    needed a ridge."""
+    """Solve the per-vertex K × K systems; returns the coefficients (chunk, K, 3) and the ridge each vertex
+    needed (chunk,) (0: solved exactly; the last ridge tried for a vertex still wild)."""
     K = A.shape[-1]
     try:
         coeff = np.linalg.solve(A, rhs)
@@ -669,25 +782,23 @@ def _solve_vertex_systems(A, rhs, vertex_ridge):
             raise ShapeSpaceError("a vertex's interpolation system is singular: examples too close together "
                                   "for its joints; add smoothing or remove an example", ErrorCode.SINGULAR) from None
         coeff = np.linalg.solve(A + 1e-12 * np.eye(K), rhs)   # the ridge pass below tames these
+    ridge = np.zeros(A.shape[0])
     if vertex_ridge <= 0:
-        return coeff, 0
+        return coeff, ridge
     # Examples that differ mostly in joints a vertex ignores are near-duplicates *for that
     # vertex*: its system is ill-conditioned and its coefficients blow up (large values that
     # cancel at the examples and swing wildly between them).  Those vertices, and only those,
     # are solved again with a growing ridge until the coefficients are tame.
-    ridged = 0
     scale = np.abs(rhs).max(axis=(1, 2)) + 1e-300
     wild = np.abs(coeff).max(axis=(1, 2)) > AMPLIFICATION_LIMIT * scale
     lam = vertex_ridge
     while wild.any() and lam <= 1.0:
         idx = np.flatnonzero(wild)
         coeff[idx] = np.linalg.solve(A[idx] + lam * np.eye(K), rhs[idx])
-        ridged_now = idx[np.abs(coeff[idx]).max(axis=(1, 2)) <= AMPLIFICATION_LIMIT * scale[idx]]
-        ridged += ridged_now.size
-        wild[ridged_now] = False
+        ridge[idx] = lam
+        wild[idx[np.abs(coeff[idx]).max(axis=(1, 2)) <= AMPLIFICATION_LIMIT * scale[idx]]] = False
         lam *= 10.0
-    ridged += int(wild.sum())
-    return coeff, ridged
+    return coeff, ridge
 
 
 def skin_group_inputs(readers: Sequence[PoseReader], bone_names: Sequence[str], bone_index: ArrayLike,

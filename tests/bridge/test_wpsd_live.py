@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from support import shared
-from blender_support import bpy, evaluated, import_file
+from blender_support import blend_fingerprint, bpy, evaluated, import_file
 from shapespace.bridge import posespace, skin
 from shapespace.core.blendshape import bounding_box_diagonal
+from shapespace.core.posespace.pairs import bone_pairs
 from shapespace.core.posespace.psd import skin_group_inputs, train_psd
 from shapespace.ui import posespace_preview
 
@@ -50,11 +51,18 @@ def _rig():
 
 
 def _reference(ob, blend=None):
-    """The float64 weighted-PSD model trained in the core from the mesh's own data."""
+    """The float64 weighted-PSD model trained in the core from the mesh's own data (bone parents and rest
+    matrices read here from the armature's bones)."""
     st = ob.shapespace_psd
     rs = posespace.readers(ob)
     d = skin.read_skinning(ob).deformers[0]
     kw = skin_group_inputs(rs, d.bone_names, d.weights.bone_index, d.weights.weight)
+    if blend in ("auto", "pairs"):
+        bones = list(bpy.data.objects["Armature"].data.bones)
+        parents = [bones.index(b.parent) if b.parent else -1 for b in bones]
+        rest = np.array([np.array(b.matrix_local) for b in bones])
+        kw["pairs"] = bone_pairs(rs, [b.name for b in bones], rest, parents, kw["vertex_groups"],
+                                 kw["vertex_weights"])
     X = np.array([posespace.interpolation_pose(ex) for ex in st.examples])
     D = posespace.example_correctives(ob, list(st.examples))
     return train_psd(X, D, "wpsd", blend=blend, **kw)
@@ -72,7 +80,7 @@ def _corrected_rest(ob):
             m.show_viewport = True
 
 
-@pytest.mark.parametrize("distance,blend", [("SKIN", None), ("BLEND", "auto")])
+@pytest.mark.parametrize("distance,blend", [("SKIN", None), ("BLEND", "auto"), ("PAIRS", "pairs")])
 def test_update_equals_the_float64_model_through_blender(registered, distance, blend):
     ob, arm, rest, size = _rig()
     st = ob.shapespace_psd
@@ -84,7 +92,32 @@ def test_update_equals_the_float64_model_through_blender(registered, distance, b
     got = _corrected_rest(ob)
     assert np.abs(got - want).max() <= 1e-6 * size
     deformer = posespace.cached_model(ob)[0]
-    assert (deformer.blend is None) == (blend is None)
+    if blend is None:
+        assert deformer.blend is None and deformer.pairs is None
+    elif blend == "auto":                    # leave-one-out left the skin-weighted distance somewhere
+        assert deformer.blend is not None or deformer.pairs is not None
+    else:
+        assert deformer.pairs.n_pairs >= 2 and np.all(deformer.pair_share == 1.0)
+
+
+def test_bone_pairs_without_a_shared_pair_is_refused_by_name(registered):
+    """Only one of the pose space's bones keeps skin weights: no vertex has two read bones, so Bone Pairs has
+    nothing to measure; Update Correctives says so, returns CANCELLED and leaves the file as it was."""
+    ob, arm, rest, size = _rig()
+    read = [r.source for r in ob.shapespace_psd.readers if r.kind == "ROTATION"]
+    assert len(read) >= 2
+    for name in read[1:]:
+        ob.vertex_groups.remove(ob.vertex_groups[name])
+    st = ob.shapespace_psd
+    st.method = "WPSD"
+    st.wpsd_distance = "PAIRS"
+    before = blend_fingerprint()
+    with pytest.raises(RuntimeError, match="Bone Pairs distance of 'Cesium_Man' has no pair"):
+        bpy.ops.shapespace.psd_update()
+    assert blend_fingerprint() == before
+    st.wpsd_distance = "BLEND"                     # the automatic choice falls back to the other distances
+    assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
+    assert posespace.cached_model(ob)[0].pairs is None
 
 
 def test_a_corrective_edited_directly_is_seen_by_the_next_update(registered):
