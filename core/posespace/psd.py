@@ -189,6 +189,7 @@ class PoseSpaceDeformer:
     pairs: BonePairs = None              # bone pairs of the bone-pair distance, None = not used
     pair_share: np.ndarray = None        # (p,) π_v of the bone-pair distance
     _space_ref: np.ndarray = None        # the examples in the distance's feature space (pair features appended)
+    _space_cols: list = None             # feature columns of every distance term
     _fast: object = None                 # _FastWPSD
     _W: object = None                    # sparse (p × joints[+1]) metric weights
 
@@ -215,8 +216,10 @@ class PoseSpaceDeformer:
         return self._space_ref
 
     def _columns(self) -> list:
-        """Feature columns of every distance term: the G pose sources, then the P bone pairs."""
-        return _distance_columns(self.group_columns, self.poses.shape[1], self.pairs)
+        """Feature columns of every distance term: the G pose sources, then the P bone pairs (built once)."""
+        if self._space_cols is None:
+            self._space_cols = _distance_columns(self.group_columns, self.poses.shape[1], self.pairs)
+        return self._space_cols
 
     def _group_d2(self, pose):
         """Squared distances to the examples per distance term (G [+ P] [+1], K); with a blend, the global

@@ -2,6 +2,7 @@
 import hashlib
 import os
 import tempfile
+import time
 
 import numpy as np
 import bpy
@@ -167,3 +168,14 @@ def classify_operator_call(op_name: str, kwargs: dict):
     if _linked_state() != linked_before:
         return "linked_changed", message
     return "finished", message
+
+
+def esc_mid_way(job, fraction: float, timeout: float) -> bool:
+    """Poll a background job as the modal timer does until it reported ``fraction``, check it is still running,
+    then press Esc (``job.cancel()``); returns whether the worker stopped within ``timeout`` seconds."""
+    deadline = time.perf_counter() + 300.0
+    while job.fraction < fraction and not job.done and time.perf_counter() < deadline:
+        time.sleep(0.002)
+    assert not job.done, "the job ended before it could be cancelled mid-way"
+    job.cancel()
+    return job.wait(timeout)

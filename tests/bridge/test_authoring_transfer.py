@@ -66,8 +66,9 @@ def _fbhead_rig():
     return ob
 
 
-def _remeshed(src, name="Target", ratio=0.6, scale=2.0, angle=0.3, offset=(0.1, -0.2, 0.05)):
-    """A copy of ``src`` without keys or groups: decimated (other topology), scaled, rotated and moved."""
+def _retopologised(src, modifier, settings, name="Target", scale=2.0, angle=0.3, offset=(0.1, -0.2, 0.05)):
+    """A copy of ``src`` without keys or groups, its topology changed by one applied ``modifier`` (type and
+    settings), then scaled, rotated and moved; returns (object, transform)."""
     ob = src.copy()
     ob.data = src.data.copy()
     ob.name = name
@@ -76,8 +77,9 @@ def _remeshed(src, name="Target", ratio=0.6, scale=2.0, angle=0.3, offset=(0.1, 
     ob.vertex_groups.clear()
     authoring.clear_landmarks(ob)
     bpy.context.view_layer.objects.active = ob
-    mod = ob.modifiers.new("decimate", "DECIMATE")
-    mod.ratio = ratio
+    mod = ob.modifiers.new(modifier.lower(), modifier)
+    for attr, value in settings.items():
+        setattr(mod, attr, value)
     bpy.ops.object.modifier_apply(modifier=mod.name)
     c, s = np.cos(angle), np.sin(angle)
     R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -85,6 +87,11 @@ def _remeshed(src, name="Target", ratio=0.6, scale=2.0, angle=0.3, offset=(0.1, 
     ob.data.vertices.foreach_set("co", co.astype(np.float32).ravel())
     ob.data.update()
     return ob, (R, scale, np.asarray(offset))
+
+
+def _remeshed(src, name="Target", ratio=0.6, **placement):
+    """A copy of ``src`` without keys or groups: decimated (other topology), scaled, rotated and moved."""
+    return _retopologised(src, "DECIMATE", {"ratio": ratio}, name=name, **placement)
 
 
 def _landmark_pairs(src, tgt, transform, count=12, side=None):

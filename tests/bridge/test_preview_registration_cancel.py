@@ -8,8 +8,8 @@ the same inputs (an independent call), not against numbers the preview code repo
 import numpy as np
 import pytest
 
-from blender_support import blend_fingerprint, bpy
-from test_transfer_progress_cancel import _poll_until, _scene, _state
+from blender_support import blend_fingerprint, bpy, esc_mid_way
+from test_transfer_progress_cancel import _scene, _state
 from shapespace.bridge import authoring
 from shapespace.core import authoring as core
 from shapespace.core.progress import Cancelled
@@ -32,10 +32,7 @@ def test_esc_mid_registration_leaves_the_file_and_the_old_preview_as_they_were(r
     plan = authoring.read_preview(src, tgt)
     assert blend_fingerprint() == before and _state(tgt) == state              # reading changed nothing
     job = authoring.start_preview_job(plan)
-    _poll_until(job, 0.1)
-    assert not job.done, "the registration ended before it could be cancelled mid-way"
-    job.cancel()                                                                 # Esc
-    assert job.wait(300)
+    assert esc_mid_way(job, 0.1, 300)
     assert 0.1 <= max(job.reported) < 1.0
     with pytest.raises(Cancelled):
         authoring.finish_preview_job(job)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from support import ASSETS, ROOT
-from blender_support import blend_fingerprint, bpy, import_file
+from blender_support import blend_fingerprint, bpy, esc_mid_way, import_file
 from shapespace.bridge import actions, retarget, shapekeys
 from shapespace.core.progress import Cancelled
 from shapespace.core.result import ShapeSpaceError
@@ -77,13 +77,6 @@ def _keys(action):
     return out
 
 
-def _poll_until(job, fraction, timeout=300.0):
-    """Poll the job as the modal timer would until it reported ``fraction`` (or ended)."""
-    deadline = time.perf_counter() + timeout
-    while job.fraction < fraction and not job.done and time.perf_counter() < deadline:
-        time.sleep(0.002)
-
-
 @pytest.mark.parametrize("method", METHODS)
 def test_esc_mid_way_leaves_the_file_exactly_as_before(tmp_path, method):
     """Esc while the worker computes: the job stops at its next progress call, nothing is written (no action,
@@ -95,10 +88,7 @@ def test_esc_mid_way_leaves_the_file_exactly_as_before(tmp_path, method):
     plan = retarget.read_retarget(ob, take, method, key_tolerance=0.01)          # invoke: main thread
     assert blend_fingerprint() == before and _state(ob) == state               # reading changed nothing
     job = retarget.start_retarget_job(plan)
-    _poll_until(job, 0.2)
-    assert not job.done, "the job ended before it could be cancelled mid-way"
-    job.cancel()                                                                 # Esc
-    assert job.wait(120)
+    assert esc_mid_way(job, 0.2, 120)
     assert 0.2 <= max(job.reported) < 1.0
     with pytest.raises(Cancelled):
         retarget.finish_retarget_job(job, bpy.context.scene)
@@ -156,10 +146,7 @@ def test_mesh_performance_progress_and_cancel(tmp_path):
     plan = retarget.read_retarget_dense(ob, src, "spacetime")
     assert scene.frame_current == 5 and blend_fingerprint() == before
     job = retarget.start_retarget_job(plan)
-    _poll_until(job, 0.2)
-    assert not job.done
-    job.cancel()
-    job.wait(120)
+    esc_mid_way(job, 0.2, 120)
     with pytest.raises(Cancelled):
         retarget.finish_retarget_job(job)
     assert blend_fingerprint() == before and _state(ob) == state

@@ -7,36 +7,19 @@ scripted operator call (EXEC_DEFAULT, or INVOKE_DEFAULT without a window) is the
 """
 import time
 
-import numpy as np
 import pytest
 
-from blender_support import blend_fingerprint, bpy, rel_error
-from test_authoring_transfer import _expected, _fbhead_rig, _landmark_pairs, _place_landmarks, _positions, _values
+from blender_support import blend_fingerprint, bpy, esc_mid_way, rel_error
+from test_authoring_transfer import _expected, _fbhead_rig, _landmark_pairs, _place_landmarks, _retopologised, _values
 from shapespace.bridge import authoring
 from shapespace.core.progress import Cancelled
 from shapespace.core.result import ShapeSpaceError
 
 
-def _dense_target(src, name="Target", levels=2, scale=2.0, angle=0.3, offset=(0.1, -0.2, 0.05)):
+def _dense_target(src, name="Target", levels=2, **placement):
     """A keyless copy of ``src`` subdivided (``levels`` = 2: ~9× the vertices, so registration takes seconds and a
     cancel lands mid-way), rotated, scaled and moved; returns (object, transform)."""
-    ob = src.copy()
-    ob.data = src.data.copy()
-    ob.name = name
-    bpy.context.scene.collection.objects.link(ob)
-    ob.shape_key_clear()
-    ob.vertex_groups.clear()
-    authoring.clear_landmarks(ob)
-    bpy.context.view_layer.objects.active = ob
-    mod = ob.modifiers.new("subdivide", "SUBSURF")
-    mod.levels = levels
-    bpy.ops.object.modifier_apply(modifier=mod.name)
-    c, s = np.cos(angle), np.sin(angle)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    co = _positions(ob) @ R.T * scale + np.asarray(offset)
-    ob.data.vertices.foreach_set("co", co.astype(np.float32).ravel())
-    ob.data.update()
-    return ob, (R, scale, np.asarray(offset))
+    return _retopologised(src, "SUBSURF", {"levels": levels}, name=name, **placement)
 
 
 def _scene(levels=2):
@@ -57,13 +40,6 @@ def _state(tgt):
             authoring.preview_object(tgt) is not None)
 
 
-def _poll_until(job, fraction, timeout=300.0):
-    """Poll the job as the modal timer would until it reported ``fraction`` (or ended)."""
-    deadline = time.perf_counter() + timeout
-    while job.fraction < fraction and not job.done and time.perf_counter() < deadline:
-        time.sleep(0.002)
-
-
 def test_esc_mid_way_leaves_the_file_exactly_as_before(registered):
     """Esc while the worker registers: the job stops at its next progress call and nothing is written — no
     shape key, no mask group, no half data; the registration preview the artist had is still there."""
@@ -76,10 +52,7 @@ def test_esc_mid_way_leaves_the_file_exactly_as_before(registered):
     plan = authoring.read_transfer(src, tgt)                                     # invoke: main thread
     assert blend_fingerprint() == before and _state(tgt) == state              # reading changed nothing
     job = authoring.start_transfer_job(plan)
-    _poll_until(job, 0.1)
-    assert not job.done, "the job ended before it could be cancelled mid-way"
-    job.cancel()                                                                 # Esc
-    assert job.wait(300)
+    assert esc_mid_way(job, 0.1, 300)
     assert 0.1 <= max(job.reported) < 0.6                                       # stopped inside the registration
     with pytest.raises(Cancelled):
         authoring.finish_transfer_job(job)
