@@ -24,6 +24,8 @@ import bpy
 import numpy as np
 
 from ..core import authoring as core
+from ..core.authoring import parts as core_parts
+from ..core.authoring import quality as core_quality
 from ..core.errors import ErrorCode
 from ..core.jobs import BackgroundJob
 from ..core.progress import notify, scaled
@@ -517,6 +519,9 @@ class TransferReport:
     registration_status: str = "ok"
     seconds: float = 0.0
     warnings: list = field(default_factory=list)
+    status: str = "ok"                                   # "warning" when a per-key check failed (CLI exit 1)
+    keys: list = field(default_factory=list)             # per-key checks (core.authoring.quality.check_keys)
+    parts: list = field(default_factory=list)            # per-part kind, size, confidence, reason
 
     def to_json(self) -> dict:
         return to_jsonable(self)
@@ -748,8 +753,9 @@ def read_transfer(source, target, naming: str = "source", existing: str = "refus
     start = time.perf_counter()
     if source is not None and target is not None and source == target:
         raise ShapeSpaceError("the source rig and the target are the same object", ErrorCode.SAME_KEY)
-    if unmatched_parts not in ("keep", "refuse"):
-        raise ShapeSpaceError(f"unknown unmatched-parts policy {unmatched_parts!r}: keep or refuse", ErrorCode.METHOD)
+    if unmatched_parts not in ("move", "keep", "refuse"):
+        raise ShapeSpaceError(f"unknown unmatched-parts policy {unmatched_parts!r}: move, keep or refuse",
+                              ErrorCode.METHOD)
     rig = read_source_rig(source)
     tgt = read_target(target)
     if target.library is not None or target.data.library is not None:
@@ -786,10 +792,11 @@ def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
                                   Status.NOT_CONVERGED: "not_converged"}.get(result.status, "ok")
     if result.status != Status.OK and result.message:
         report.warnings.append(f"registration: {result.message}")
+    moving = plan.unmatched_parts == "move"
     transfer = core.Transfer(rig.neutral, rig.triangles, tgt.neutral, tgt.triangles, corr,
-                             unmatched_parts=plan.unmatched_parts)
-    for issue in getattr(transfer, "issues", []) or []:
-        report.warnings.append(getattr(issue, "message", str(issue)))
+                             unmatched_parts="keep" if moving else plan.unmatched_parts)
+    if not moving:
+        report.warnings.extend(issue.message for issue in transfer.issues)
     notify(progress, 0.7)
     rows = [rig.names.index(n) for n in write]
     sculpts = rig.full_sculpts()[rows]
@@ -802,6 +809,7 @@ def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
         bad = write[int(np.argwhere(~np.isfinite(solved))[0][0])]
         raise ShapeSpaceError(f"the transfer of {bad!r} produced non-finite positions: nothing was written",
                               ErrorCode.NON_FINITE)
+    _check_and_move_parts(rig, tgt, write, sculpts, solved, corr, moving, report)
     full = np.zeros((len(rig.names),) + tgt.neutral.shape)
     full[rows] = solved
     scale = float(np.linalg.norm(np.ptp(rig.neutral, axis=0))) or 1.0
@@ -813,6 +821,21 @@ def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
             masks[group] = _map_weights(corr, rig.triangles, rig.group_weights[group])
     notify(progress, 1.0)
     return TransferOutcome(plan=plan, full=full, masks=masks, report=report)
+
+
+def _check_and_move_parts(rig, tgt, write, sculpts, solved, corr, moving, report) -> None:
+    """Move the target's parts (policy ``move``, in place) and run the per-key checks into ``report``."""
+    plan, moved = None, None
+    if moving:
+        plan = core_parts.plan_for_transfer(rig.neutral, rig.triangles, sculpts, write, tgt.neutral, tgt.triangles,
+                                            solved, corr.part_map)
+        solved, moved = core_parts.move_parts(plan, tgt.neutral, tgt.triangles, solved, write)
+        report.parts = plan.summary()
+    keys, issues, status = core_quality.check_keys(rig.neutral, sculpts, write, tgt.neutral, solved, plan=plan,
+                                                   moved=moved, src_tris=rig.triangles, dst_tris=tgt.triangles)
+    report.keys = keys
+    report.warnings.extend(issue.message for issue in issues)
+    report.status = "warning" if status != Status.OK else "ok"
 
 
 def write_transfer(outcome: TransferOutcome) -> TransferReport:
@@ -867,8 +890,10 @@ def transfer_shapes(source, target, naming: str = "source", existing: str = "ref
     existing : {"refuse", "skip", "overwrite"}
         Target keys (and mask vertex groups) that already have a new name: refuse naming them (default),
         keep them (their in-betweens/combinations are skipped too), or replace them.
-    unmatched_parts : {"keep", "refuse"}
-        Separate parts of the target the source does not have (eyes, teeth): they stay still, or refuse.
+    unmatched_parts : {"move", "keep", "refuse"}
+        Separate parts of the target the source does not have (eyes, teeth, lashes): they move as rigged
+        (:mod:`core.authoring.parts`; the panel's and the command line's default), stay still (this
+        function's default, as before 0.2), or refuse.
     progress : callable(fraction) or None
         :mod:`core.progress` protocol; raising :class:`~core.progress.Cancelled` from it stops the transfer
         with nothing written.

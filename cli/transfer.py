@@ -2,7 +2,7 @@
 
     blender -b target.blend --command shapespace transfer --source-rig template.blend:Object --object Head \\
         --out rigged.blend [--naming source|arkit|suffix|pascal] [--existing refuse|skip|overwrite]
-        [--landmarks auto|stored|shapes|geometry] [--unmatched-parts keep|refuse] [--report FILE] [--dry-run]
+        [--landmarks auto|stored|shapes|geometry] [--unmatched-parts move|keep|refuse] [--report FILE] [--dry-run]
 
 The source rig is appended from its .blend, used, and removed again: the saved file holds the target with its
 new keys only (plus the landmark pairs used, stored on the target for the next run).  stdout carries only the
@@ -44,7 +44,7 @@ def add_parser(sub) -> None:
                     help="target keys that already have a new name: refuse (default), keep them, or replace them")
     tr.add_argument("--landmarks", choices=("auto", "stored", "shapes", "geometry"), default="auto",
                     help="landmark pairs: stored on the target, proposed from shared shapes or geometry, or auto")
-    tr.add_argument("--unmatched-parts", choices=("keep", "refuse"), default="keep",
+    tr.add_argument("--unmatched-parts", choices=("move", "keep", "refuse"), default="move",
                     help="target parts without a source counterpart (eyes, teeth): keep them still, or refuse")
     tr.add_argument("--target", help="target .blend to open first (default: the open file)")
     tr.add_argument("--out", help="save the result as this .blend")
@@ -154,7 +154,7 @@ def transfer(args, inputs: list) -> tuple:
         _say(f"warning: {warning}")
     _say(f"{len(rep.created)} shape keys onto {target.name} in {rep.seconds:.1f} s "
          f"(registration residual {rep.registration_residual_mm:.2f} mm)")
-    code = 1 if rep.registration_status == "not_converged" else 0
+    code = 1 if rep.registration_status == "not_converged" or rep.status != "ok" else 0
     payload = {**rep.to_json(), "source_file": src_file or None, "landmarks_from": landmarks,
                "saved": out.path if out is not None else None, "ok": code == 0}
     text = json.dumps(payload, indent=2)

@@ -13,7 +13,10 @@ NAMING = [("source", "Source Names", "Keep the source rig's key names"),
 EXISTING = [("refuse", "Refuse", "Stop, naming the target's keys that already have one of the new names"),
             ("skip", "Skip Existing", "Keep the target's keys; transfer only shapes it does not have yet"),
             ("overwrite", "Overwrite", "Replace the target's keys of the same names")]
-PARTS = [("keep", "Keep Still", "Separate parts of this mesh with no counterpart on the source (eyes, teeth) "
+PARTS = [("move", "Move as Rigged", "Separate parts move as an artist would rig them: lashes, brows and the mouth "
+          "cavity follow the skin under them, lower teeth and tongue the jaw, upper teeth the skull, eyes turn for "
+          "the eyeLook shapes; parts the source has and moves take its motion; the report lists each part"),
+         ("keep", "Keep Still", "Separate parts of this mesh with no counterpart on the source (eyes, teeth) "
           "stay still in every new shape; the report names them"),
          ("refuse", "Refuse", "Stop when a separate part of this mesh has no counterpart on the source")]
 
@@ -27,5 +30,5 @@ class SHAPESPACE_PG_authoring(bpy.types.PropertyGroup):
                                    description="Naming convention of the transferred keys")
     existing: bpy.props.EnumProperty(name="Existing Keys", items=EXISTING, default="refuse",
                                      description="What to do when this mesh already has keys of the new names")
-    unmatched_parts: bpy.props.EnumProperty(name="Unmatched Parts", items=PARTS, default="keep",
+    unmatched_parts: bpy.props.EnumProperty(name="Unmatched Parts", items=PARTS, default="move",
                                             description="Separate parts of this mesh the source rig does not have")

@@ -6,6 +6,9 @@
 - :mod:`.transfer` — deformation transfer of every source shape onto the target (Sumner & Popović 2004),
   factorised once, and name-convention conversion;
 - :mod:`.proposal` — automatic landmark pairs for a target head without shapes;
+- :mod:`.parts` — the target's facial parts (eyes, teeth, tongue, lashes, brows, cavity) and how each moves;
+- :mod:`.contacts` — eye and mouth openings: the source's lid/lip closure carried onto the target's gap;
+- :mod:`.quality` — the per-key checks of a transfer (gap left, crossings, symmetry, size, parts);
 - :mod:`.mesh` — triangle-mesh helpers.
 
 Imports only foundation modules (``core.rbf``, ``core.names``, ``core.result``, ``core.validate``).

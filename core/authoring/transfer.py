@@ -41,7 +41,8 @@ from ..errors import ErrorCode
 from ..names import canonical_name
 from ..progress import ProgressFn, notify
 from ..result import Issue, Result, ShapeSpaceError, Status
-from .mesh import check_mesh, face_normals
+from .contacts import Opening, closures, constraint_matrix
+from .mesh import check_mesh, face_normals, inv3
 from .registration import Correspondence
 
 __all__ = ["Transfer", "TransferredShapes", "transfer_shapes", "convert_name", "NAMINGS", "frames"]
@@ -60,12 +61,10 @@ def frames(verts: np.ndarray, tris: np.ndarray) -> np.ndarray:
 
 
 def _safe_inv(F):
-    det = np.linalg.det(F)
+    inv, det = inv3(F)
     scale = np.abs(F).max(axis=(-1, -2)) ** 3
     ok = np.abs(det) > 1e-12 * np.where(scale > 0, scale, 1.0)
-    out = np.zeros_like(F)
-    out[ok] = np.linalg.inv(F[ok])
-    return out, ok
+    return np.where(ok[..., None, None], inv, 0.0), ok
 
 
 def _gradient_operator(V, T):
@@ -107,11 +106,15 @@ class Transfer:
     max_stretch : float
         Source triangles whose registration gradient is folded or has a singular-value ratio above this give
         no constraint (:attr:`folded` counts them).
+    openings : sequence of Opening
+        Eye and mouth openings whose closure is carried from source to target (:mod:`.contacts`).
+    contact_weight : float
+        Weight of the contact rows relative to the mean diagonal of the Laplacian term.
     """
 
     def __init__(self, src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, dst_tris: ArrayLike,
                  corr: Correspondence, *, unmatched_parts: str = "keep", anchor: float = 3e-2,
-                 max_stretch: float = 8.0):
+                 max_stretch: float = 8.0, openings: Sequence[Opening] = (), contact_weight: float = 10.0):
         S, ST = check_mesh(src_verts, src_tris, "source")
         T, TT = check_mesh(dst_verts, dst_tris, "target")
         validate.choice(unmatched_parts, "unmatched_parts", ("keep", "refuse"))
@@ -156,6 +159,12 @@ class Transfer:
         mass[loose] = mass[~loose].mean() if (~loose).any() else 1.0
         self._eps = anchor * K.diagonal().sum() / mass.sum()
         self._M = self._eps * mass
+        self.openings = list(openings)
+        self._C = constraint_matrix(self.openings, self.n_t)
+        self._wc = contact_weight * K.diagonal().mean()
+        pairs = np.concatenate([o.target_pairs for o in self.openings]) if self.openings else np.zeros((0, 2), int)
+        self._gap = T[pairs[:, 0]] - T[pairs[:, 1]]
+        K = K + self._wc * (self._C.T @ self._C)
         self._lu = splu((K + sp.diags(self._M)).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                         options={"SymmetricMode": True})
         # barycentric interpolation (n_t, n_s) of the closest registered source point (zero rows: unmapped)
@@ -215,6 +224,10 @@ class Transfer:
             rhs_g = Bm.transpose(1, 3, 0, 2).reshape(3 * self.TT.shape[0], 3 * kk)
             rhs = self._G.T @ (self._a[:, None] * rhs_g)
             rhs += self._M[:, None] * anchors[sl].transpose(1, 0, 2).reshape(self.n_t, 3 * kk)
+            if self.openings:
+                c = closures(self.openings, self.S, D[sl])                      # (kk, m)
+                z = -c[:, :, None] * self._gap[None]                            # (kk, m, 3)
+                rhs += self._wc * (self._C.T @ z.transpose(1, 0, 2).reshape(-1, 3 * kk))
             x = np.empty_like(rhs)
             for col in range(rhs.shape[1]):      # SuperLU is several times faster column by column
                 x[:, col] = self._lu.solve(rhs[:, col])

@@ -356,8 +356,22 @@ def test_stale_landmarks_after_a_topology_change_are_refused(registered):
     assert blend_fingerprint() == before
 
 
-def _facecap_with_eyes_and_teeth():
-    """facecap's head as the source; the target is a copy of the head joined with the eyes and teeth."""
+def _skin_only(ob):
+    """Delete every connected part of ``ob`` but the largest (its shape keys kept, through bmesh)."""
+    import bmesh
+    tm = authoring.read_target(ob)
+    part, _ = core.triangle_parts(len(tm.neutral), tm.triangles)
+    bm = bmesh.new()
+    bm.from_mesh(ob.data)
+    bm.verts.ensure_lookup_table()
+    bmesh.ops.delete(bm, geom=[bm.verts[i] for i in np.flatnonzero(part != 0)], context="VERTS")
+    bm.to_mesh(ob.data)
+    bm.free()
+
+
+def _facecap_with_eyes_and_teeth(skin_only=False):
+    """facecap's head as the source (``skin_only``: its lashes, teeth and other small parts deleted); the target
+    is a copy of the whole head joined with the eyes and teeth."""
     import_file(shared("facecap", "facecap_decoded.glb"))
     src = bpy.data.objects["Mesh_2"]
     src.data.shape_keys.animation_data_clear()
@@ -375,6 +389,8 @@ def _facecap_with_eyes_and_teeth():
     tgt.select_set(True)
     bpy.context.view_layer.objects.active = tgt
     bpy.ops.object.join()
+    if skin_only:
+        _skin_only(src)
     sv, tv = _landmark_pairs(src, tgt, (np.eye(3), 1.0, np.zeros(3)))
     _place_landmarks(src, tgt, sv, tv)
     return src, tgt
@@ -400,6 +416,49 @@ def test_target_with_eyes_and_teeth_keeps_unmatched_parts_still_or_refuses(regis
     moved = _values(tgt, jawOpen=1.0, eyeBlink_L=1.0) - tm.neutral
     assert np.abs(moved[still]).max() == 0.0
     assert np.abs(moved[~still]).max() > 1e-3 * np.ptp(tm.neutral)
+
+
+def _rigid_error(before, after):
+    """Largest change of a pairwise distance within a point set (0 for a rigid motion)."""
+    d0 = np.linalg.norm(before[:, None] - before[None], axis=2)
+    d1 = np.linalg.norm(after[:, None] - after[None], axis=2)
+    return float(np.abs(d1 - d0).max())
+
+
+def test_target_parts_move_as_rigged_and_every_key_is_checked(registered):
+    """Move as Rigged (the panel's default), the source Face Cap's skin alone, the target its whole head with
+    the eyes and teeth: through Blender's evaluation each eye's parts turn rigidly about one centre for
+    eyeLook (the left only for eyeLookUp_L), parts classified jaw move rigidly and parts classified skull
+    stay still at jawOpen = 1; the report lists every part with its kind (Face Cap's lower teeth sit close to
+    its lip line: proposed skull, flagged unsure) and checks every created key."""
+    src, tgt = _facecap_with_eyes_and_teeth(skin_only=True)
+    assert tgt.shapespace_authoring.unmatched_parts == "move"
+    tm = authoring.read_target(tgt)
+    rep = authoring.transfer_shapes(src, tgt, unmatched_parts=tgt.shapespace_authoring.unmatched_parts)
+    kinds = {p["part"]: p["kind"] for p in rep.parts}
+    assert {"eye", "skull", "follow"} <= set(kinds.values()) and "source" not in kinds.values()
+    assert all(p["unsure"] == (p["confidence"] < core.parts.UNSURE) for p in rep.parts)
+    assert {k["name"] for k in rep.keys} == set(rep.created)
+    assert rep.status == ("warning" if any(k["failed"] for k in rep.keys) else "ok")
+    part, _ = core.triangle_parts(len(tm.neutral), tm.triangles)
+    size = float(np.ptp(tm.neutral))
+    jaw, look = _values(tgt, jawOpen=1.0), _values(tgt, eyeLookUp_L=1.0)
+    eye_parts = [p for p, k in kinds.items() if k == "eye"]
+    moves = {p: np.abs(look[part == p] - tm.neutral[part == p]).max() > 1e-3 * size for p in eye_parts}
+    turned = np.flatnonzero(np.isin(part, [p for p in eye_parts if moves[p]]))
+    still = np.flatnonzero(np.isin(part, [p for p in eye_parts if not moves[p]]))
+    assert turned.size and still.size and np.abs(look[still] - tm.neutral[still]).max() < 1e-6 * size
+    assert _rigid_error(tm.neutral[turned], look[turned]) < 1e-5 * size      # one eye's parts, one rotation
+    centre = tm.neutral[part == 0].mean(axis=0)
+    across = tm.neutral[turned].mean(axis=0) - tm.neutral[still].mean(axis=0)   # the two eyes, one each side
+    assert np.linalg.norm(across) > 0.1 * size and abs(across @ (tm.neutral[turned].mean(axis=0) - centre)) > 0
+    for p, kind in kinds.items():
+        idx = np.flatnonzero(part == p)
+        if kind == "jaw":
+            assert _rigid_error(tm.neutral[idx], jaw[idx]) < 1e-5 * size
+            assert np.abs(jaw[idx] - tm.neutral[idx]).max() > 1e-3 * size
+        elif kind == "skull":
+            assert np.abs(jaw[idx] - tm.neutral[idx]).max() < 1e-6 * size
 
 
 # ------------------------------------------------------------------ landmarks and preview

@@ -1,0 +1,141 @@
+"""Contact across the eye and mouth openings in deformation transfer (issue #22 §2, §4; thesis 3.4.1 [205]).
+
+Deformation transfer carries each triangle's deformation, not the distance between two lids: nothing ties the
+upper lid to the lower one, so a blink transferred onto a head with bigger eyes stops half way, and a lid
+that closes on a smaller eye crosses the other.  The fix of the literature is to connect the two sides of an
+opening (Sumner & Popović's virtual triangles across the eyes and mouth); here the connection is explicit.
+An *opening* is two facing contours (upper and lower lid, upper and lower inner lip), each a vertex path
+from one corner to the other, on the source and on the target.  Facing points are paired by arc length
+(:func:`facing_pairs`), and for every shape the source's *closure* of each pair,
+
+    c = 1 − (G′ · G) / ‖G‖²,   G = u − l (neutral gap),  G′ = (u + d_u) − (l + d_l),
+
+(0: the gap is kept, 1: closed, < 0: opened further) is carried to the target pair at the same arc-length
+parameter as the constraint
+
+    d_u − d_l = −c · (u − l)        (target neutral gap, so a blink travels the *target's* lid gap)
+
+added to the least-squares system with weight ``w`` (:func:`constraint_matrix`).  Where the source's
+contours meet at a shape's full weight the target's meet, where the source keeps them apart so does the
+target, at the target's own proportions (a stylised big eye closes over its own gap, not the source's).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import ArrayLike
+
+from ..errors import ErrorCode
+from ..result import ShapeSpaceError
+
+__all__ = ["Opening", "facing_pairs", "opening", "constraint_matrix", "closures", "gap_fractions", "gap_left"]
+
+
+@dataclass
+class Opening:
+    """One opening's facing pairs on the source and the target.
+
+    Attributes
+    ----------
+    name : str
+        ``eye_L``, ``eye_R``, ``mouth``.
+    source_pairs : ndarray of int (m_s, 2)
+        (upper, lower) source vertices facing each other.
+    source_t : ndarray (m_s,)
+        Their arc-length parameter in [0, 1], increasing.
+    target_pairs : ndarray of int (m_t, 2)
+    target_t : ndarray (m_t,)
+    """
+
+    name: str
+    source_pairs: np.ndarray
+    source_t: np.ndarray
+    target_pairs: np.ndarray
+    target_t: np.ndarray
+
+
+def _arc(verts, path):
+    seg = np.linalg.norm(np.diff(verts[path], axis=0), axis=1)
+    s = np.r_[0.0, np.cumsum(seg)]
+    return s / s[-1] if s[-1] > 0 else np.linspace(0.0, 1.0, len(path))
+
+
+def facing_pairs(verts: ArrayLike, upper: Sequence[int], lower: Sequence[int]) -> tuple:
+    """Pair each interior vertex of the upper contour with the lower contour's vertex nearest in arc length.
+
+    Parameters
+    ----------
+    verts : array_like (n, 3)
+    upper, lower : sequence of int
+        Vertex paths from the same corner to the same other corner (the corners may be shared).
+
+    Returns
+    -------
+    pairs : ndarray of int (m, 2)
+        (upper, lower); pairs whose two vertices coincide (shared corners) are left out.
+    t : ndarray (m,)
+        Arc-length parameter of each pair's upper vertex.
+    """
+    V = np.asarray(verts, dtype=np.float64)
+    up, lo = np.asarray(upper, dtype=np.int64), np.asarray(lower, dtype=np.int64)
+    if up.size < 2 or lo.size < 2:
+        raise ShapeSpaceError(f"a contour needs at least 2 vertices (upper {up.size}, lower {lo.size})",
+                              ErrorCode.SHAPE)
+    tu, tl = _arc(V, up), _arc(V, lo)
+    j = np.clip(np.searchsorted(tl, tu), 0, lo.size - 1)
+    jm = np.clip(j - 1, 0, lo.size - 1)
+    j = np.where(np.abs(tl[jm] - tu) < np.abs(tl[j] - tu), jm, j)
+    pairs = np.c_[up, lo[j]]
+    keep = pairs[:, 0] != pairs[:, 1]
+    return pairs[keep], tu[keep]
+
+
+def opening(name: str, src_verts: ArrayLike, src_upper: Sequence[int], src_lower: Sequence[int],
+            dst_verts: ArrayLike, dst_upper: Sequence[int], dst_lower: Sequence[int]) -> Opening:
+    """An :class:`Opening` from the two heads' contour paths (same corner first on both heads)."""
+    sp_, st = facing_pairs(src_verts, src_upper, src_lower)
+    tp, tt = facing_pairs(dst_verts, dst_upper, dst_lower)
+    if sp_.shape[0] == 0 or tp.shape[0] == 0:
+        raise ShapeSpaceError(f"opening {name}: the upper and lower contours coincide", ErrorCode.DEGENERATE)
+    return Opening(name, sp_, st, tp, tt)
+
+
+def constraint_matrix(openings: Sequence[Opening], n_t: int) -> sp.csr_matrix:
+    """``C`` (m, n_t): row ``i`` is ``e_u − e_l`` of target pair ``i`` over all openings, in order."""
+    pairs = np.concatenate([o.target_pairs for o in openings]) if openings else np.zeros((0, 2), np.int64)
+    m = pairs.shape[0]
+    rows = np.r_[np.arange(m), np.arange(m)]
+    vals = np.r_[np.ones(m), -np.ones(m)]
+    return sp.csr_matrix((vals, (rows, pairs.T.ravel())), shape=(m, n_t))
+
+
+def closures(openings: Sequence[Opening], src_verts: np.ndarray, src_deltas: np.ndarray) -> np.ndarray:
+    """The source's closure of every target pair, per shape: (k, m) (see the module docstring)."""
+    out = []
+    for o in openings:
+        u, lo = o.source_pairs[:, 0], o.source_pairs[:, 1]
+        G = src_verts[u] - src_verts[lo]                                   # (m_s, 3)
+        G2 = G[None] + src_deltas[:, u] - src_deltas[:, lo]                # (k, m_s, 3)
+        c = 1.0 - np.einsum("kmi,mi->km", G2, G) / np.maximum(np.sum(G * G, axis=1), 1e-300)
+        out.append(np.stack([np.interp(o.target_t, o.source_t, ck) for ck in c]) if c.shape[0] else
+                   np.zeros((0, o.target_t.size)))
+    return np.concatenate(out, axis=1) if out else np.zeros((src_deltas.shape[0], 0))
+
+
+def gap_fractions(verts: np.ndarray, deltas: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Signed remaining gap of each pair as a fraction of its neutral gap, (k, m): 1 open as at rest, 0 shut,
+    negative crossed (the upper side passed the lower)."""
+    G = verts[pairs[:, 0]] - verts[pairs[:, 1]]
+    G2 = G[None] + deltas[:, pairs[:, 0]] - deltas[:, pairs[:, 1]]
+    return np.einsum("kmi,mi->km", G2, G) / np.maximum(np.sum(G * G, axis=1), 1e-300)
+
+
+def gap_left(verts: np.ndarray, deltas: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """The opening's widest remaining gap over its widest open gap, per shape (k,): 0 shut, 1 as open as at
+    rest (the corners' small gaps do not dominate, as they would in per-pair fractions)."""
+    G = verts[pairs[:, 0]] - verts[pairs[:, 1]]
+    G2 = G[None] + deltas[:, pairs[:, 0]] - deltas[:, pairs[:, 1]]
+    return np.linalg.norm(G2, axis=2).max(axis=1) / max(float(np.linalg.norm(G, axis=1).max()), 1e-300)

@@ -1,0 +1,568 @@
+"""Facial parts of a target head and how each moves in a transferred shape (issue #22 §1; thesis 3.4.1).
+
+A head is rarely one surface: eyes, teeth, gums, tongue, lashes, brows, eyelines and the mouth cavity are
+separate connected parts (ICT FaceKit: 56, Face Cap: 17 plus separate eye and teeth meshes, Ready Player Me:
+separate eye and teeth objects).  Deformation transfer moves the skin and every target part the source has
+too (a part matched by the registration to a source part other than the source's skin); every other part is
+moved here, as an artist would rig it:
+
+``follow``
+    lashes, brows, eyelines, the mouth cavity: each vertex is bound to its closest point ``p`` on the skin
+    (triangle, barycentric coordinates, offset ``x − p``), like a surface binding: its displacement is the
+    skin's at ``p`` plus the offset turned by the skin triangle's rotation (polar factor of its deformation
+    gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with ``r`` 2 % of
+    the head's diagonal, towards the jaw/skull motion of that vertex (the back of a mouth cavity is carried
+    by the jaw, not by the lip it hangs from).
+``jaw``
+    lower teeth, lower gums, tongue: the rigid motion of the jaw, fitted per shape (weighted Procrustes,
+    Umeyama) to the transferred motion of the chin — the skin that the transferred ``jawOpen`` moves most.
+``skull``
+    upper teeth and gums: still.
+``eye``
+    eyeballs: turned about their centre for the ``eyeLook*`` shapes by :data:`EYE_LOOK_DEGREES` (ARKit
+    names the direction, not the angle), in the head frame given by the skin (left: the mirror plane's
+    normal; up: against the chin's motion in ``jawOpen``; forward: towards the chin; see ``_face_frame``).
+``source``
+    parts the source has too: deformation transfer already moved them.
+``still``
+    kept still (the user's choice).
+``skin``
+    the largest part.
+
+The proposal (:func:`propose_parts`) classifies by geometry only: a near-spherical part off the mirror plane
+is an eye; a part lying within 1.2 % of the diagonal of the skin (median), or touching it (closer than
+0.3 %), follows it; any other part is rigid: with the jaw if most of it lies in the jaw's sector (seen along
+the hinge of the rigid motion fitted to the transferred ``jawOpen``, the angles where the front midline moves
+with the jaw by more than half: from the lip line round the chin), else with the skull.  Each kind carries a
+confidence and a reason; the user corrects it (:meth:`PartPlan.with_kinds`).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+
+from ..errors import ErrorCode
+from ..names import canonical_name
+from ..result import ShapeSpaceError
+from .mesh import bbox_diagonal, closest_on_triangles, inv3, symmetry_plane, triangle_parts
+
+__all__ = ["KINDS", "UNSURE", "EYE_LOOK_DEGREES", "PartPlan", "propose_parts", "plan_for_transfer", "move_parts",
+           "jaw_membership",
+           "fit_rigid", "sphere_fit"]
+
+KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
+# eyeLook* at weight 1, degrees (ARKit documents the direction only); measured as the mean of the turns the
+# artists of ICT FaceKit and Ready Player Me authored on their eyeballs, rounded
+EYE_LOOK_DEGREES = {"Up": 20.0, "Down": 25.0, "In": 25.0, "Out": 30.0}
+FOLLOW_RADIUS = 0.02          # × diagonal: binding falloff
+FOLLOW_MEDIAN = 0.012         # × diagonal: a part whose median distance to the skin is below this follows it
+TOUCH = 0.003                 # × diagonal: a part closer than this somewhere touches the skin (cavity)
+EYE_RESIDUAL = 0.06           # relative RMS of a sphere fit below which a part is an eyeball
+UNSURE = 0.6                  # a proposed kind below this confidence is marked unsure
+
+
+@dataclass
+class PartPlan:
+    """How each connected part of the target moves.
+
+    Attributes
+    ----------
+    labels : ndarray of int (n_t,)
+        Part per vertex (0 = skin, −1 = in no triangle), as :func:`~core.authoring.mesh.triangle_parts`.
+    kinds : dict
+        Part → one of :data:`KINDS`.
+    confidence : dict
+        Part → confidence of the proposal in [0, 1] (1 for a kind the user set).
+    reasons : dict
+        Part → why (shown in the panel and the report).
+    """
+
+    labels: np.ndarray
+    kinds: dict
+    confidence: dict = field(default_factory=dict)
+    reasons: dict = field(default_factory=dict)
+    frame: object = field(default=None, repr=False, compare=False)      # the face frame the proposal used
+
+    def with_kinds(self, kinds: dict) -> PartPlan:
+        """A copy with some parts' kinds set by the user (confidence 1)."""
+        out = PartPlan(self.labels, dict(self.kinds), dict(self.confidence), dict(self.reasons), self.frame)
+        for p, k in kinds.items():
+            p = int(p)
+            if p not in out.kinds:
+                raise ShapeSpaceError(f"part {p} does not exist (the target has parts 0–{max(out.kinds)})",
+                                      ErrorCode.RANGE)
+            if k not in KINDS:
+                raise ShapeSpaceError(f"part {p}: kind {k!r} is not one of {', '.join(KINDS)}", ErrorCode.INVALID)
+            out.kinds[p], out.confidence[p], out.reasons[p] = k, 1.0, "set by the user"
+        return out
+
+    def to_json(self) -> dict:
+        """Plain data (labels are re-derived from the mesh; only per-part choices are stored)."""
+        return {"kinds": {str(p): k for p, k in self.kinds.items()},
+                "confidence": {str(p): float(c) for p, c in self.confidence.items()},
+                "reasons": {str(p): r for p, r in self.reasons.items()}}
+
+    def summary(self) -> list:
+        """One dict per part: part, kind, vertices, confidence, ``unsure`` (confidence below
+        :data:`UNSURE`: check it in the panel), reason."""
+        sizes = np.bincount(self.labels[self.labels >= 0]) if np.any(self.labels >= 0) else np.zeros(0, int)
+        return [{"part": int(p), "kind": k, "vertices": int(sizes[p]) if p < sizes.size else 0,
+                 "confidence": round(float(self.confidence.get(p, 1.0)), 3),
+                 "unsure": bool(self.confidence.get(p, 1.0) < UNSURE), "reason": self.reasons.get(p, "")}
+                for p, k in sorted(self.kinds.items())]
+
+
+def sphere_fit(points: ArrayLike) -> tuple:
+    """Least-squares sphere through points (algebraic fit ``‖x‖² = 2 c·x + (r² − ‖c‖²)``).
+
+    Returns
+    -------
+    centre : ndarray (3,)
+    radius : float
+    residual : float
+        RMS of ``‖x − c‖ − r`` relative to ``r`` (``inf`` for fewer than 4 points or a degenerate set).
+    """
+    P = np.asarray(points, dtype=np.float64)
+    if P.shape[0] < 4:
+        return P.mean(axis=0) if P.size else np.zeros(3), 0.0, float("inf")
+    mu = P.mean(axis=0)
+    X = P - mu
+    A = np.c_[2.0 * X, np.ones(len(X))]
+    sol, *_ = np.linalg.lstsq(A, np.sum(X * X, axis=1), rcond=None)
+    c = sol[:3]
+    r2 = sol[3] + c @ c
+    if not np.isfinite(r2) or r2 <= 0:
+        return mu, 0.0, float("inf")
+    r = float(np.sqrt(r2))
+    res = float(np.sqrt(np.mean((np.linalg.norm(X - c, axis=1) - r) ** 2)) / r)
+    return c + mu, r, res
+
+
+def fit_rigid(X: np.ndarray, Y: np.ndarray, w: np.ndarray) -> tuple:
+    """Weighted rigid fit ``Y ≈ R X + t`` (Umeyama without scale): R (3, 3), t (3,); identity for no weight."""
+    sw = w.sum()
+    if sw <= 0:
+        return np.eye(3), np.zeros(3)
+    mx, my = w @ X / sw, w @ Y / sw
+    H = ((Y - my) * w[:, None]).T @ (X - mx)
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    R = U @ np.diag([1.0, 1.0, d]) @ Vt
+    return R, my - R @ mx
+
+
+class _Skin:
+    """The skin part's triangles and a tree of their centroids, built once per call (closest-point queries)."""
+
+    def __init__(self, V, TT, labels):
+        self.V = V
+        self.tris = TT[labels[TT[:, 0]] == 0]
+        self.tree = cKDTree(V[self.tris].mean(axis=1))
+
+    def closest(self, points):
+        """(tri into ``self.tris``, bary, point, distance) of each point."""
+        return closest_on_triangles(points, self.V, self.tris, tree=self.tree)
+
+
+def jaw_membership(verts: np.ndarray, labels: np.ndarray, jaw_delta: np.ndarray | None) -> np.ndarray:
+    """How much each skin vertex moves with the jaw, in [0, 1] (n_t,): the transferred ``jawOpen``'s
+    displacement length over its 99th percentile on the skin; zero everywhere without a ``jawOpen``."""
+    m = np.zeros(verts.shape[0])
+    if jaw_delta is None:
+        return m
+    length = np.linalg.norm(jaw_delta, axis=1)
+    skin = labels == 0
+    top = np.quantile(length[skin], 0.99) if skin.any() else 0.0
+    if top > 0:
+        m[skin] = np.clip(length[skin] / top, 0.0, 1.0)
+    return m
+
+
+def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map: dict | None = None,
+                  jaw_delta: np.ndarray | None = None, source_plan: PartPlan | None = None,
+                  source_moving: Sequence[int] = ()) -> PartPlan:
+    """Classify the target's parts (see the module docstring).
+
+    Parameters
+    ----------
+    verts : array_like (n_t, 3)
+    tris : array_like of int (f_t, 3)
+    labels : array_like of int (n_t,)
+        Connected part per vertex (0 = skin).
+    part_map : dict, optional
+        Target part → source part from the registration (:attr:`Correspondence.part_map`).  A part matched
+        to a source part other than the source's skin is ``source`` when that source part moves in the
+        source's shapes (``source_moving``) and is of the same kind in ``source_plan`` (a lash matched to a
+        source tooth is not).
+    jaw_delta : ndarray (n_t, 3), optional
+        The transferred ``jawOpen`` (skin part), deciding jaw against skull.
+    source_plan : PartPlan, optional
+        The source's own parts (proposed with its authored ``jawOpen``).
+    source_moving : sequence of int
+        Source parts that its shapes move.
+
+    Returns
+    -------
+    PartPlan
+    """
+    V = np.asarray(verts, dtype=np.float64)
+    TT = np.asarray(tris, dtype=np.int64)
+    lab = np.asarray(labels, dtype=np.int64)
+    diag = max(bbox_diagonal(V), 1e-300)
+    jaw = jaw_membership(V, lab, jaw_delta)
+    kinds, conf, why = {0: "skin"}, {0: 1.0}, {0: "the largest part"}
+    skin = _Skin(V, TT, lab)
+    frame = _face_frame(V, lab, jaw, None if jaw_delta is None else np.asarray(jaw_delta, dtype=np.float64))
+    for p in np.unique(lab[lab > 0]):
+        p = int(p)
+        kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, jaw)
+    _beside_eyes(V, lab, kinds, conf, why, diag)
+    for p in np.unique(lab[lab > 0]):
+        p = int(p)
+        q = (part_map or {}).get(p, -1)
+        same = source_plan is not None and source_plan.kinds.get(q) == kinds[p]
+        if q > 0 and same and q in set(source_moving):
+            kinds[p], conf[p], why[p] = "source", conf[p], f"the source has it and moves it (source part {q})"
+    return PartPlan(lab, kinds, conf, why, frame)
+
+
+def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: np.ndarray, names: Sequence[str],
+                      dst_verts: np.ndarray, dst_tris: np.ndarray, deltas: np.ndarray, part_map: dict) -> PartPlan:
+    """The proposed :class:`PartPlan` of a transfer: the source's parts from its own ``jawOpen``, the target's
+    from the transferred one, a target part ``source`` where the source has and moves the same kind.
+
+    Parameters
+    ----------
+    src_verts, src_tris, src_deltas : (n_s, 3), (f_s, 3), (k, n_s, 3)
+    names : sequence of str (k,)
+    dst_verts, dst_tris, deltas : (n_t, 3), (f_t, 3), (k, n_t, 3) transferred
+    part_map : dict
+        :attr:`Correspondence.part_map`.
+    """
+    canon = [canonical_name(n) for n in names]
+    j = canon.index("jawOpen") if "jawOpen" in canon else None
+    s_lab, _ = triangle_parts(src_verts.shape[0], src_tris)
+    t_lab, _ = triangle_parts(dst_verts.shape[0], dst_tris)
+    s_plan = propose_parts(src_verts, src_tris, s_lab, None, None if j is None else src_deltas[j])
+    motion = np.linalg.norm(src_deltas, axis=2).max(axis=0) if src_deltas.shape[0] else np.zeros(len(s_lab))
+    tol = 1e-3 * bbox_diagonal(src_verts)
+    moving = [int(q) for q in np.unique(s_lab[s_lab > 0]) if motion[s_lab == q].max() > tol]
+    return propose_parts(dst_verts, dst_tris, t_lab, part_map, None if j is None else deltas[j], s_plan, moving)
+
+
+def _beside_eyes(V, lab, kinds, conf, why, diag):
+    """Rigid-classified parts touching an eyeball (lacrimal fluid, eye occlusion and blend shells) follow the
+    lids instead: they sit in the socket between eye and lid."""
+    eyes = np.flatnonzero(np.isin(lab, [p for p, k in kinds.items() if k == "eye"]))
+    if eyes.size == 0:
+        return
+    tree = cKDTree(V[eyes])
+    for p, k in list(kinds.items()):
+        if k in ("jaw", "skull"):
+            d, _ = tree.query(V[lab == p])
+            if d.min() < 0.01 * diag:
+                kinds[p], conf[p], why[p] = "follow", 0.6, "touches an eyeball: follows the lids"
+
+
+def _classify(V, skin, frame, lab, idx, diag, jaw):
+    eye = _eye_likeness(V, frame, idx, diag)
+    if eye > 0:
+        return "eye", eye, "a round part off the mirror plane"
+    _, _, _, dist = skin.closest(V[idx])
+    med, low = float(np.median(dist)) / diag, float(dist.min()) / diag
+    if med < FOLLOW_MEDIAN or low < TOUCH:
+        why = "lies on the skin" if med < FOLLOW_MEDIAN else "touches the skin"
+        return "follow", float(np.clip(1.0 - med / (2 * FOLLOW_MEDIAN), 0.3, 1.0)), why
+    inside, sure = frame.in_jaw(V[idx])
+    if inside > 0.5:
+        return "jaw", sure, "inside, in the jaw's sector (moves with the jaw)"
+    return "skull", sure, "inside, outside the jaw's sector (stays with the skull)"
+
+
+def _eye_likeness(V, frame, idx, diag):
+    """Confidence (0: not an eye) that a part is an eyeball: off the mirror plane, well above the chin
+    (10 % of the diagonal, where the jaw is known), 4–12 % of the diagonal across (a tooth is smaller), not
+    flat (smallest principal extent ≥ 30 % of the largest) and convex (≥ 80 % of its vertices on its convex
+    hull, or a sphere fit within 6 %)."""
+    P = V[idx]
+    if idx.size < 8:
+        return 0.0
+    c = P.mean(axis=0)
+    off = abs((c - frame.centre) @ frame.left) > 0.05 * diag
+    high = frame.chin is None or (c - frame.chin) @ frame.up > 0.1 * diag
+    ext = np.linalg.svd(P - c, compute_uv=False) / np.sqrt(idx.size)
+    size = float(np.ptp(P, axis=0).max()) / diag
+    if not (off and high) or not 0.04 < size < 0.12 or ext[2] < 0.3 * ext[0]:
+        return 0.0
+    _, _, res = sphere_fit(P)
+    try:
+        hull = ConvexHull(P)
+        on_hull = np.unique(hull.simplices).size / idx.size
+    except (QhullError, ValueError):
+        on_hull = 0.0
+    if on_hull < 0.8 and res > EYE_RESIDUAL:
+        return 0.0
+    return float(np.clip(max(on_hull, 1.0 - res / EYE_RESIDUAL), 0.3, 1.0))
+
+
+def _lr_axis(V, lab):
+    """Index of the coordinate axis with the largest spread of the skin (left–right on the shared heads is
+    not assumed: the axis whose mirror is best is used)."""
+    S = V[lab == 0] if np.any(lab == 0) else V
+    c = S.mean(axis=0)
+    errs = []
+    for a in range(3):
+        M = S.copy()
+        M[:, a] = 2 * c[a] - M[:, a]
+        errs.append(np.mean(np.abs(np.sort(M[:, a]) - np.sort(S[:, a]))) / max(np.ptp(S[:, a]), 1e-300))
+    return int(np.argmin(errs))
+
+
+def _inverse_frames(F0):
+    """``F0⁻¹`` (f, 3, 3), identity where a frame is singular (a degenerate triangle turns with nothing)."""
+    inv, det = inv3(F0)
+    return np.where((np.abs(det) > 1e-300)[:, None, None], inv, np.eye(3))
+
+
+def _rotations(F0inv, F1):
+    """Rotation (f, 3, 3) of each triangle from its rest frame (inverse ``F0inv``) to ``F1``: the polar factor
+    of the deformation gradient ``F1 F0⁻¹``."""
+    U, _, Vt = np.linalg.svd(F1 @ F0inv)
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[:, :, 2] *= d[:, None]
+    return U @ Vt
+
+
+def _frames(V, T):
+    a, b, c = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
+    n = np.cross(b - a, c - a)
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.stack([b - a, c - a, n / np.where(ln > 0, np.sqrt(ln), 1.0)], axis=-1)
+
+
+def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.ndarray, names: Sequence[str],
+               face_forward: np.ndarray | None = None) -> tuple:
+    """Move every ``follow``, ``jaw``, ``skull``, ``eye`` and ``still`` part of transferred shapes.
+
+    Parameters
+    ----------
+    plan : PartPlan
+    verts : array_like (n_t, 3)
+    tris : array_like of int (f_t, 3)
+    deltas : ndarray (k, n_t, 3)
+        Transferred deltas (skin and ``source`` parts are kept; the others are replaced, in place).
+    names : sequence of str (k,)
+        Shape names (``jawOpen`` decides the jaw; ``eyeLook*`` turn the eyes).
+    face_forward : ndarray (3,), optional
+        The face's forward direction (default: the mean normal of the skin the shapes move).
+
+    Returns
+    -------
+    deltas : ndarray (k, n_t, 3)
+        The same array.
+    moved : dict
+        Part → largest displacement over the shapes (target units).
+    """
+    V = np.asarray(verts, dtype=np.float64)
+    TT = np.asarray(tris, dtype=np.int64)
+    lab = plan.labels
+    canon = [canonical_name(n) for n in names]
+    jaw_delta = deltas[canon.index("jawOpen")] if "jawOpen" in canon else None
+    jaw = jaw_membership(V, lab, jaw_delta)
+    jaw_motion = _jaw_motions(V, lab, deltas, jaw)                     # (k, 3, 3), (k, 3)
+    follow = np.flatnonzero(np.isin(lab, [p for p, k in plan.kinds.items() if k == "follow"]))
+    if follow.size:
+        deltas[:, follow] = _follow(V, _Skin(V, TT, lab), follow, deltas, jaw, jaw_motion)
+    frame = plan.frame if face_forward is None else None
+    for p, kind in plan.kinds.items():
+        idx = np.flatnonzero(lab == p)
+        if kind in ("skin", "source") or idx.size == 0:
+            continue
+        if kind in ("still", "skull"):
+            deltas[:, idx] = 0.0
+        elif kind == "jaw":
+            R, t = jaw_motion
+            deltas[:, idx] = np.einsum("kij,vj->kvi", R, V[idx]) + t[:, None, :] - V[idx][None]
+        elif kind == "eye":
+            frame = frame or _face_frame(V, lab, jaw, jaw_delta, face_forward)
+            deltas[:, idx] = _eye_turns(V, idx, deltas, canon, frame, _eye_centre(V, lab, plan, p, frame))
+    moved = {int(p): float(np.linalg.norm(deltas[:, lab == p], axis=2).max()) if deltas.shape[0] else 0.0
+             for p in plan.kinds}
+    return deltas, moved
+
+
+def _jaw_motions(V, lab, deltas, jaw):
+    """Per shape the jaw's rigid motion fitted to the chin (weights ``jaw⁴``): R (k, 3, 3), t (k, 3)."""
+    k = deltas.shape[0]
+    w = jaw ** 4
+    sel = np.flatnonzero(w > 1e-3)
+    R, t = np.tile(np.eye(3), (k, 1, 1)), np.zeros((k, 3))
+    if sel.size < 3:
+        return R, t
+    X = V[sel]
+    for s in range(k):
+        R[s], t[s] = fit_rigid(X, X + deltas[s, sel], w[sel])
+    return R, t
+
+
+def _follow(V, skin, idx, deltas, jaw, jaw_motion):
+    """Surface binding of vertices ``idx`` to the skin, fading into their jaw share of the jaw motion."""
+    tri, bary, point, dist = skin.closest(V[idx])
+    ST = skin.tris
+    diag = max(bbox_diagonal(V), 1e-300)
+    w = np.exp(-(dist / (FOLLOW_RADIUS * diag)) ** 2)
+    share = np.sum(bary * jaw[ST[tri]], axis=1)
+    used = ST[tri]                                                      # (m, 3) skin vertices
+    uniq, inv = np.unique(tri, return_inverse=True)
+    F0inv = _inverse_frames(_frames(V, ST[uniq]))
+    off = V[idx] - point
+    R, t = jaw_motion
+    out = np.empty((deltas.shape[0], idx.size, 3))
+    for s in range(deltas.shape[0]):
+        d = deltas[s]
+        rot = _rotations(F0inv, _frames(V + d, ST[uniq]))[inv]           # (m, 3, 3)
+        bound = np.einsum("mj,mjc->mc", bary, d[used]) + np.einsum("mij,mj->mi", rot, off) - off
+        rigid = (V[idx] @ R[s].T + t[s] - V[idx]) * share[:, None]
+        out[s] = w[:, None] * bound + (1.0 - w[:, None]) * rigid
+    return out
+
+
+def _eye_centre(V, lab, plan, part, frame):
+    """The centre one eye's parts turn about (eyeball, iris, cornea …): the sphere through all the eye parts
+    on the same side as ``part``."""
+    side = np.sign((V[lab == part].mean(axis=0) - frame.centre) @ frame.left)
+    same = [p for p, k in plan.kinds.items() if k == "eye"
+            and np.sign((V[lab == p].mean(axis=0) - frame.centre) @ frame.left) == side]
+    centre, _, _ = sphere_fit(V[np.isin(lab, same)])
+    return centre
+
+
+def _eye_turns(V, idx, deltas, canon, frame, centre):
+    """Eyeball vertices ``idx`` turned about ``centre`` for the ``eyeLook*`` shapes (k, m, 3)."""
+    up, left = frame.up, frame.left
+    side = "Left" if (centre - frame.centre) @ left > 0 else "Right"
+    out = np.zeros((deltas.shape[0], idx.size, 3))
+    X = V[idx] - centre
+    for s, name in enumerate(canon):
+        if not name.startswith("eyeLook") or not name.endswith(side):
+            continue
+        direction = name[len("eyeLook"):-len(side)]
+        if direction not in EYE_LOOK_DEGREES:
+            continue
+        axis = {"Up": -left, "Down": left}.get(direction)
+        if axis is None:
+            toward_left = (direction == "Out") == (side == "Left")
+            axis = up if toward_left else -up
+        out[s] = X @ _axis_angle(axis, np.radians(EYE_LOOK_DEGREES[direction])).T - X
+    return out
+
+
+@dataclass
+class _Frame:
+    """The face's frame from the skin.
+
+    ``left`` is the mirror plane's normal turned towards the character's left; ``up`` is against the chin's
+    mean motion in ``jawOpen`` (in the mirror plane); ``forward`` = left × up.  The jaw's sector: seen along
+    the jaw's hinge (the axis of the rigid motion fitted to ``jawOpen``, through its pivot), the angles of
+    the front midline where the jaw's share exceeds ½ — from the lip line round the chin to the throat.  A
+    rigid part inside that sector moves with the jaw (lower teeth, tongue), one outside stays with the skull.
+    """
+
+    centre: np.ndarray
+    left: np.ndarray
+    up: np.ndarray
+    forward: np.ndarray
+    chin: np.ndarray = None        # jaw-weighted skin centroid, None without a jawOpen
+    hinge: tuple = None            # (pivot, unit axis, e1, e2, lip end, throat end) or None without a jawOpen
+
+    def in_jaw(self, points) -> tuple:
+        """(fraction of ``points`` (m, 3) inside the jaw's sector, confidence).  Angles about the hinge, the
+        chin at 0; the sector's lip end is taken half way from the lip line to the chin: the lips stand in
+        front of the teeth and upper incisors reach below the lip line (ICT FaceKit's front upper teeth lie
+        35–100 % of the way to it, its lower teeth within 21 %; Face Cap's lower teeth at 75–83 % are
+        misjudged, with a confidence of 0.5).  The confidence grows with the median angle's distance from
+        that end."""
+        if self.hinge is None or not self.hinge[4]:
+            return 0.0, 0.5
+        p, _, e1, e2, lip, throat = self.hinge
+        X = np.asarray(points) - p
+        th = np.arctan2(X @ e2, X @ e1) * -np.sign(lip)             # the lip side negative
+        inside = float(np.mean((th > -0.5 * abs(lip)) & (th < abs(throat))))
+        return inside, float(np.clip(abs(np.median(th) + 0.5 * abs(lip)) / (0.5 * abs(lip)), 0.2, 1.0))
+
+
+def _face_frame(V, lab, jaw, jaw_delta, face_forward=None):
+    skin = np.flatnonzero(lab == 0)
+    S = V[skin]
+    c = S.mean(axis=0)
+    n, _, _ = symmetry_plane(S)
+    w = jaw[skin]
+    has_jaw = jaw_delta is not None and w.sum() > 0
+    chin = (w @ S) / w.sum() if has_jaw else c
+    drop = -(w @ jaw_delta[skin]) if has_jaw else _any_perpendicular(n)
+    up = drop - (drop @ n) * n                                  # jawOpen drops the chin: up is against it
+    up /= max(np.linalg.norm(up), 1e-300)
+    fwd = np.cross(up, n) if face_forward is None else np.asarray(face_forward, dtype=np.float64)
+    fwd = fwd - (fwd @ up) * up
+    fwd /= max(np.linalg.norm(fwd), 1e-300)
+    if face_forward is None and has_jaw and (chin - c) @ fwd < 0:
+        fwd = -fwd
+    hinge = _hinge(S, w, jaw_delta[skin], n, chin, up, c - 0.1 * bbox_diagonal(S) * fwd) if has_jaw else None
+    return _Frame(c, np.cross(up, fwd), up, fwd, chin if has_jaw else None, hinge)
+
+
+def _hinge(S, w, d, n, chin, up, fallback):
+    """The jaw's hinge and sector (see :class:`_Frame`).  A ``jawOpen`` that barely turns (its hinge would
+    lie more than a head away: a jaw that slides) gets the hinge through ``fallback`` along the mirror
+    normal (behind the centre of the head, where a jaw joint is)."""
+    R, t = fit_rigid(S, S + d, w ** 4)
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    diag = max(float(np.ptp(S, axis=0).max()), 1e-300)
+    pivot = None
+    if np.linalg.norm(axis) > 1e-9:
+        axis /= np.linalg.norm(axis)
+        pivot, *_ = np.linalg.lstsq(np.eye(3) - R, t, rcond=1e-6)    # (I − R) is singular along the axis
+        pivot += ((fallback - pivot) @ axis) * axis                    # the axis point beside the head's centre
+    if pivot is None or np.linalg.norm(pivot - pivot @ axis * axis - (fallback - fallback @ axis * axis)) > diag:
+        axis, pivot = n, fallback
+    e1 = chin - pivot - ((chin - pivot) @ axis) * axis
+    e1 /= max(np.linalg.norm(e1), 1e-300)
+    e2 = np.cross(axis, e1)
+    mid = np.abs((S - chin) @ n) < 0.03 * diag
+    X = S[mid] - pivot
+    th = np.arctan2(X @ e2, X @ e1)
+    radius = np.linalg.norm(X - np.outer(X @ axis, axis), axis=1)
+    lo, hi = _sector(th, radius, w[mid])
+    lip_is_lo = (np.cos(lo) * e1 + np.sin(lo) * e2) @ up > (np.cos(hi) * e1 + np.sin(hi) * e2) @ up
+    return (pivot, axis, e1, e2, lo, hi) if lip_is_lo else (pivot, axis, e1, e2, hi, lo)
+
+
+def _sector(th, radius, w, step=np.radians(2.0)):
+    """Angles (lo, hi) around 0 over which the outer profile (the farthest midline point of each 2° bin:
+    lips and chin, not the throat behind them) moves with the jaw by more than half."""
+    bins = np.round(th / step).astype(int)
+    order = np.lexsort((-radius, bins))
+    first = np.r_[True, bins[order][1:] != bins[order][:-1]]
+    outer = dict(zip(bins[order][first].tolist(), w[order][first].tolist()))
+    ends = []
+    for sign in (-1, 1):
+        k = 0
+        while outer.get(k + sign, 1.0) > 0.5 and abs(k) * step < np.pi:
+            k += sign
+        ends.append((k + 0.5 * sign) * step)
+    return ends[0], ends[1]
+
+
+def _any_perpendicular(n):
+    a = np.eye(3)[int(np.argmin(np.abs(n)))]
+    return np.cross(n, a) / np.linalg.norm(np.cross(n, a))
+
+
+def _axis_angle(axis, angle):
+    a = axis / max(np.linalg.norm(axis), 1e-300)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K

@@ -1,0 +1,164 @@
+"""Transfer v2 benchmark keys (issue #22): every ordered pair of the four shared heads, skin and parts together.
+
+Heads are read whole, as a user rigs them: Face Cap's head with its separate eye and teeth meshes, FBHead,
+ICT FaceKit, Ready Player Me's head with its eye and teeth objects (read from ../shared/data, never vendored),
+each in world space, keys of one name on several objects joined.  Per pair ``<src>_<dst>``:
+
+- ``transfer_rel_energy_<pair>``: ‖ΔT − ΔA‖ / ‖ΔA‖ jointly over every key the target authored (peak at least
+  5 % of its largest) and all its vertices; ``transfer_rel_median_<pair>`` the per-key median;
+- ``transfer_parts_moved_frac_<pair>``: the share of the target's authored motion on its parts (every
+  connected part but the skin) that the transfer reproduces, ``max(0, 1 − ‖ΔT − ΔA‖ / ‖ΔA‖)`` on the parts;
+- ``transfer_blink_gap_frac_<pair>``: the lid gap left at eyeBlink weight 1 as a fraction of the target's open
+  gap (widest remaining over widest open, ``core.authoring.contacts.gap_left``), the worse of L and R
+  (``transfer_blink_gap_frac_authored_<head>``: the target's own authored blink);
+- ``transfer_crossings_<pair>``: lid pairs crossed by some transferred key beyond those the target's own keys
+  cross;
+- ``transfer_s_<pair>``: landmarks + registration + transfer of every key + parts, seconds;
+- ``transfer_report_status_<pair>``: the per-key checks' verdict (``core.authoring.quality``).
+
+Landmarks for the registration come from the shapes both rigs share (the placed-landmark stand-in of the v1
+suite); the lid pairs are placed from known vertices: the upper-lid vertices the head's own eyeBlink moves at
+least 60 % of its most, each paired with the low-motion skin vertex its blink lands on.
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from bench_support import shared_data
+
+HEADS = {"facecap": ("facecap/facecap_decoded.glb", ("Mesh_2", "Mesh_0", "Mesh_1", "Mesh_3")),
+         "fbhead": ("llf_fbhead/Live_Link_Face.blend", ("FBHead",)),
+         "ict": ("ict_facekit/ict_facekit_expressions.glb", ("ICTFace",)),
+         "rpm": ("rpm_brunette/brunette-t.glb", ("Wolf3D_Head", "EyeLeft", "EyeRight", "Wolf3D_Teeth"))}
+
+
+def read_head(tag):
+    """(neutral (n, 3), triangles (f, 3), deltas (k, n, 3), canonical names) of a whole head, world space."""
+    import bpy
+    from shapespace.bridge import assets, shapekeys
+    from shapespace.core.names import canonical_name
+    rel, objects = HEADS[tag]
+    path = shared_data(rel, f"the {tag} head")
+    if path is None:
+        return None
+    assets.load(path)
+    verts, tris, models, off = [], [], [], 0
+    for name in objects:
+        ob = bpy.data.objects[name]
+        me = ob.data
+        M = np.array(ob.matrix_world)
+        me.calc_loop_triangles()
+        t = np.empty(len(me.loop_triangles) * 3, dtype=np.int32)
+        me.loop_triangles.foreach_get("vertices", t)
+        model = shapekeys.read_blendshape_model(ob) if me.shape_keys else None
+        co = np.empty(len(me.vertices) * 3, dtype=np.float32)
+        me.vertices.foreach_get("co", co)
+        co = model.neutral if model is not None else co.reshape(-1, 3).astype(np.float64)
+        verts.append(co @ M[:3, :3].T + M[:3, 3])
+        tris.append(t.reshape(-1, 3).astype(np.int64) + off)
+        models.append((model, M[:3, :3], off, len(co)))
+        off += len(co)
+    names = list(dict.fromkeys(canonical_name(n) for m, *_ in models if m is not None for n in m.names))
+    D = np.zeros((len(names), off, 3))
+    for model, L, o, n in models:
+        for j, name in enumerate(model.names if model is not None else ()):
+            D[names.index(canonical_name(name)), o:o + n] = model.deltas[j] @ L.T
+    return np.concatenate(verts), np.concatenate(tris), D, names
+
+
+def lid_pairs(V, D, names, part, side, lr_axis):
+    """(pairs (m, 2), t (m,)) of one eye, placed from the head's own eyeBlink (see the module docstring)."""
+    d = D[names.index(f"eyeBlink{side}")]
+    L = np.linalg.norm(d, axis=1)
+    L[part != 0] = 0.0
+    low = np.flatnonzero((part == 0) & (L < 0.5 * L.max()))
+    cand = np.flatnonzero(L >= 0.6 * L.max())
+    dist, j = cKDTree(V[low]).query(V[cand] + d[cand])
+    ok = dist <= 0.3 * L[cand]
+    u, lo = cand[ok], low[j[ok]]
+    t = np.abs(V[u, lr_axis] - V[part == 0, lr_axis].mean())
+    t = (t - t.min()) / max(float(np.ptp(t)), 1e-300)
+    o = np.argsort(t, kind="stable")
+    return np.c_[u, lo][o], t[o]
+
+
+def _openings(S, SD, SN, s_part, T, TD, TN, t_part):
+    from shapespace.core.authoring import contacts, parts
+    out = []
+    for side in ("Left", "Right"):
+        if f"eyeBlink{side}" not in SN or f"eyeBlink{side}" not in TN:
+            continue
+        sp, st = lid_pairs(S, SD, SN, s_part, side, parts._lr_axis(S, s_part))
+        tp, tt = lid_pairs(T, TD, TN, t_part, side, parts._lr_axis(T, t_part))
+        out.append(contacts.Opening("eye_" + side[0], sp, st, tp, tt))
+    return out
+
+
+def _scores(T, TD, TN, DT, SN, t_part, openings):
+    from shapespace.core.authoring import contacts
+    idx = {n: i for i, n in enumerate(SN)}
+    peaks = np.abs(TD).reshape(len(TN), -1).max(axis=1)
+    keep = [j for j, n in enumerate(TN) if n in idx and peaks[j] >= 0.05 * peaks.max()]
+    A = TD[keep]
+    X = np.stack([DT[idx[TN[j]]] for j in keep])
+    per = np.linalg.norm((X - A).reshape(len(keep), -1), axis=1) / np.linalg.norm(A.reshape(len(keep), -1), axis=1)
+    on = t_part != 0
+    parts_frac = max(0.0, 1.0 - np.linalg.norm(X[:, on] - A[:, on]) / max(np.linalg.norm(A[:, on]), 1e-300))
+    out = {"transfer_rel_energy": float(np.linalg.norm(X - A) / np.linalg.norm(A)),
+           "transfer_rel_median": float(np.median(per)), "transfer_parts_moved_frac": float(parts_frac)}
+    gaps, gaps_a, cross = [], [], 0
+    for o in openings:
+        name = "eyeBlink" + {"L": "Left", "R": "Right"}[o.name[-1]]
+        gaps.append(float(contacts.gap_left(T, DT[idx[name]][None], o.target_pairs)[0]))
+        gaps_a.append(float(contacts.gap_left(T, TD[TN.index(name)][None], o.target_pairs)[0]))
+        own = (contacts.gap_fractions(T, TD, o.target_pairs) < -0.05).any(axis=0)
+        cross += int(((contacts.gap_fractions(T, DT, o.target_pairs) < -0.05).any(axis=0) & ~own).sum())
+    out["transfer_blink_gap_frac"] = max(gaps) if gaps else None
+    out["transfer_crossings"] = cross
+    return out, (max(gaps_a) if gaps_a else None)
+
+
+def pair(src, dst):
+    """Metrics of one ordered pair (keys without the pair suffix) and the target's authored blink gap."""
+    from shapespace.core import authoring
+    from shapespace.core.authoring import parts, quality
+    S, ST, SD, SN = src
+    T, TT, TD, TN = dst
+    t0 = time.perf_counter()
+    s_part, _ = authoring.triangle_parts(S.shape[0], ST)
+    t_part, _ = authoring.triangle_parts(T.shape[0], TT)
+    lm = authoring.landmarks_from_shared_shapes(S, SD, SN, T, TD, TN, src_mask=s_part == 0, dst_mask=t_part == 0)
+    reg = authoring.register(S, ST, T, TT, lm.value)
+    openings = _openings(S, SD, SN, s_part, T, TD, TN, t_part)
+    tr = authoring.Transfer(S, ST, T, TT, reg.value, openings=openings)
+    DT = tr.solve(SD)
+    plan = parts.plan_for_transfer(S, ST, SD, SN, T, TT, DT, reg.value.part_map)
+    DT, moved = parts.move_parts(plan, T, TT, DT, SN)
+    seconds = time.perf_counter() - t0
+    _, _, status = quality.check_keys(S, SD, SN, T, DT, openings=openings, plan=plan, moved=moved, src_tris=ST,
+                                      dst_tris=TT)
+    m, authored_gap = _scores(T, TD, TN, DT, SN, t_part, openings)
+    m["transfer_s"] = seconds
+    m["transfer_report_status"] = status.name
+    return m, authored_gap
+
+
+def run(quick: bool = False) -> dict:
+    """Every key of every ordered pair (``quick`` computes the same: the suite has no repetitions)."""
+    heads = {tag: read_head(tag) for tag in HEADS}
+    out = {}
+    for s in HEADS:
+        for d in HEADS:
+            if s == d or heads[s] is None or heads[d] is None:
+                continue
+            m, authored = pair(heads[s], heads[d])
+            out.update({f"{k}_{s}_{d}": v for k, v in m.items()})
+            out[f"transfer_blink_gap_frac_authored_{d}"] = authored
+            print(f"bench transfer v2: {s} -> {d}: rel energy {m['transfer_rel_energy']:.3f} median "
+                  f"{m['transfer_rel_median']:.3f} parts {m['transfer_parts_moved_frac']:.2f} blink gap "
+                  f"{m['transfer_blink_gap_frac']} {m['transfer_s']:.1f} s", file=sys.stderr)
+    return out
