@@ -11,9 +11,10 @@ import pytest
 
 from blender_support import bpy, import_file
 from live_support import CSV, configure, drive, frames_received, raw_sender
-from shapespace.bridge import actions
+from shapespace.bridge import actions, manipulation
 from shapespace.bridge.live import recording, session
 from shapespace.bridge.live.facecap import facecap_decoder
+from shapespace.bridge.manipulation import cache
 from shapespace.core.live import FACECAP_52, LLF_CURVES, encode_llf
 from shapespace.core.result import ShapeSpaceError
 from support import ASSETS
@@ -176,3 +177,27 @@ def test_facecap_absurd_weight_is_refused_and_not_applied():
     assert err.value.code == "range" and "jawOpen" in str(err.value)
     (sweep,) = decode(_single("/W", 51, 0.5), 3.0)
     np.testing.assert_array_equal(sweep.weights[:51], first.weights[:51])
+
+
+# ------------------------------------------------------------------ item 14: live frames and the rig cache
+def test_live_frames_never_read_or_verify_the_rig_cache(registered):
+    """Live writes the sliders every frame without touching the drag's rig cache: no read and no checksum per
+    frame; the next use of the cache after live frames costs one checksum (the writes are not the cache's
+    own evaluated updates), never a read."""
+    rigs = manipulation.RIGS
+    ob = _fbhead()
+    port = configure(ob)
+    manipulation.rig_model(ob)
+    reads, checks = rigs.reads, rigs.verifications
+    session.start(bpy.context.scene, ob)
+    raw_sender([d for _, d in live_replay.llf_packets(CSV)[:40]], port)
+    assert drive(lambda: frames_received() >= 40, seconds=10)
+    session.tick()
+    assert session.RUNTIME.session.applied >= 1
+    assert (rigs.reads, rigs.verifications) == (reads, checks)
+    session.stop()
+    model = manipulation.rig_model(ob)
+    assert rigs.reads == reads and rigs.verifications <= checks + 1
+    assert rigs.verifications == checks + 1 or not cache.EDITS_REPORTED or not rigs.tracking
+    jaw = ob.data.shape_keys.key_blocks["JawOpen"].value
+    assert model.values[model.index("JawOpen")] == pytest.approx(jaw)
