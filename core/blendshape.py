@@ -19,12 +19,16 @@ from numpy.typing import ArrayLike
 from .result import Issue, Result, ShapeSpaceError
 
 __all__ = ["BlendshapeModel", "InBetween", "Combination", "diagnose_model", "bounding_box_diagonal", "hat",
-           "NORMALISED_DIAGONAL", "normalised_unit"]
+           "NORMALISED_DIAGONAL", "normalised_unit", "MAX_ABS_WEIGHT"]
 
 #: Bounding-box diagonal of the normalised model space: 30, a real head's diagonal in centimetres (the scale
 #: at which the thesis' α = 0.1 and μ = 0.001 were tuned).  Solvers and error metrics work in units where
 #: the model measures this, so a rig in metres, centimetres or int16 capture units behaves the same.
 NORMALISED_DIAGONAL = 30.0
+
+#: Largest captured weight magnitude read (ARKit weights lie in [0, 1]): beyond it a value is damaged data, refused
+#: by the offline capture reader (a CSV cell) and by the live decoders (a packet) alike.
+MAX_ABS_WEIGHT = 100.0
 
 
 def hat(w: ArrayLike, left: float, peak: float, right: float) -> np.ndarray:

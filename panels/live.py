@@ -88,7 +88,9 @@ def _draw_status(layout, state):
     age = "–" if state.last_frame_age is None else f"{state.last_frame_age * 1000:.0f} ms"
     col.label(text=f"{state.packets_per_second:.0f} packets/s · last frame {age} ago")
     col.label(text=f"frames {state.frames} · dropped {state.dropped} · late {state.late} · "
-                   f"malformed {state.malformed}")
+                   f"malformed {state.malformed} · implausible {state.implausible}")
+    if state.error:
+        col.label(text=f"last refused: {state.error}", icon="ERROR")
     if not math.isnan(state.work_ms_p50):
         col.label(text=f"solve+write {state.work_ms_p50:.2f} ms (p99 {state.work_ms_p99:.2f}) · "
                        f"latency {state.latency_ms_p50:.1f} ms")

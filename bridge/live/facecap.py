@@ -2,16 +2,18 @@
 
 Each datagram is an OSC bundle (one frame: every message in it, timed by the
 bundle's time tag unless it is "immediately") or a single message (a frame is
-complete when the last blendshape, ``/W 51``, arrives; timed by arrival).  The
-messages themselves are interpreted by :class:`core.live.FaceCapAssembler`.
+complete when the last blendshape, ``/W 51``, arrives; timed by arrival).  A
+bundle's framing is checked whole first (:func:`core.live.osc_bundle_messages`:
+sizes, lengths, bounded nesting — python-osc would read a truncated message
+with zero padding and recurse without bound), then python-osc parses each
+message and :class:`core.live.FaceCapAssembler` applies them all or none.
 """
 from __future__ import annotations
 
-import struct
 from collections.abc import Callable
 
 from ...core.errors import ErrorCode
-from ...core.live import FaceCapAssembler
+from ...core.live import FaceCapAssembler, check_osc_message, osc_bundle_messages
 from ...core.result import ShapeSpaceError
 
 __all__ = ["facecap_decoder", "osc_available", "NTP_UNIX_OFFSET"]
@@ -40,10 +42,9 @@ def osc_available() -> bool:
     return True
 
 
-def _time_tag(bundle: bytes) -> float | None:
-    """The bundle's time tag in seconds since 1970, read exactly from its fixed-point header (python-osc's
+def _time_tag(tag: int) -> float | None:
+    """A bundle's 64-bit time tag in seconds since 1970, exactly from its fixed-point value (python-osc's
     float conversion adds the NTP era offset first and keeps only ~0.2 µs); None for "immediately"."""
-    (tag,) = struct.unpack_from(">Q", bundle, 8)
     if tag == 1:
         return None
     return float((tag >> 32) - NTP_UNIX_OFFSET) + (tag & 0xFFFFFFFF) / 2.0 ** 32
@@ -55,21 +56,16 @@ def facecap_decoder() -> Callable:
     osc_bundle, osc_message, _ = _osc()
     assembler = FaceCapAssembler()
 
-    def messages(bundle) -> list:
-        out = []
-        for content in bundle:
-            out += messages(content) if isinstance(content, osc_bundle.OscBundle) else [content]
-        return out
-
     def decode(data: bytes, arrival: float) -> list:
         try:
             if osc_bundle.OscBundle.dgram_is_bundle(data):
-                bundle = osc_bundle.OscBundle(data)
-                for msg in messages(bundle):
-                    assembler.apply(msg.address, msg.params)
-                stamp = _time_tag(data)
+                tag, parts = osc_bundle_messages(data)
+                messages = [osc_message.OscMessage(part) for part in parts]
+                assembler.apply_bundle([(msg.address, msg.params) for msg in messages])
+                stamp = _time_tag(tag)
                 return [assembler.frame(arrival if stamp is None else stamp, arrival)]
             if osc_message.OscMessage.dgram_is_message(data):
+                check_osc_message(data)
                 msg = osc_message.OscMessage(data)
                 assembler.apply(msg.address, msg.params)
                 return [assembler.frame(arrival, arrival)] if assembler.sweep_done else []

@@ -33,17 +33,18 @@ class Mailbox:
     """Thread-safe hand-over of decoded frames from a receiver thread to the main thread, with counters.
 
     ``counts`` (read with :meth:`snapshot`): ``datagrams`` received, ``frames`` accepted, ``malformed``,
-    ``no_face`` packets, ``late`` (duplicated or reordered frames dropped), ``dropped`` (gaps in the
-    source's frame counter), ``overflow`` (frames discarded because the main thread fell behind by
-    ``capacity`` frames), ``restarts`` (the source's clock jumped back).
+    ``implausible`` (decoded, but a weight or angle lies beyond the plausibility limits: refused), ``no_face``
+    packets, ``late`` (duplicated or reordered frames dropped), ``dropped`` (gaps in the source's frame counter),
+    ``overflow`` (frames discarded because the main thread fell behind by ``capacity`` frames), ``restarts``
+    (the source's clock jumped back).
     """
 
     def __init__(self, capacity: int = 2048) -> None:
         self._lock = threading.Lock()
         self._frames = deque()
         self.capacity = capacity
-        self._counts = dict(datagrams=0, frames=0, malformed=0, no_face=0, late=0, dropped=0, overflow=0,
-                            restarts=0)
+        self._counts = dict(datagrams=0, frames=0, malformed=0, implausible=0, no_face=0, late=0, dropped=0,
+                            overflow=0, restarts=0)
         self._last_error = ""
         self._last_arrival = None
         self._arrivals = deque(maxlen=600)
@@ -56,9 +57,10 @@ class Mailbox:
             self._last_arrival = arrival
             self._arrivals.append(arrival)
 
-    def note_malformed(self, message: str) -> None:
+    def note_malformed(self, message: str, implausible: bool = False) -> None:
+        """Count a refused datagram (``implausible``: it decoded, but a value is absurd) and keep its reason."""
         with self._lock:
-            self._counts["malformed"] += 1
+            self._counts["implausible" if implausible else "malformed"] += 1
             self._last_error = message
 
     def note_no_face(self) -> None:
@@ -96,7 +98,7 @@ class Mailbox:
 
     def snapshot(self, now: float | None = None) -> dict:
         """Counters plus ``rate`` (datagrams per second over the last second), ``age`` (seconds since the
-        last datagram, None before the first) and ``error`` (the last malformed packet's reason)."""
+        last datagram, None before the first) and ``error`` (the last refused packet's reason)."""
         now = time.monotonic() if now is None else now
         with self._lock:
             out = dict(self._counts)
@@ -172,7 +174,7 @@ class UdpReceiver:
             try:
                 frames = self.decode(data, arrival)
             except ShapeSpaceError as exc:
-                self.mailbox.note_malformed(str(exc))
+                self.mailbox.note_malformed(str(exc), implausible=exc.code == ErrorCode.RANGE)
                 continue
             except Exception as exc:  # noqa: BLE001 — a decoder bug must not end the receiver
                 self.mailbox.note_malformed(f"{type(exc).__name__}: {exc}")

@@ -147,8 +147,9 @@ class TakeRecorder:
         self.frames += len(samples)
         return ""
 
-    def finish(self, complete: bool = True) -> str:
-        """Store the final metadata and make the rig (and armature) play the take; returns the take's name."""
+    def finish(self, complete: bool = True, play: bool = True) -> str:
+        """Store the final metadata and (``play``) make the rig (and armature) play the take; returns the
+        take's name."""
         action = bpy.data.actions.get(self.action)
         if action is None:
             return ""
@@ -156,6 +157,8 @@ class TakeRecorder:
             fc.update()
         self.meta.update(frames=self.frames, complete=complete)
         storage.write_id_blob(action, TAKE_PROP, TAKE_SCHEMA, self.meta)
+        if not play:
+            return self.action
         try:
             play_take(self.action)
         except ShapeSpaceError:          # the target is gone: the take stays in the file, unassigned

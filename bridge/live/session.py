@@ -75,6 +75,10 @@ class LiveStatus:
     take : str
     take_frames : int
     calibrated : bool
+    implausible : int
+        Datagrams refused for a weight or angle beyond the plausibility limits (decoded, but absurd).
+    error : str
+        Why the last datagram was refused ('' for none).
     """
 
     running: bool = False
@@ -96,6 +100,8 @@ class LiveStatus:
     take: str = ""
     take_frames: int = 0
     calibrated: bool = False
+    implausible: int = 0
+    error: str = ""
 
 
 class _Session:
@@ -107,6 +113,7 @@ class _Session:
         self.latest_raw = None
         self.recorder = None
         self.resampler = None
+        self.take_base = "Take"
         self.skipped = 0
         self.applied = 0
         self.work = deque(maxlen=_TIMINGS)
@@ -122,28 +129,27 @@ class _Session:
         t0 = time.perf_counter()
         samples = []
         vector = None
+        solved = None
         for f in frames:
             raw = f.vector()
             self.latest_raw = raw
             vector = self.pipeline.process(raw, f.time)
-            if self.resampler is not None:
-                last = self.resampler.last_time
-                if last is not None and f.time < last:
-                    self._end_take("the source's clock restarted: the take was ended")
-                else:
+            if self.resampler is None:
+                continue
+            last = self.resampler.last_time
+            if last is not None and f.time < last:
+                solved = self._record(samples, vector) or solved
+                samples = []
+                self._end_take("the source's clock restarted: the take was ended")
+            else:
+                if self.resampler.is_jump(f.time):
+                    solved = self._record(samples, vector) or solved
+                    samples = []
+                    self._next_take(f.time - last)
+                if self.resampler is not None:
                     samples += self.resampler.push(f.time, vector)
         self.skipped += len(frames) - 1
-        solved = None
-        if samples:
-            recorded = []
-            for frame, v in samples:
-                sliders, bones = self.pipeline.solve(v)
-                recorded.append((frame, sliders, bones))
-                if np.array_equal(v, vector):
-                    solved = (sliders, bones)
-            why = self.recorder.add(recorded)
-            if why:
-                self._end_take(why)
+        solved = self._record(samples, vector) or solved
         if solved is None:
             solved = self.pipeline.solve(vector)
         why = self.pipeline.write(*solved)
@@ -153,9 +159,25 @@ class _Session:
         self.applied += 1
         self.work.append((done - t0) * 1e3)
         self.latency.append((time.monotonic() - frames[-1].arrival) * 1e3)
-        self.message = f"receiving from {frames[-1].subject or self.label}"
+        if not self.message.startswith("the source's clock"):
+            self.message = f"receiving from {frames[-1].subject or self.label}"
         self._redraw()
         return ""
+
+    def _record(self, samples: list, vector) -> tuple | None:
+        """Solve and key ``samples`` into the take; returns the solution of ``vector`` if one was among them."""
+        if not samples or self.recorder is None:
+            return None
+        recorded, solved = [], None
+        for frame, v in samples:
+            sliders, bones = self.pipeline.solve(v)
+            recorded.append((frame, sliders, bones))
+            if np.array_equal(v, vector):
+                solved = (sliders, bones)
+        why = self.recorder.add(recorded)
+        if why:
+            self._end_take(why)
+        return solved
 
     def _idle(self) -> str:
         if bpy.data.objects.get(self.pipeline.target) is None:
@@ -181,20 +203,34 @@ class _Session:
 
     def start_take(self, scene, name: str) -> str:
         rate = scene.render.fps / scene.render.fps_base
+        self.take_base = name
+        self.message = f"receiving from {self.label}"
+        return self._open_take(rate, float(scene.frame_current))
+
+    def _open_take(self, rate: float, start_frame: float) -> str:
         meta = dict(source=self.label, target=self.pipeline.target, method=self.pipeline.method,
-                    start_timecode="", start_seconds=0.0, scene_fps=rate, start_frame=float(scene.frame_current))
-        self.recorder = recording.TakeRecorder(self.pipeline, recording.unique_take_name(name), meta)
-        self.resampler = SceneResampler(rate, scene.frame_current)
+                    start_timecode="", start_seconds=0.0, scene_fps=rate, start_frame=start_frame)
+        self.recorder = recording.TakeRecorder(self.pipeline, recording.unique_take_name(self.take_base), meta)
+        self.resampler = SceneResampler(rate, start_frame)
         return self.recorder.action
 
-    def _end_take(self, why: str = "") -> str:
+    def _next_take(self, jump: float) -> None:
+        """The source clock jumped forward: end the take (kept, unplayed) and go on in a new one from the next
+        scene frame, without keying the gap (:meth:`core.live.SceneResampler.is_jump`)."""
+        rate, frame = self.resampler.rate, self.resampler.next_frame
+        ended = self._end_take(play=False)
+        self._open_take(rate, frame)
+        self.message = (f"the source's clock jumped {jump:.3g} s forward: take {ended!r} ended, "
+                        f"recording goes on in {self.recorder.action!r} from frame {frame:g}")
+
+    def _end_take(self, why: str = "", play: bool = True) -> str:
         rec, res = self.recorder, self.resampler
         self.recorder = self.resampler = None
         if rec is None:
             return ""
         if res is not None and res.start_time is not None:
             rec.meta.update(start_seconds=res.start_time, start_timecode=format_timecode(res.start_time))
-        name = rec.finish(complete=not why)
+        name = rec.finish(complete=not why, play=play)
         if why:
             self.message = why
         return name
@@ -339,7 +375,7 @@ def status() -> LiveStatus:
                       snap["frames"], snap["malformed"], snap["late"], snap["dropped"] + snap["overflow"], s.skipped,
                       _percentile(s.work, 50), _percentile(s.work, 99), _percentile(s.latency, 50),
                       rec is not None, rec.action if rec else "", rec.frames if rec else 0,
-                      s.pipeline.neutral is not None)
+                      s.pipeline.neutral is not None, snap["implausible"], snap["error"])
 
 
 def shutdown(message: str = "stopped") -> None:

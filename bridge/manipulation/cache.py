@@ -31,7 +31,9 @@ that Python can read, so the cache combines three checks:
   evaluates the depsgraph at once, so no other edit can share that update).
   Only a suspect entry pays for the checksum; an entry whose checksum and
   structure still match is kept (a slider moved in the UI), any other is read
-  again.
+  again.  Every use first evaluates the depsgraph (nothing to do when nothing
+  changed), so an edit a script made just before — not yet evaluated, so not
+  yet reported — is seen too.
 
 So a drag, the next drag and every Solve Pins call reuse the model as long as
 only ShapeSpace touched the rig, a slider moved by hand costs one checksum at
@@ -251,6 +253,8 @@ class RigCache:
         """
         uid = obj.session_uid
         entry = self._entries.get(uid)
+        if entry is not None and self._tracked(obj):
+            bpy.context.evaluated_depsgraph_get()       # edits not yet evaluated are reported (suspect) first
         me = obj.data if obj.type == "MESH" else None
         key = me.shape_keys if me is not None else None
         if entry is not None and key is not None and entry.ids == _ids(obj):

@@ -14,12 +14,16 @@ left, y: up, z: out of the face), ``R = R_y(yaw) R_x(pitch) R_z(roll)``.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..errors import ErrorCode
+from ..result import ShapeSpaceError
 from ..validate import array, in_range
+from .frames import implausible_channel
 
 __all__ = ["Neutral", "calibrate", "euler_matrix", "matrix_euler", "matrix_quaternion", "rotation_power",
            "face_to_armature", "bone_local", "FACE_TO_ARMATURE"]
@@ -106,9 +110,16 @@ class Neutral:
     eye_right: np.ndarray
 
     @classmethod
-    def from_vector(cls, vector: ArrayLike, n_weights: int) -> "Neutral":
-        """From a frame vector ``[weights, head ypr, left eye ypr, right eye ypr]`` (n + 9,)."""
+    def from_vector(cls, vector: ArrayLike, n_weights: int, names: Sequence[str] | None = None) -> "Neutral":
+        """From a frame vector ``[weights, head ypr, left eye ypr, right eye ypr]`` (n + 9,).
+
+        ``names`` (n,) name the weights in messages.  A rest frame beyond the live plausibility limits
+        (:func:`~.frames.implausible_channel`) is refused (``range``): every later frame would read from it.
+        """
         v = array(vector, "rest frame", shape=(n_weights + 9,))
+        why = implausible_channel(names or [f"channel {i}" for i in range(n_weights)], v)
+        if why:
+            raise ShapeSpaceError(f"the rest face cannot be calibrated from this frame: {why}", ErrorCode.RANGE)
         return cls(v[:n_weights].copy(), euler_matrix(v[n_weights:n_weights + 3]),
                    euler_matrix(v[n_weights + 3:n_weights + 6]), euler_matrix(v[n_weights + 6:]))
 

@@ -14,11 +14,17 @@ as the offline retarget maps a CSV's columns.
 """
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-__all__ = ["LLF_CURVES", "LLF_BLENDSHAPES", "LLF_ROTATIONS", "FACECAP_52", "LiveFrame", "format_timecode"]
+from ..blendshape import MAX_ABS_WEIGHT
+
+__all__ = ["LLF_CURVES", "LLF_BLENDSHAPES", "LLF_ROTATIONS", "FACECAP_52", "LiveFrame", "format_timecode",
+           "MAX_ABS_ANGLE", "ROTATION_CHANNELS", "implausible_channel"]
 
 #: Live Link Face curve order in its UDP packets (ARKit ``ARFaceAnchor.BlendShapeLocation`` enum order).
 LLF_CURVES = (
@@ -48,6 +54,42 @@ FACECAP_52 = (
     "mouthDimple_L", "mouthDimple_R", "mouthUpperUp_L", "mouthUpperUp_R", "mouthLowerDown_L", "mouthLowerDown_R",
     "mouthPress_L", "mouthPress_R", "mouthStretch_L", "mouthStretch_R", "tongueOut",
 )
+
+
+#: Largest head or eye angle magnitude accepted, in radians (two turns): beyond it a value is damaged, not a pose.
+MAX_ABS_ANGLE = 4.0 * math.pi
+#: The rotation channels of a frame vector after its weights (:meth:`LiveFrame.vector`).
+ROTATION_CHANNELS = tuple(f"{part} {axis}" for part in ("head", "left eye", "right eye")
+                          for axis in ("yaw", "pitch", "roll"))
+
+
+def implausible_channel(names: Sequence[str], vector: ArrayLike) -> str:
+    """'' or a one-line reason naming the first channel of a frame vector beyond the plausibility limits.
+
+    The live counterpart of the offline reader's: a weight beyond ±:data:`~core.blendshape.MAX_ABS_WEIGHT`
+    (ARKit weights lie in [0, 1]) or an angle beyond ±:data:`MAX_ABS_ANGLE` is damaged data, refused rather
+    than clipped.
+
+    Parameters
+    ----------
+    names : sequence of str
+        The source's blendshape names (n,).
+    vector : array_like (n + 9,)
+        ``[weights, head, eye_left, eye_right]`` (:meth:`LiveFrame.vector`).
+    """
+    v = np.asarray(vector, dtype=np.float64)
+    n = len(names)
+    bad = np.flatnonzero(~(np.abs(v[:n]) <= MAX_ABS_WEIGHT))
+    if bad.size:
+        k = int(bad[0])
+        return (f"weight {names[k]} = {v[k]:.6g} is not a blendshape weight (they lie in [0, 1]; beyond "
+                f"±{MAX_ABS_WEIGHT:g} a value is damaged)")
+    bad = np.flatnonzero(~(np.abs(v[n:]) <= MAX_ABS_ANGLE))
+    if bad.size:
+        k = int(bad[0])
+        return (f"{ROTATION_CHANNELS[k]} = {v[n + k]:.6g} rad is not an angle of a face (beyond "
+                f"±{MAX_ABS_ANGLE:.4g} rad a value is damaged)")
+    return ""
 
 
 def _zeros3() -> np.ndarray:

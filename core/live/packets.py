@@ -17,11 +17,15 @@
 - **iFacialMocap**'s UDP text (default port 49983): ``name-value|…|=head#rx,ry,rz,px,py,pz|
   rightEye#rx,ry,rz|leftEye#rx,ry,rz|`` with values 0 … 100 (version 2 writes ``name&value``), angles in
   degrees (``rx`` pitch, ``ry`` yaw, ``rz`` roll).
-- **Face Cap**'s OSC messages are parsed by python-osc in the bridge; :class:`FaceCapAssembler` turns the
-  parsed messages (``/W`` index value, ``/HR`` or ``/HRQ``, ``/HT``, ``/ELR``, ``/ERR``) into frames.
+- **Face Cap**'s OSC datagrams: :func:`osc_bundle_messages` checks a bundle's framing whole (every element's
+  size, every message's length against its type tags, bounded nesting) and splits it into messages, which
+  python-osc parses in the bridge; :class:`FaceCapAssembler` turns the parsed messages (``/W`` index value,
+  ``/HR`` or ``/HRQ``, ``/HT``, ``/ELR``, ``/ERR``) into frames, a bundle only once all of it is valid.
 
 Every decoder validates everything and raises :class:`~core.result.ShapeSpaceError` (code
-``malformed_packet``) with a one-line reason; the receiver counts those and carries on.
+``malformed_packet``) with a one-line reason; a frame with finite but absurd values (a weight beyond
+±:data:`~core.blendshape.MAX_ABS_WEIGHT`, an angle beyond ±:data:`~.frames.MAX_ABS_ANGLE`) is refused
+with code ``range`` (:func:`~.frames.implausible_channel`).  The receiver counts those and carries on.
 """
 from __future__ import annotations
 
@@ -34,10 +38,11 @@ import numpy as np
 from ..errors import ErrorCode
 from ..names import canonical_name
 from ..result import ShapeSpaceError
-from .frames import FACECAP_52, LLF_BLENDSHAPES, LLF_CURVES, LiveFrame
+from .frames import FACECAP_52, LLF_BLENDSHAPES, LLF_CURVES, LiveFrame, implausible_channel
 
-__all__ = ["LLF_PORT", "LLF_VERSION", "IFM_PORT", "FACECAP_PORT", "MAX_DATAGRAM", "encode_llf", "decode_llf",
-           "encode_ifacialmocap", "decode_ifacialmocap", "FaceCapAssembler", "quaternion_to_yaw_pitch_roll"]
+__all__ = ["LLF_PORT", "LLF_VERSION", "IFM_PORT", "FACECAP_PORT", "MAX_DATAGRAM", "MAX_OSC_DEPTH", "encode_llf",
+           "decode_llf", "encode_ifacialmocap", "decode_ifacialmocap", "FaceCapAssembler",
+           "quaternion_to_yaw_pitch_roll", "osc_bundle_messages", "check_osc_message"]
 
 LLF_PORT = 11111
 LLF_VERSION = 6
@@ -54,6 +59,14 @@ _LLF_TIME = struct.Struct(">ifiiB")
 
 def _bad(reason: str) -> ShapeSpaceError:
     return ShapeSpaceError(reason, ErrorCode.MALFORMED_PACKET)
+
+
+def _plausible(frame: LiveFrame, source: str) -> LiveFrame:
+    """``frame``, or a ``range`` error naming its first absurd channel (:func:`~.frames.implausible_channel`)."""
+    why = implausible_channel(frame.names, frame.vector())
+    if why:
+        raise ShapeSpaceError(f"{source} frame refused: {why}", ErrorCode.RANGE)
+    return frame
 
 
 # ------------------------------------------------------------------ Live Link Face
@@ -101,7 +114,7 @@ def decode_llf(data: bytes, arrival: float = 0.0) -> LiveFrame | None:
     ------
     ShapeSpaceError
         ``malformed_packet``: empty, wrong version, truncated, impossible lengths, a count other than 61,
-        trailing bytes, non-finite values or a non-positive rate.
+        trailing bytes, non-finite values or a non-positive rate; ``range``: an absurd weight or angle.
     """
     if not data:
         raise _bad("empty datagram")
@@ -126,9 +139,10 @@ def decode_llf(data: bytes, arrival: float = 0.0) -> LiveFrame | None:
         bad = LLF_CURVES[int(np.flatnonzero(~np.isfinite(values))[0])]
         raise _bad(f"Live Link Face packet has a non-finite {bad}")
     rate = fps / den
-    return LiveFrame(LLF_BLENDSHAPES, values[:52], head=values[52:55].copy(), eye_left=values[55:58].copy(),
-                     eye_right=values[58:61].copy(), time=(frame + subframe) / rate, frame=int(frame), rate=rate,
-                     arrival=arrival, subject=subject)
+    return _plausible(LiveFrame(LLF_BLENDSHAPES, values[:52], head=values[52:55].copy(),
+                                eye_left=values[55:58].copy(), eye_right=values[58:61].copy(),
+                                time=(frame + subframe) / rate, frame=int(frame), rate=rate, arrival=arrival,
+                                subject=subject), "Live Link Face")
 
 
 # ------------------------------------------------------------------ iFacialMocap
@@ -175,7 +189,7 @@ def decode_ifacialmocap(data: bytes, arrival: float = 0.0) -> LiveFrame:
     ------
     ShapeSpaceError
         ``malformed_packet``: not text, no head pose or no blendshape, a field that is neither, bad numbers,
-        duplicates, too many fields.
+        duplicates, too many fields; ``range``: an absurd weight or angle.
     """
     try:
         text = data.decode("ascii").strip().rstrip("\0")
@@ -215,9 +229,118 @@ def decode_ifacialmocap(data: bytes, arrival: float = 0.0) -> LiveFrame:
         raise _bad("iFacialMocap packet has no blendshapes")
     head = poses["=head#"]
     zero = np.zeros(3)
-    return LiveFrame(FACECAP_52, weights, head=_ypr_degrees(head[:3]), time=arrival, arrival=arrival,
-                     eye_left=_ypr_degrees(poses.get("leftEye#", zero)),
-                     eye_right=_ypr_degrees(poses.get("rightEye#", zero)), head_position=head[3:].copy())
+    return _plausible(LiveFrame(FACECAP_52, weights, head=_ypr_degrees(head[:3]), time=arrival, arrival=arrival,
+                                eye_left=_ypr_degrees(poses.get("leftEye#", zero)),
+                                eye_right=_ypr_degrees(poses.get("rightEye#", zero)),
+                                head_position=head[3:].copy()), "iFacialMocap")
+
+
+# ------------------------------------------------------------------ OSC framing (Face Cap)
+#: Deepest nesting of OSC bundles accepted (Face Cap nests none): deeper is refused, never recursed into.
+MAX_OSC_DEPTH = 8
+_OSC_BUNDLE = b"#bundle\0"
+#: Bytes of each OSC argument type of fixed size (True, False, Nil, Impulse and array brackets carry none).
+_OSC_FIXED = {"i": 4, "f": 4, "c": 4, "r": 4, "m": 4, "h": 8, "t": 8, "d": 8, "T": 0, "F": 0, "N": 0, "I": 0,
+              "[": 0, "]": 0}
+
+
+def _osc_string_end(data: bytes, at: int, what: str) -> int:
+    """Where the NUL-terminated, 4-byte padded OSC string starting at ``at`` ends."""
+    nul = data.find(b"\0", at)
+    if nul < 0:
+        raise _bad(f"OSC {what} is not terminated ({len(data)} bytes: truncated)")
+    end = (nul // 4 + 1) * 4
+    if end > len(data) or data[nul:end].strip(b"\0"):
+        raise _bad(f"OSC {what} is not padded to 4 bytes ({len(data)} bytes: truncated)")
+    return end
+
+
+def check_osc_message(data: bytes) -> None:
+    """Refuse an OSC message whose length is not exactly what its address, type tags and arguments take.
+
+    (python-osc pads a short float with zeros and ignores trailing bytes: a truncated message would read.)
+
+    Raises
+    ------
+    ShapeSpaceError
+        ``malformed_packet`` naming the message's address and what is wrong.
+    """
+    if not data.startswith(b"/"):
+        raise _bad("OSC message does not start with an address ('/…')")
+    at = _osc_string_end(data, 0, "address")
+    address = data[:data.index(b"\0")].decode("ascii", errors="replace")[:40]
+    if at >= len(data) or data[at:at + 1] != b",":
+        raise _bad(f"OSC message {address} has no type tags (truncated)")
+    end = _osc_string_end(data, at, f"type tags of {address}")
+    tags = data[at + 1:data.index(b"\0", at)].decode("ascii", errors="replace")
+    at = end
+    for tag in tags:
+        if tag in _OSC_FIXED:
+            at += _OSC_FIXED[tag]
+        elif tag in "sS":
+            if at >= len(data):
+                raise _bad(f"OSC message {address} is truncated before a string argument ({len(data)} bytes)")
+            at = _osc_string_end(data, at, f"string argument of {address}")
+        elif tag == "b":
+            size = struct.unpack_from(">i", data, at)[0] if at + 4 <= len(data) else -1
+            if size < 0:
+                raise _bad(f"OSC message {address} is truncated in a blob ({len(data)} bytes)")
+            at += 4 + (size + 3) // 4 * 4
+        else:
+            raise _bad(f"OSC message {address} has an unknown argument type {tag!r}")
+        if at > len(data):
+            raise _bad(f"OSC message {address} is truncated: its arguments ({tags}) need more than its "
+                       f"{len(data)} bytes")
+    if at != len(data):
+        raise _bad(f"OSC message {address} has {len(data) - at} bytes after its arguments ({tags})")
+
+
+def osc_bundle_messages(data: bytes) -> tuple:
+    """An OSC bundle's time tag and its messages, the framing checked whole before anything is used.
+
+    Every element's size must be a positive multiple of 4 that the datagram holds, the elements must fill the
+    bundle exactly, every message's length must match its type tags (:func:`check_osc_message`), and bundles
+    may nest at most :data:`MAX_OSC_DEPTH` deep (walked without recursion).
+
+    Returns
+    -------
+    tag : int
+        The outer bundle's 64-bit time tag (1: "immediately").
+    messages : list of bytes
+        Every message datagram, in order (nested bundles flattened).
+
+    Raises
+    ------
+    ShapeSpaceError
+        ``malformed_packet`` with the reason (truncated, impossible size, nested too deep, …).
+    """
+    if not data.startswith(_OSC_BUNDLE) or len(data) < 16:
+        raise _bad(f"OSC bundle header truncated ({len(data)} bytes)")
+    (tag,) = struct.unpack_from(">Q", data, 8)
+    messages = []
+    stack = [(16, len(data), 1)]                 # (next element, end of its bundle, depth)
+    while stack:
+        at, end, depth = stack.pop()
+        if at == end:
+            continue
+        if at + 4 > end:
+            raise _bad(f"OSC bundle truncated in an element size at byte {at} ({len(data)} bytes)")
+        (size,) = struct.unpack_from(">i", data, at)
+        if size <= 0 or size % 4 or at + 4 + size > end:
+            raise _bad(f"OSC bundle element at byte {at} claims {size} bytes where {end - at - 4} remain "
+                       "(truncated or damaged)")
+        stack.append((at + 4 + size, end, depth))
+        body = data[at + 4:at + 4 + size]
+        if body.startswith(_OSC_BUNDLE):
+            if depth >= MAX_OSC_DEPTH:
+                raise _bad(f"OSC bundles nested more than {MAX_OSC_DEPTH} deep (Face Cap nests none)")
+            if size < 16:
+                raise _bad(f"OSC bundle at byte {at + 4} is truncated in its header")
+            stack.append((at + 4 + 16, at + 4 + size, depth + 1))
+        else:
+            check_osc_message(body)
+            messages.append(body)
+    return tag, messages
 
 
 # ------------------------------------------------------------------ Face Cap (messages already parsed)
@@ -237,13 +360,19 @@ def quaternion_to_yaw_pitch_roll(q: Sequence[float]) -> np.ndarray:
     return np.array([math.atan2(r02, r22), pitch, math.atan2(r10, r11)])
 
 
+_FACECAP_ADDRESSES = ("/W", "/HR", "/HRQ", "/HT", "/ELR", "/ERR")
+
+
 class FaceCapAssembler:
     """Face Cap's OSC messages → frames (one per OSC bundle, or per completed ``/W`` sweep).
 
     Face Cap sends ``/W index value`` for each blendshape (index into :data:`~.frames.FACECAP_52`),
     ``/HR x y z`` head Euler degrees (x pitch, y yaw, z roll) or ``/HRQ x y z w``, ``/HT x y z`` head
-    position and ``/ELR`` / ``/ERR`` eye Euler degrees (x pitch, y yaw).  The assembler keeps the latest
-    value of every channel; :meth:`frame` snapshots them.  Not thread-safe: one per receiver thread.
+    position and ``/ELR`` / ``/ERR`` eye Euler degrees (x pitch, y yaw); each bundle carries every
+    blendshape once.  The assembler keeps the latest value of every channel; :meth:`frame` snapshots them.
+    Messages are validated (and the resulting frame checked for absurd values) before any of them is
+    applied: a refused message or bundle leaves the assembler as it was.  Not thread-safe: one per receiver
+    thread.
     """
 
     def __init__(self) -> None:
@@ -260,31 +389,67 @@ class FaceCapAssembler:
         Raises
         ------
         ShapeSpaceError
-            ``malformed_packet`` for a known address with the wrong number or type of arguments.
+            ``malformed_packet`` for a known address with the wrong number or type of arguments, ``range``
+            for an absurd value; nothing is applied then.
         """
+        update = self._update(address, args)
+        self._commit([update] if update else [], "Face Cap message")
+        if update and update[0] == "weights":
+            self.sweep_done = update[1] == len(FACECAP_52) - 1
+
+    def apply_bundle(self, messages: Sequence) -> None:
+        """Apply a bundle's parsed messages ``[(address, args)]`` all together, or none of them.
+
+        Raises
+        ------
+        ShapeSpaceError
+            As :meth:`apply` for any message, or ``malformed_packet`` when the bundle does not carry every
+            blendshape exactly once (a truncated bundle); the assembler is left as it was.
+        """
+        updates = [u for u in (self._update(a, p) for a, p in messages) if u]
+        indices = [u[1] for u in updates if u[0] == "weights"]
+        if len(set(indices)) != len(indices):
+            raise _bad("Face Cap bundle repeats a /W index")
+        if len(indices) != len(FACECAP_52):
+            raise _bad(f"Face Cap bundle carries {len(indices)} of {len(FACECAP_52)} blendshapes (truncated?)")
+        self._commit(updates, "Face Cap bundle")
+
+    def _update(self, address: str, args: Sequence) -> tuple | None:
+        """One message validated into ``(attribute, index or None, value)`` (None for an unknown address)."""
         vals = self._numbers(address, args)
         if address == "/W":
             if len(vals) != 2 or not float(vals[0]).is_integer() or not 0 <= vals[0] < len(FACECAP_52):
                 raise _bad(f"Face Cap /W needs an index 0…{len(FACECAP_52) - 1} and a value, got {list(args)[:3]}")
-            self.weights[int(vals[0])] = vals[1]
-            self.sweep_done = int(vals[0]) == len(FACECAP_52) - 1
-        elif address == "/HR":
-            self.head = _ypr_degrees(self._count(address, vals, 3))
-        elif address == "/HRQ":
-            self.head = quaternion_to_yaw_pitch_roll(self._count(address, vals, 4))
-        elif address == "/HT":
-            self.position = self._count(address, vals, 3)
-        elif address in ("/ELR", "/ERR"):
+            return "weights", int(vals[0]), float(vals[1])
+        if address == "/HR":
+            return "head", None, _ypr_degrees(self._count(address, vals, 3))
+        if address == "/HRQ":
+            return "head", None, quaternion_to_yaw_pitch_roll(self._count(address, vals, 4))
+        if address == "/HT":
+            return "position", None, self._count(address, vals, 3)
+        if address in ("/ELR", "/ERR"):
             xy = self._count(address, vals, 2)
-            eye = np.radians([xy[1], xy[0], 0.0])
-            if address == "/ELR":
-                self.eye_left = eye
+            return "eye_left" if address == "/ELR" else "eye_right", None, np.radians([xy[1], xy[0], 0.0])
+        return None
+
+    def _commit(self, updates: list, what: str) -> None:
+        """Apply validated updates to copies, check the frame they make, then keep them."""
+        state = {k: getattr(self, k).copy() for k in ("weights", "head", "position", "eye_left", "eye_right")}
+        for attr, index, value in updates:
+            if index is None:
+                state[attr] = np.asarray(value, dtype=np.float64)
             else:
-                self.eye_right = eye
+                state[attr][index] = value
+        vector = np.concatenate([state["weights"], state["head"], state["eye_left"], state["eye_right"]])
+        why = implausible_channel(FACECAP_52, vector)
+        if why:
+            raise ShapeSpaceError(f"{what} refused: {why}", ErrorCode.RANGE)
+        for k, v in state.items():
+            setattr(self, k, v)
 
     @staticmethod
     def _numbers(address: str, args: Sequence) -> np.ndarray:
-        if address not in ("/W", "/HR", "/HRQ", "/HT", "/ELR", "/ERR"):
+        if address not in _FACECAP_ADDRESSES:
             return np.zeros(0)
         if any(isinstance(a, bool) or not isinstance(a, (int, float)) for a in args):
             raise _bad(f"Face Cap {address} has non-numeric arguments")

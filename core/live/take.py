@@ -8,15 +8,28 @@ at ``t = k / rate``, for every ``k`` up to ``⌊t_last · rate + 10⁻⁹⌋``.
 scene frames that now lie inside the stream, interpolated between the two
 samples around them — so a recorded take is the offline resample of the same
 frames, sample for sample.
+
+A forward jump of the source clock longer than :data:`MAX_FILL_SECONDS` (Live
+Link Face re-syncing its timecode, Face Cap's time tag going from 0 to the
+real time, a phone paused for minutes) is not a gap to fill: interpolating it
+would key every scene frame of the jump with made-up motion.
+:meth:`SceneResampler.is_jump` tells the recorder to start a new take there,
+and :meth:`SceneResampler.push` refuses such a sample instead of filling.
 """
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..errors import ErrorCode
+from ..result import ShapeSpaceError
 from ..validate import finite_scalar, positive
 
-__all__ = ["SceneResampler"]
+__all__ = ["SceneResampler", "MAX_FILL_SECONDS"]
+
+#: Longest forward step of the source clock that is filled by interpolation (lost packets, a short network
+#: stall: a few frames); a longer one is a jump of the clock, which starts a new take.
+MAX_FILL_SECONDS = 0.25
 
 
 class SceneResampler:
@@ -28,11 +41,14 @@ class SceneResampler:
         Scene frames per second (``fps / fps_base``).
     start_frame : float
         The scene frame of the first sample.
+    max_gap : float
+        Longest step between samples, in seconds, that is filled (see :data:`MAX_FILL_SECONDS`).
     """
 
-    def __init__(self, rate: float, start_frame: float = 1.0) -> None:
+    def __init__(self, rate: float, start_frame: float = 1.0, max_gap: float = MAX_FILL_SECONDS) -> None:
         self.rate = positive(rate, "rate")
         self.start_frame = finite_scalar(start_frame, "start_frame")
+        self.max_gap = positive(max_gap, "max_gap")
         self.t0 = None
         self.start_time = None
         self._t = None
@@ -49,11 +65,30 @@ class SceneResampler:
         """How many scene frames have been emitted."""
         return self.next_k
 
+    @property
+    def next_frame(self) -> float:
+        """The scene frame the next emitted sample would take (after the last one emitted)."""
+        return self.start_frame + self.next_k
+
+    def is_jump(self, time: float) -> bool:
+        """Whether a sample at source ``time`` lies more than ``max_gap`` after the last one (not to be filled)."""
+        return self.t0 is not None and float(time) - self.last_time > self.max_gap
+
     def push(self, time: float, vector: ArrayLike) -> list:
         """Add a sample; returns ``[(scene frame, vector (n,))]`` for the scene frames it completes.
 
         Samples must come in increasing time; a sample not later than the previous one is ignored.
+
+        Raises
+        ------
+        ShapeSpaceError
+            ``range`` for a sample more than ``max_gap`` after the previous one (:meth:`is_jump`): nothing is
+            emitted; the caller starts a new take (a new resampler) there.
         """
+        if self.is_jump(time):
+            raise ShapeSpaceError(f"the source's clock jumped {float(time) - self.last_time:.3g} s forward (more "
+                                  f"than {self.max_gap:g} s): start a new take there, the gap is not filled",
+                                  ErrorCode.RANGE)
         v = np.asarray(vector, dtype=np.float64)
         if self.t0 is None:
             self.t0, self.start_time = float(time), float(time)

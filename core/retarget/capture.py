@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..blendshape import MAX_ABS_WEIGHT
 from ..errors import ErrorCode
 from ..names import ARKIT_52, canonical_name
 from ..result import Issue, ShapeSpaceError
@@ -57,9 +58,6 @@ MAX_GAP_SECONDS = 60.0
 
 #: Seconds in a day: a timecode more than half a day before the previous row is on the next day.
 DAY_SECONDS = 86400.0
-
-#: Largest weight magnitude read: beyond it a cell is damaged (ARKit weights lie in [0, 1]).
-MAX_ABS_WEIGHT = 100.0
 
 #: Channels whose weights leave ``[-WEIGHT_SLACK, 1 + WEIGHT_SLACK]`` are reported (a warning).
 WEIGHT_SLACK = 0.1

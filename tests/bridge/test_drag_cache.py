@@ -9,10 +9,11 @@ against a solve on a freshly read rig.
 import numpy as np
 import pytest
 
-from blender_support import bpy, evaluated
+from blender_support import bpy, evaluated, import_file
 from shapespace.bridge import manipulation, meshes, shapekeys
 from shapespace.bridge.manipulation import cache
 from shapespace.core.manipulation import Pin, pin_positions, solve_drag
+from support import shared
 
 RIGS = manipulation.RIGS
 
@@ -373,3 +374,48 @@ def test_ray_picking_matches_blenders_bvh(registered):
             model = shapekeys.read_blendshape_model(ob)
             np.testing.assert_allclose(meshes.to_world(ob, pin_positions(model, [pin], model.values))[0], world,
                                        atol=1e-5)
+
+
+# =========================================================================== issue #26 item 14: production scale
+def test_a_drag_on_ict_facekit_reads_and_verifies_nothing_per_move(registered):
+    """The drag's own slider writes (and the Solve Pins operator's) are never taken for outside edits on a
+    production face either: no checksum, no read after mouse-down — the cost that grows with the rig."""
+    import_file(shared("ict_facekit", "ict_facekit_expressions.glb"))
+    ob = bpy.data.objects["ICTFace"]
+    key = ob.data.shape_keys
+    if key.animation_data is not None:
+        key.animation_data.action = None
+    ob.shapespace.mode = "DIRECT"
+    bpy.context.view_layer.objects.active = ob
+    model = manipulation.rig_model(ob)
+    jaw = model.index("jawOpen")
+    v = int(np.argmax(np.linalg.norm(model.deltas[jaw], axis=1)))
+    manipulation.add_pin(ob, Pin.at_vertex(v))
+    w = np.zeros(model.n_targets)
+    w[jaw] = 0.5
+    goal = _world_goal(ob, v=v, w=w)
+    manipulation.rig_model(ob)
+    reads, checks = RIGS.reads, RIGS.verifications
+    drag = manipulation.Drag(ob)
+    drag.grab(ob, 0)
+    _drag_to(ob, drag, goal, moves=12)
+    target = meshes.to_local(ob, goal[None])[0]
+    assert bpy.ops.shapespace.solve_pins(pin=0, target=target) == {"FINISHED"}
+    assert RIGS.reads == reads
+    if cache.EDITS_REPORTED:
+        assert RIGS.verifications == checks
+    reached = meshes.to_world(ob, evaluated(ob)[v][None])[0]            # Blender's evaluation: the pin got there
+    assert np.linalg.norm(reached - goal) < 1e-3 * np.ptp(evaluated(ob), axis=0).max()
+
+
+@pytest.mark.parametrize("how", ["data", "points"])
+def test_a_key_edited_by_a_script_just_before_a_use_is_seen(registered, how):
+    """An edit not yet evaluated (a script's bulk write, then Solve Pins at once) was not yet reported by the
+    depsgraph, so the cache trusted its stale model."""
+    ob = _pinned_sphere()
+    manipulation.rig_model(ob)
+    bpy.context.evaluated_depsgraph_get()
+    _edit_key(ob, "K0", how=how)                       # no evaluation in between
+    model = manipulation.rig_model(ob)
+    fresh = shapekeys.read_blendshape_model(ob)
+    np.testing.assert_array_equal(model.deltas, fresh.deltas)

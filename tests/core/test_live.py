@@ -11,14 +11,15 @@ import struct
 import numpy as np
 import pytest
 
-from core.live import (FACECAP_52, LLF_BLENDSHAPES, LLF_CURVES, CopySolver, FaceCapAssembler, GeometricSolver,
-                       LearnedSolver, Neutral, OneEuroFilter, SceneResampler, bone_local, calibrate,
-                       decode_ifacialmocap, decode_llf, encode_ifacialmocap, encode_llf, euler_matrix,
-                       face_to_armature, format_timecode, matrix_euler, matrix_quaternion,
-                       quaternion_to_yaw_pitch_roll, rotation_power)
+from core.live import (FACECAP_52, LLF_BLENDSHAPES, LLF_CURVES, MAX_OSC_DEPTH, CopySolver, FaceCapAssembler,
+                       GeometricSolver, LearnedSolver, Neutral, OneEuroFilter, SceneResampler, bone_local, calibrate,
+                       check_osc_message, decode_ifacialmocap, decode_llf, encode_ifacialmocap, encode_llf,
+                       euler_matrix, face_to_armature, format_timecode, implausible_channel, matrix_euler,
+                       matrix_quaternion, osc_bundle_messages, quaternion_to_yaw_pitch_roll, rotation_power)
+from core.live import frames as live_frames
 from core.names import canonical_name
 from core.result import ShapeSpaceError
-from core.retarget import copy_weights, fit_frames, resample
+from core.retarget import capture, copy_weights, fit_frames, resample
 
 CSV_ORDER = ("EyeBlinkLeft,EyeLookDownLeft,EyeLookInLeft,EyeLookOutLeft,EyeLookUpLeft,EyeSquintLeft,EyeWideLeft,"
              "EyeBlinkRight,EyeLookDownRight,EyeLookInRight,EyeLookOutRight,EyeLookUpRight,EyeSquintRight,"
@@ -353,3 +354,145 @@ def test_dense_box_qp_matches_the_reference_box_qp():
         ref = solve_box_qp(1e-3, Q, lam + 1e-300, g, lo, hi).x
         assert ok
         np.testing.assert_allclose(x, ref, atol=1e-8)
+
+
+# ------------------------------------------------------------------ issue #26: clock jumps, OSC framing, absurd values
+@pytest.mark.parametrize("jump", [300.0, 600.0])
+def test_a_forward_clock_jump_is_not_filled_frame_by_frame(jump):
+    """Live Link Face re-syncing its timecode (or Face Cap's time tag going from 0 to the real time) used to
+    key every scene frame of the jump, interpolated: 18,000 frames for 300 s, one at a time."""
+    r = SceneResampler(60.0, 1.0)
+    emitted = []
+    for k in range(31):
+        emitted += r.push(k / 60.0, [k])
+    assert len(emitted) == 31 and r.next_frame == 32.0
+    assert not r.is_jump(0.5 + 0.2)                       # lost packets over a few frames are still filled
+    assert r.is_jump(0.5 + jump)
+    with pytest.raises(ShapeSpaceError) as err:
+        r.push(0.5 + jump, [1.0])
+    assert err.value.code == "range" and "jumped" in str(err.value)
+    assert r.frames_emitted == 31 and r.last_time == 0.5      # nothing keyed, the resampler as it was
+    # a short gap is filled exactly as the offline resample fills it
+    filled = r.push(0.5 + 0.1, [36.0])
+    assert [f for f, _ in filled] == [32.0, 33.0, 34.0, 35.0, 36.0, 37.0]
+    np.testing.assert_allclose([v[0] for _, v in filled], [31, 32, 33, 34, 35, 36])
+
+
+def _osc_string(text):
+    raw = text.encode() + b"\0"
+    return raw + b"\0" * (-len(raw) % 4)
+
+
+def _osc_message(address, *args):
+    tags = "," + "".join("i" if isinstance(a, int) else "f" for a in args)
+    body = b"".join(struct.pack(">i" if isinstance(a, int) else ">f", a) for a in args)
+    return _osc_string(address) + _osc_string(tags) + body
+
+
+def _osc_bundle(*elements, tag=1):
+    return b"#bundle\0" + struct.pack(">Q", tag) + b"".join(struct.pack(">i", len(e)) + e for e in elements)
+
+
+def test_osc_framing_refuses_every_truncation_and_splits_a_whole_bundle():
+    msgs = [_osc_message("/HR", 1.0, 2.0, 3.0), _osc_message("/W", 24, 0.3), _osc_message("/W", 13, 0.5)]
+    data = _osc_bundle(*msgs, tag=(3 << 32) + 5)
+    tag, parts = osc_bundle_messages(data)
+    assert tag == (3 << 32) + 5 and parts == msgs
+    boundaries = {16 + sum(4 + len(m) for m in msgs[:k]): msgs[:k] for k in range(len(msgs))}
+    for cut in range(len(data)):
+        if cut in boundaries:          # whole elements only: valid framing, fewer messages (the assembler refuses)
+            assert osc_bundle_messages(data[:cut])[1] == boundaries[cut]
+            continue
+        with pytest.raises(ShapeSpaceError) as err:
+            osc_bundle_messages(data[:cut])
+        assert err.value.code == "malformed_packet"
+    # a message whose float was cut (python-osc pads it with zeros and reads 0.125 for 0.3)
+    with pytest.raises(ShapeSpaceError, match="truncated"):
+        check_osc_message(_osc_message("/W", 24, 0.3)[:-2])
+    with pytest.raises(ShapeSpaceError, match="after its arguments"):
+        check_osc_message(_osc_message("/W", 24, 0.3) + b"\0\0\0\0")
+
+
+def test_deeply_nested_osc_bundles_are_refused_with_a_reason():
+    data = _osc_message("/W", 0, 0.5)
+    for _ in range(5000):
+        data = _osc_bundle(data)
+    with pytest.raises(ShapeSpaceError) as err:
+        osc_bundle_messages(data)
+    assert err.value.code == "malformed_packet" and f"nested more than {MAX_OSC_DEPTH}" in str(err.value)
+    nested = _osc_message("/W", 0, 0.5)
+    for _ in range(MAX_OSC_DEPTH - 1):
+        nested = _osc_bundle(nested)
+    assert osc_bundle_messages(nested)[1] == [_osc_message("/W", 0, 0.5)]
+
+
+def _full_bundle_messages(weights, head=(0.0, 0.0, 0.0)):
+    return [("/HR", list(head))] + [("/W", [i, float(w)]) for i, w in enumerate(weights)]
+
+
+def test_facecap_bundle_is_applied_whole_or_not_at_all():
+    a = FaceCapAssembler()
+    first = np.linspace(0.0, 0.5, 52)
+    a.apply_bundle(_full_bundle_messages(first))
+    np.testing.assert_array_equal(a.weights, first)
+    bad = _full_bundle_messages(np.full(52, 0.9)) + [("/HR", [1.0, 2.0])]       # the last message is malformed
+    with pytest.raises(ShapeSpaceError) as err:
+        a.apply_bundle(bad)
+    assert err.value.code == "malformed_packet"
+    np.testing.assert_array_equal(a.weights, first)                             # none of its /W applied
+    with pytest.raises(ShapeSpaceError, match="carries 40 of 52"):
+        a.apply_bundle(_full_bundle_messages(np.full(52, 0.9))[:41])             # cut after 40 blendshapes
+    np.testing.assert_array_equal(a.weights, first)
+    with pytest.raises(ShapeSpaceError, match="repeats"):
+        a.apply_bundle(_full_bundle_messages(first) + [("/W", [3, 0.2])])
+
+
+@pytest.mark.parametrize("channel,value,name", [(0, 3e38, "EyeBlinkLeft"), (17, -3e38, "JawOpen"),
+                                               (52, 3e38, "head yaw"), (57, -1e30, "left eye roll")])
+def test_llf_frame_with_absurd_values_is_refused_by_name(channel, value, name):
+    values = np.zeros(61, dtype=np.float32)
+    values[channel] = value
+    with pytest.raises(ShapeSpaceError) as err:
+        decode_llf(_hand_packet(values))
+    assert err.value.code == "range" and name in str(err.value)
+    values[channel] = 0.99                                # the same packet with a plausible value decodes
+    assert decode_llf(_hand_packet(values)) is not None
+
+
+@pytest.mark.parametrize("text", [b"jawOpen-1e306|=head#0,0,0,0,0,0|", b"jawOpen-30|=head#1e306,0,0,0,0,0|",
+                                  b"jawOpen-30|=head#0,0,0,0,0,0|leftEye#0,1e306,0|"])
+def test_ifacialmocap_frame_with_absurd_values_is_refused(text):
+    with pytest.raises(ShapeSpaceError) as err:
+        decode_ifacialmocap(text)
+    assert err.value.code == "range"
+
+
+@pytest.mark.parametrize("address,args", [("/W", [24, 1e308]), ("/W", [24, -101.0]), ("/HR", [1e308, 0, 0]),
+                                          ("/ELR", [0, 1e308])])
+def test_facecap_absurd_values_are_refused_and_not_applied(address, args):
+    a = FaceCapAssembler()
+    with pytest.raises(ShapeSpaceError) as err:
+        a.apply(address, args)
+    assert err.value.code == "range"
+    assert not a.weights.any() and not a.head.any() and not a.eye_left.any()
+
+
+def test_weight_limit_is_the_offline_readers():
+    assert live_frames.MAX_ABS_WEIGHT is capture.MAX_ABS_WEIGHT       # one constant, not a copy
+    w = np.zeros(52)
+    MAX_ABS_WEIGHT = capture.MAX_ABS_WEIGHT
+    w[3] = MAX_ABS_WEIGHT
+    assert implausible_channel(FACECAP_52, np.concatenate([w, np.zeros(9)])) == ""
+    w[3] = np.nextafter(MAX_ABS_WEIGHT, np.inf)
+    assert FACECAP_52[3] in implausible_channel(FACECAP_52, np.concatenate([w, np.zeros(9)]))
+
+
+def test_calibrating_on_an_absurd_rest_face_is_refused():
+    """A 3e38 rest face made every later frame read 1.0."""
+    v = np.zeros(61)
+    v[5] = -3e38
+    with pytest.raises(ShapeSpaceError) as err:
+        Neutral.from_vector(v, 52)
+    assert err.value.code == "range" and "channel 5" in str(err.value)
+    v[5] = 0.2
+    assert Neutral.from_vector(v, 52).weights[5] == 0.2
