@@ -194,7 +194,9 @@ def _learned(obj, model, frames, src, key_pose_action) -> LearnedCloning:
         raise ShapeSpaceError("the learned method needs the target posed at key frames: key the target's "
                               "shape keys at the suggested key poses in an action and choose it", "no_key_poses")
     action = (bpy.data.actions.get(key_pose_action) if isinstance(key_pose_action, str) else key_pose_action)
-    curves = actions.shape_key_curves(obj, action) if action is not None else {}
+    if action is None:
+        raise ShapeSpaceError(f"key-pose action {key_pose_action!r} does not exist in this file", "no_key_poses")
+    curves = actions.shape_key_curves(obj, action)
     if not curves:
         raise ShapeSpaceError(f"key-pose action {key_pose_action!r} keys none of {obj.name!r}'s shape keys",
                               "no_key_poses")
