@@ -5,6 +5,7 @@ import numpy as np
 
 from ..core.blendshape import BlendshapeModel, Combination, InBetween
 from ..core.result import Issue, ShapeSpaceError
+from ..core.validate import coordinates
 
 from . import driven
 from .arrays import read_float, write_float
@@ -64,13 +65,8 @@ def slider_names(obj, meta: dict = None) -> list:
 def _check_finite(obj, blocks, coords: dict) -> None:
     """Refuse NaN/inf coordinates or slider ranges, naming the key, the vertex and the field."""
     for kb in blocks:
-        bad = ~np.isfinite(coords[kb.name])
-        if bad.any():
-            v, axis = (int(i) for i in np.argwhere(bad)[0])
-            raise ShapeSpaceError(
-                f"shape key {kb.name!r} of {obj.name!r} has a non-finite coordinate ({'xyz'[axis]} = "
-                f"{coords[kb.name][v, axis]}) at vertex {v}; fix or delete the key (Check Rig lists every one)",
-                "non_finite")
+        coordinates(coords[kb.name], f"shape key {kb.name!r} of {obj.name!r}",
+                    fix="fix or delete the key (Check Rig lists every one)")
         for field in ("slider_min", "slider_max", "value"):
             value = getattr(kb, field)
             if not np.isfinite(value):

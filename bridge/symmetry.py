@@ -17,6 +17,7 @@ from ..core import symmetry as core_sym
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
 from ..core.schema import Schema
+from ..core.validate import coordinates
 from . import storage
 from .arrays import read_float, write_float
 from .meshes import group_weight_vector
@@ -222,12 +223,7 @@ def _key(obj, name: str):
 
 
 def _coords(obj, kb) -> np.ndarray:
-    co = read_float(kb.points, "co", 3).astype(np.float64)
-    if not np.isfinite(co).all():
-        v, axis = (int(i) for i in np.argwhere(~np.isfinite(co))[0])
-        raise ShapeSpaceError(f"shape key {kb.name!r} of {obj.name!r} has a non-finite coordinate "
-                              f"({'xyz'[axis]}) at vertex {v}; fix or delete the key", ErrorCode.NON_FINITE)
-    return co
+    return coordinates(read_float(kb.points, "co", 3).astype(np.float64), f"shape key {kb.name!r} of {obj.name!r}")
 
 
 def key_delta(obj, name: str) -> np.ndarray:
