@@ -21,8 +21,8 @@ from numpy.typing import ArrayLike, DTypeLike
 from .errors import ErrorCode
 from .result import ShapeSpaceError
 
-__all__ = ["array", "bad_coordinate", "coordinates", "finite_scalar", "positive", "non_negative", "in_range", "choice",
-           "shape_text"]
+__all__ = ["ABSURD_COORDINATE", "ABSURD_MOVE", "array", "bad_coordinate", "coordinates", "finite_scalar", "positive",
+           "non_negative", "in_range", "choice", "shape_text"]
 
 
 def shape_text(shape: Sequence) -> str:
@@ -73,6 +73,12 @@ def array(x: ArrayLike, name: str, ndim: int | Sequence[int] | None = None, shap
         raise ShapeSpaceError(f"{name} contains NaN or infinite values (first at index {where})",
                               ErrorCode.NON_FINITE)
     return arr
+
+
+#: Blender units beyond which a coordinate is absurd for a face (a million: no head, whatever the unit scale).
+ABSURD_COORDINATE = 1e6
+#: Head sizes (the basis's bounding-box diagonal) beyond which a shape key's move of a vertex is absurd.
+ABSURD_MOVE = 100.0
 
 
 def bad_coordinate(co: np.ndarray, limit: float = math.inf) -> tuple | None:
