@@ -16,7 +16,7 @@ import sys
 import bpy
 
 from ..core.errors import ErrorCode
-from ..core.export.formats import FORMATS, check_format, check_output_path, format_of
+from ..core.export.formats import FORMATS, check_format, format_of
 from ..core.result import ShapeSpaceError
 from .outputs import check_outputs
 
@@ -47,7 +47,6 @@ def cmd_export(args, inputs: list) -> tuple:
     if args.format and format_of(args.out).name != fmt.name:
         raise ShapeSpaceError(f"--format {fmt.name} does not match --out {args.out}", ErrorCode.FORMAT)
     read = [p for p in (bpy.data.filepath, *inputs) if p]
-    check_output_path(args.out, fmt, inputs=tuple(read))
     _, report = check_outputs([("--out", args.out, "export"), ("--report", args.report, "json")], read)
     rep = export.export(fmt.name, args.out, names=args.objects, frame_range=args.frame_range, whole_scene=True)
     what = f"frames {rep.frame_start}–{rep.frame_end}" if rep.animated else f"frame {rep.frame_start} (a still)"
