@@ -102,6 +102,12 @@ function splitTakes(text) {
         takes = list;
     } else {
         takes = given.split(";");
+        // "/takes/a;b.csv" split in two leaves a folder path without a file extension: refuse it, never run it
+        const cut = takes.map((t) => t.trim()).find((t) => /[\\/]/.test(t) && !/\.[^.\\/]+$/.test(t));
+        if (takes.length > 1 && cut !== undefined) {
+            throw `takes: ${JSON.stringify(cut)} is a path without a file name extension: is it part of a path ` +
+                "holding ';'? Give the takes as a JSON list of paths";
+        }
     }
     takes = takes.map((t) => t.trim()).filter((t) => t.length > 0);
     for (const take of takes) {
