@@ -84,7 +84,7 @@ ABSURD_MOVE = 100.0
 def bad_coordinate(co: np.ndarray, limit: float = math.inf) -> tuple | None:
     """The first coordinate of ``co`` (p, 3) that is NaN, infinite or larger than ``limit`` in magnitude, as
     ``(vertex, axis, value)``; None when every one is sound."""
-    bad = ~(np.abs(co) <= limit)                        # NaN compares False: caught too
+    bad = ~np.isfinite(co) | (np.abs(co) > limit)
     if not bad.any():
         return None
     v, axis = (int(i) for i in np.argwhere(bad)[0])
