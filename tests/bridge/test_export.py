@@ -246,16 +246,18 @@ def test_merge_reports_messages(tmp_path):
     _take_report(tmp_path / "a.json", "a.csv")
     (tmp_path / "b.json").write_text('{"target": "FBHead", "results": [{"source": "b.csv", "ok"')
     (tmp_path / "c.json").write_text(json.dumps({"target": "FBHead", "results": [1, 2, 3]}))
+    (tmp_path / "d.json").write_text(json.dumps({"target": "FBHead", "results": [{}, {}, {}, {}]}))
     out = tmp_path / "merged.json"
-    code, _, err = _cli("--", "merge-reports", "--takes", "a.csv", "b.csv", "c.csv", "--reports-dir",
+    code, _, err = _cli("--", "merge-reports", "--takes", "a.csv", "b.csv", "c.csv", "d.csv", "--reports-dir",
                         str(tmp_path), "--out", str(out))
     assert code == 1 and "Traceback" not in err and "unexpected" not in err
     assert _errors(err) == [
         f"shapespace: error: b.csv: report {tmp_path / 'b.json'} is damaged: not JSON (Expecting ':' delimiter "
         "at line 1)",
-        f"shapespace: error: c.csv: report {tmp_path / 'c.json'} is damaged: result 0 has no ok true/false"]
+        f"shapespace: error: c.csv: report {tmp_path / 'c.json'} is damaged: result 0 has no ok true/false",
+        f"shapespace: error: d.csv: report {tmp_path / 'd.json'} is damaged: result 0 has no ok true/false"]
     merged = json.loads(out.read_text())
-    assert merged["succeeded"] == ["a.csv"] and [f["take"] for f in merged["failed"]] == ["b.csv", "c.csv"]
+    assert merged["succeeded"] == ["a.csv"] and [f["take"] for f in merged["failed"]] == ["b.csv", "c.csv", "d.csv"]
     gone = tmp_path / "gone"
     code, _, err = _cli("--", "merge-reports", "--takes", "a.csv", "b.csv", "c.csv", "--reports-dir", str(gone),
                         "--out", str(tmp_path / "m2.json"))
