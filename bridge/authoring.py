@@ -31,6 +31,7 @@ from ..core.jobs import BackgroundJob
 from ..core.progress import notify, scaled
 from ..core.result import Result, ShapeSpaceError, Status, to_jsonable
 from ..core.schema import Schema
+from ..core.validate import ABSURD_COORDINATE, coordinates
 from . import driven, shapekeys, storage
 from .arrays import read_float, write_float
 from .meshes import vertex_groups
@@ -117,11 +118,7 @@ def _neutral(obj) -> np.ndarray:
 
 
 def _finite(obj, role: str, name: str, co: np.ndarray) -> None:
-    bad = ~np.isfinite(co)
-    if bad.any():
-        v, axis = (int(i) for i in np.argwhere(bad)[0])
-        raise ShapeSpaceError(f"{role} {obj.name!r}: {name} has a non-finite coordinate ({'xyz'[axis]}) at vertex "
-                              f"{v}", ErrorCode.NON_FINITE)
+    coordinates(co, f"{role} {obj.name!r}: {name}", ABSURD_COORDINATE, fix="fix the mesh")
 
 
 def read_source_rig(obj) -> SourceRig:
@@ -134,8 +131,7 @@ def read_source_rig(obj) -> SourceRig:
     ref = key.reference_key
     blocks = [kb for kb in key.key_blocks if kb != ref]
     coords = {kb.name: read_float(kb.points, "co", 3).astype(np.float64) for kb in key.key_blocks}
-    for name, co in coords.items():
-        _finite(obj, "source rig", f"shape key {name!r}", co)
+    shapekeys.check_coordinates(obj, coords, ref.name, "source rig")
     meta = driven.prune(key)
     names = [kb.name for kb in blocks]
     deltas = np.stack([coords[kb.name] - coords[(kb.relative_key or ref).name] if kb.relative_key != kb

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..core.result import ShapeSpaceError
 from ..core.schema import Schema
+from ..core.validate import coordinates
 from . import storage
 from .arrays import read_float, write_float
 
@@ -103,8 +104,10 @@ def _refresh_inbetween_drivers(key, data, primary: str) -> None:
         _set_driver(key, name, hat_expression(a, t, b), [("w", primary)])
 
 
-def _shape(key, name) -> np.ndarray:
-    return read_float(key.key_blocks[name].data, "co", 3).astype(np.float64)
+def _shape(obj, name) -> np.ndarray:
+    """Shape key ``name``'s coordinates, refused (naming the key and the vertex) when one is NaN or infinite."""
+    co = read_float(obj.data.shape_keys.key_blocks[name].data, "co", 3).astype(np.float64)
+    return coordinates(co, f"shape key {name!r} of {obj.name!r}")
 
 
 def _rig_key(obj):
@@ -133,10 +136,10 @@ def add_inbetween(obj, primary: str, source: str, at: float, name: str = None, k
         raise ShapeSpaceError(f"{primary!r} is itself a driven key", "driven_primary")
     if any(v["primary"] == primary and abs(v["at"] - at) < 1e-6 for v in data["inbetweens"].values()):
         raise ShapeSpaceError(f"{primary!r} already has an in-between at {at:g}", "duplicate_inbetween")
-    basis = _shape(key, key.reference_key.name)
+    basis = _shape(obj, key.reference_key.name)
     prim_rel = blocks[primary].relative_key.name
-    s_primary = _shape(key, primary) - _shape(key, prim_rel)
-    s_at = _shape(key, source) - _shape(key, blocks[source].relative_key.name)
+    s_primary = _shape(obj, primary) - _shape(obj, prim_rel)
+    s_at = _shape(obj, source) - _shape(obj, blocks[source].relative_key.name)
     name = name or f"{primary}@{at:g}"
     kb = obj.shape_key_add(name=name, from_mix=False)
     write_float(kb.data, "co", basis + (s_at - at * s_primary))
@@ -166,9 +169,9 @@ def add_combination(obj, inputs, source: str, name: str = None, keep_source: boo
     driven = set(data["inbetweens"]) | set(data["combinations"])
     if driven & set(inputs):
         raise ShapeSpaceError("combination inputs must be primary (undriven) keys", "driven_primary")
-    basis = _shape(key, key.reference_key.name)
-    total = sum(_shape(key, n) - _shape(key, blocks[n].relative_key.name) for n in inputs)
-    sculpt = _shape(key, source) - _shape(key, blocks[source].relative_key.name)
+    basis = _shape(obj, key.reference_key.name)
+    total = sum(_shape(obj, n) - _shape(obj, blocks[n].relative_key.name) for n in inputs)
+    sculpt = _shape(obj, source) - _shape(obj, blocks[source].relative_key.name)
     name = name or "+".join(inputs)
     kb = obj.shape_key_add(name=name, from_mix=False)
     write_float(kb.data, "co", basis + (sculpt - total))

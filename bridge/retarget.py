@@ -62,15 +62,17 @@ MAX_MAPPING_VALUE = 100.0
 
 #: Key custom property: the last retarget's report (the keys of :data:`REPORT_KEYS` that apply).
 LAST_PROP = "shapespace_last_retarget"
-REPORT_KEYS = ("source", "method", "frames", "mapped_channels", "position_error_rms", "velocity_error_rms",
-               "clipping_frames", "clipped_frames", "frame_range", "scene_range_extended", "scene_range_before",
-               "keys_kept_frac", "converged", "action", "previous_action", "previous_fake_user")
+REPORT_KEYS = ("source", "method", "frames", "mapped_channels", "position_error_mm", "velocity_error_mm",
+               "position_error_rms", "velocity_error_rms", "clipping_frames", "clipped_frames", "frame_range",
+               "scene_range_extended", "scene_range_before", "keys_kept_frac", "converged", "action",
+               "previous_action", "previous_fake_user")
 LAST_SCHEMA = Schema(
     "last retarget result", 1,
     fields={"source": "string", "method": "string", "frames": "int", "position_error_rms": "number?",
             "velocity_error_rms": "number?", "clipping_frames": "int", "action": "string",
             "previous_action": "string"},
     optional={"mapped_channels": "int", "keys_kept_frac": "number?", "converged": "bool",
+              "position_error_mm": "number?", "velocity_error_mm": "number?",
               "previous_fake_user": "bool", "clipped_frames": "list", "frame_range": "list",
               "scene_range_extended": "bool", "scene_range_before": "list"})
 
@@ -194,7 +196,9 @@ def _learned(obj, model, frames, src, key_pose_action) -> LearnedCloning:
         raise ShapeSpaceError("the learned method needs the target posed at key frames: key the target's "
                               "shape keys at the suggested key poses in an action and choose it", "no_key_poses")
     action = (bpy.data.actions.get(key_pose_action) if isinstance(key_pose_action, str) else key_pose_action)
-    curves = actions.shape_key_curves(obj, action) if action is not None else {}
+    if action is None:
+        raise ShapeSpaceError(f"key-pose action {key_pose_action!r} does not exist in this file", "no_key_poses")
+    curves = actions.shape_key_curves(obj, action)
     if not curves:
         raise ShapeSpaceError(f"key-pose action {key_pose_action!r} keys none of {obj.name!r}'s shape keys",
                               "no_key_poses")

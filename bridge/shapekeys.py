@@ -5,6 +5,7 @@ import numpy as np
 
 from ..core.blendshape import BlendshapeModel, Combination, InBetween
 from ..core.result import Issue, ShapeSpaceError
+from ..core.validate import ABSURD_COORDINATE, ABSURD_MOVE, bad_coordinate, coordinates
 
 from . import driven
 from .arrays import read_float, write_float
@@ -64,18 +65,33 @@ def slider_names(obj, meta: dict = None) -> list:
 def _check_finite(obj, blocks, coords: dict) -> None:
     """Refuse NaN/inf coordinates or slider ranges, naming the key, the vertex and the field."""
     for kb in blocks:
-        bad = ~np.isfinite(coords[kb.name])
-        if bad.any():
-            v, axis = (int(i) for i in np.argwhere(bad)[0])
-            raise ShapeSpaceError(
-                f"shape key {kb.name!r} of {obj.name!r} has a non-finite coordinate ({'xyz'[axis]} = "
-                f"{coords[kb.name][v, axis]}) at vertex {v}; fix or delete the key (Check Rig lists every one)",
-                "non_finite")
+        coordinates(coords[kb.name], f"shape key {kb.name!r} of {obj.name!r}",
+                    fix="fix or delete the key (Check Rig lists every one)")
         for field in ("slider_min", "slider_max", "value"):
             value = getattr(kb, field)
             if not np.isfinite(value):
                 raise ShapeSpaceError(f"shape key {kb.name!r} of {obj.name!r} has {field} = {value}",
                                       "non_finite")
+
+
+def check_coordinates(obj, coords: dict, reference: str, role: str) -> None:
+    """Refuse a rig with a NaN, infinite or absurd coordinate, naming ``role``, the object, the key, the vertex and
+    the axis: every coordinate within :data:`~core.validate.ABSURD_COORDINATE`, and no key moving a vertex
+    more than :data:`~core.validate.ABSURD_MOVE` head sizes (the reference key's bounding-box diagonal) from it.
+
+    ``coords``: ``{key name: (p, 3) float64}``, ``reference`` among them.
+    """
+    for name, co in coords.items():
+        coordinates(co, f"{role} {obj.name!r}: shape key {name!r}", ABSURD_COORDINATE)
+    base = coords[reference]
+    size = float(np.linalg.norm(np.ptp(base, axis=0))) if len(base) else 0.0
+    for name, co in coords.items():
+        found = bad_coordinate(co - base, ABSURD_MOVE * size) if size > 0 else None
+        if found is not None:
+            v, axis, move = found
+            raise ShapeSpaceError(f"{role} {obj.name!r}: shape key {name!r} moves vertex {v} by {move:g} along "
+                                  f"{'xyz'[axis]}, {abs(move) / size:.3g} head sizes; fix or delete the key",
+                                  "non_finite")
 
 
 def read_blendshape_model(obj, finite: bool = True) -> BlendshapeModel:

@@ -17,8 +17,10 @@ from ..core import symmetry as core_sym
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
 from ..core.schema import Schema
+from ..core.validate import coordinates, in_range
 from . import storage
 from .arrays import read_float, write_float
+from .authoring import triangles
 from .meshes import group_weight_vector
 
 PROP = "shapespace_mirror_map"
@@ -222,12 +224,7 @@ def _key(obj, name: str):
 
 
 def _coords(obj, kb) -> np.ndarray:
-    co = read_float(kb.points, "co", 3).astype(np.float64)
-    if not np.isfinite(co).all():
-        v, axis = (int(i) for i in np.argwhere(~np.isfinite(co))[0])
-        raise ShapeSpaceError(f"shape key {kb.name!r} of {obj.name!r} has a non-finite coordinate "
-                              f"({'xyz'[axis]}) at vertex {v}; fix or delete the key", ErrorCode.NON_FINITE)
-    return co
+    return coordinates(read_float(kb.points, "co", 3).astype(np.float64), f"shape key {kb.name!r} of {obj.name!r}")
 
 
 def key_delta(obj, name: str) -> np.ndarray:
@@ -277,6 +274,12 @@ def _finite(obj, arr: np.ndarray, what: str) -> None:
                               ErrorCode.NON_FINITE)
 
 
+def _mirrored(obj, name: str, mmap: core_sym.MirrorMap):
+    """:func:`core.symmetry.mirror_delta` of key ``name``, vertices without a mirror filled from the mirrored
+    rest surface (the core Result says how many)."""
+    return core_sym.mirror_delta(key_delta(obj, name), mmap, rest_positions(obj), triangles(obj.data))
+
+
 def mirror_shape(obj, name: str, mmap: core_sym.MirrorMap) -> tuple:
     """Create the mirrored key of ``name`` (``browDown_L`` → ``browDown_R``, else ``<name>_mirror``).
 
@@ -286,7 +289,7 @@ def mirror_shape(obj, name: str, mmap: core_sym.MirrorMap) -> tuple:
     src = _key(obj, name)
     target = core_sym.counterpart_name(name) or f"{name}_mirror"
     _check_new(obj, [target])
-    res = core_sym.mirror_delta(key_delta(obj, name), mmap)
+    res = _mirrored(obj, name, mmap)
     _finite(obj, res.value, f"shape key {target!r}")
     made = _new_key(obj, target, res.value, src)
     obj.data.update()
@@ -302,6 +305,7 @@ def split_shape(obj, name: str, mmap: core_sym.MirrorMap, falloff: float = 0.05)
     src = _key(obj, name)
     left_name, right_name = core_sym.side_names(name)
     _check_new(obj, [left_name, right_name])
+    in_range(falloff, "falloff (a fraction of the mesh's size)", 0.0, 1.0)
     w = core_sym.split_weights(rest_positions(obj), mmap.axis, mmap.offset, falloff)
     left, right = core_sym.split_delta(key_delta(obj, name), w)
     _finite(obj, left, "the split keys")
@@ -334,16 +338,20 @@ def combine_shapes(obj, left: str, right: str, name: str = "") -> str:
 def update_mirrored(obj, name: str, mmap: core_sym.MirrorMap, source: str = "LEFT") -> tuple:
     """Push a sculpted key onto its mirror.
 
-    When the counterpart key exists (``browDown_L`` → ``browDown_R``) its delta becomes the mirror of ``name``'s;
-    otherwise ``name`` is a middle shape and its ``source`` side (LEFT = +axis) is mirrored onto its other side.
+    A side-named key (``browDown_L``) rewrites its counterpart (``browDown_R``) as the mirror of ``name``'s delta
+    and is refused, naming the counterpart, when that does not exist (Mirror Shape creates it); a key without a
+    side in its name is a middle shape: its ``source`` side (LEFT = +axis) is mirrored onto its other side.
     Returns ``(the key that was rewritten, core Result)``.
     """
     src = _key(obj, name)
     other = core_sym.counterpart_name(name)
     blocks = obj.data.shape_keys.key_blocks
-    if other is not None and other in blocks:
+    if other is not None and other not in blocks:
+        raise ShapeSpaceError(f"{name!r} is a one-side shape but {obj.name!r} has no {other!r} to update: Mirror "
+                              f"Shape creates it (nothing was changed)", ErrorCode.MISSING_KEY)
+    if other is not None:
         kb = _key(obj, other)
-        res = core_sym.mirror_delta(key_delta(obj, name), mmap)
+        res = _mirrored(obj, name, mmap)
     else:
         kb = src
         res = core_sym.symmetrize_delta(key_delta(obj, name), mmap, rest_positions(obj), source)

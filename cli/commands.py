@@ -14,7 +14,7 @@ import bpy
 
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
-from .outputs import check_output, same_file
+from .outputs import check_outputs
 
 __all__ = ["info", "retarget", "COMMANDS"]
 
@@ -26,7 +26,7 @@ def _say(text: str) -> None:
 def info(args, inputs: list) -> tuple:
     """``info``: describe the rigs of the open file or of each file given."""
     from ..bridge import assets, inventory
-    out = check_output("--out", args.out, "json", [*args.files, *inputs, bpy.data.filepath], args.overwrite)
+    (out,) = check_outputs([("--out", args.out, "json")], [*args.files, *inputs, bpy.data.filepath], args.overwrite)
     reports = []
     if args.files:
         for path in args.files:
@@ -127,10 +127,8 @@ def retarget(args, inputs: list) -> tuple:
     opened = args.target or bpy.data.filepath or (inputs[0] if inputs else "")
     sources = [s for s in args.source if os.path.isfile(s)]
     read = [p for p in (bpy.data.filepath, args.target, *inputs, *sources) if p]
-    out = check_output("--out", args.out, "blend", read, args.overwrite, opened)
-    if args.out and args.report and same_file(args.out, args.report):
-        raise ShapeSpaceError(f"--report {args.report}: is also the --out file; give two files", ErrorCode.OVERWRITE)
-    report = check_output("--report", args.report, "json", read, args.overwrite)
+    out, report = check_outputs([("--out", args.out, "blend"), ("--report", args.report, "json")], read,
+                                args.overwrite, opened)
     if args.target:
         assets.load(args.target)
     obj = _target_object(args.object, opened)

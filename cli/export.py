@@ -13,9 +13,12 @@ import json
 import os
 import sys
 
+import bpy
+
 from ..core.errors import ErrorCode
-from ..core.export.formats import FORMATS, check_format, check_output_path, format_of
+from ..core.export.formats import FORMATS, check_format, format_of
 from ..core.result import ShapeSpaceError
+from .outputs import check_outputs
 
 EXPORT_HELP = "bake drivers and pose-space correctives, then write glTF, FBX or Alembic with Blender's exporter"
 MERGE_HELP = "merge the per-take reports of a farm batch into one (exit 1 if any take failed)"
@@ -43,21 +46,24 @@ def cmd_export(args, inputs: list) -> tuple:
     fmt = check_format(args.format) if args.format else format_of(args.out)
     if args.format and format_of(args.out).name != fmt.name:
         raise ShapeSpaceError(f"--format {fmt.name} does not match --out {args.out}", ErrorCode.FORMAT)
-    check_output_path(args.out, fmt, inputs=tuple(inputs))
-    if args.report:
-        _check_report(args.report, [*inputs, args.out])
+    read = [p for p in (bpy.data.filepath, *inputs) if p]
+    _, report = check_outputs([("--out", args.out, "export"), ("--report", args.report, "json")], read)
     rep = export.export(fmt.name, args.out, names=args.objects, frame_range=args.frame_range, whole_scene=True)
     what = f"frames {rep.frame_start}–{rep.frame_end}" if rep.animated else f"frame {rep.frame_start} (a still)"
     print(f"shapespace: exported {', '.join(rep.objects)}, {what}, to {rep.path}", file=sys.stderr)
-    return 0, _emit({**rep.to_json(), "frames": rep.frames}, args.report)
+    return 0, _emit({**rep.to_json(), "frames": rep.frames}, report)
 
 
 def cmd_merge_reports(args, inputs: list) -> tuple:
     """``merge-reports``: exit 0 when every take succeeded, 1 otherwise (the merged report is written anyway)."""
-    from ..core.export.farm import merge_take_reports
-    _check_report(args.out, inputs)
+    from ..core.export.farm import merge_take_reports, take_outputs
+    if not os.path.isdir(args.reports_dir):
+        raise ShapeSpaceError(f"--reports-dir {args.reports_dir}: no such folder (no take's report can be read)",
+                              ErrorCode.MISSING_FILE)
+    read = [*inputs, *take_outputs(args.takes, args.reports_dir), *(t for t in args.takes if os.path.isfile(t))]
+    (out,) = check_outputs([("--out", args.out, "json")], read)
     summary = merge_take_reports(args.takes, args.reports_dir)
-    _emit({**summary.to_json(), "ok": summary.ok}, args.out)
+    _emit({**summary.to_json(), "ok": summary.ok}, out)
     for failure in summary.failed:
         print(f"shapespace: error: {failure['take']}: {failure['error']}", file=sys.stderr)
     print(f"shapespace: {len(summary.succeeded)} of {summary.takes} takes retargeted; report {args.out}",
@@ -65,22 +71,16 @@ def cmd_merge_reports(args, inputs: list) -> tuple:
     return (0 if summary.ok else 1), None
 
 
-def _check_report(path: str, inputs: list) -> None:
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise ShapeSpaceError(f"cannot write {path}: the folder {folder} does not exist", ErrorCode.UNWRITABLE)
-    for other in inputs:
-        if other and os.path.exists(other) and os.path.exists(path) and os.path.samefile(other, path):
-            raise ShapeSpaceError(f"{path} is an input of this command; choose another file", ErrorCode.OVERWRITE)
-
-
-def _emit(payload: dict, path: str = None):
-    """The JSON text for stdout, or None after writing it to ``path``."""
+def _emit(payload: dict, out=None):
+    """The JSON text for stdout, or None after writing it to the checked output ``out`` (no half-file)."""
     text = json.dumps(payload, indent=2)
-    if not path:
+    if out is None:
         return text
-    with open(path, "w", encoding="utf-8") as fh:
-        fh.write(text + "\n")
+    out.stage_text(text + "\n")
+    try:
+        out.commit()
+    finally:
+        out.discard()
     return None
 
 

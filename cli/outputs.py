@@ -2,12 +2,14 @@
 
 Rules (``--help`` and the README say the same):
 
-- an output (``--out``, ``--report``) is checked before anything is loaded or computed: its folder must
-  exist and be writable, it must not be a folder, and it must not be one of the command's inputs (the
-  opened or ``--target`` .blend, an ``info`` file, a ``--source`` file) — the one exception is
-  ``retarget --out`` onto the opened .blend with ``--overwrite`` (Blender keeps the old one as ``.blend1``);
+- every output of a command (``--out``, ``--report``) is checked before anything is loaded or computed, by one
+  call (:func:`check_outputs`): its folder must exist and be writable, it must not be a folder, it must not be
+  another output of the same command, and it must not be one of the command's inputs (the opened or
+  ``--target`` .blend, an ``info`` file, a ``--source`` file, a take's report) — the one exception is
+  ``retarget``/``transfer --out`` onto the opened .blend with ``--overwrite`` (Blender keeps the old one as
+  ``.blend1``);
 - an existing regular file is replaced only if it is of the same kind (a JSON report for JSON, a .blend
-  for ``--out``), or with ``--overwrite``;
+  for ``--out``; an exported file of any content), or with ``--overwrite``;
 - JSON goes to a temporary file beside the destination, moved into place only when everything else
   (the .blend) is saved; any write failure is one ``shapespace: error:`` line.
 """
@@ -21,7 +23,7 @@ import tempfile
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
 
-__all__ = ["Output", "check_output", "same_file"]
+__all__ = ["Output", "check_output", "check_outputs", "same_file"]
 
 _BLEND_MAGIC = (b"BLENDER", b"\x28\xb5\x2f\xfd", b"\x1f\x8b")     # plain, zstd- and gzip-compressed
 
@@ -44,11 +46,14 @@ def _looks_like(path: str, kind: str) -> bool:
         return True                                   # an empty file holds nothing to lose
     if kind == "json":
         return head.lstrip()[:1] in (b"{", b"[")
-    return head.startswith(_BLEND_MAGIC)
+    if kind == "blend":
+        return head.startswith(_BLEND_MAGIC)
+    return True                                       # an exported file (glTF, FBX, Alembic): replaced as such
 
 
 class Output:
-    """One checked destination: ``flag`` (for messages), ``path`` as given, ``kind`` (``json`` or ``blend``)."""
+    """One checked destination: ``flag`` (for messages), ``path`` as given, ``kind`` (``json``, ``blend`` or
+    ``export``)."""
 
     def __init__(self, flag: str, path: str, kind: str):
         self.flag, self.path, self.kind = flag, path, kind
@@ -116,7 +121,7 @@ def check_output(flag: str, path: str | None, kind: str, inputs: list, overwrite
     flag : str
         ``--out`` or ``--report`` (named in messages).
     path : str or None
-    kind : {"json", "blend"}
+    kind : {"json", "blend", "export"}
     inputs : list of str
         Files the command reads.
     overwrite : bool
@@ -145,3 +150,28 @@ def check_output(flag: str, path: str | None, kind: str, inputs: list, overwrite
         raise out.fail(f"exists and is not {what}; give --overwrite to replace it", ErrorCode.OVERWRITE)
     out.probe()
     return out
+
+
+def check_outputs(outputs, inputs: list, overwrite: bool = False, opened_blend: str = "") -> list:
+    """Every output of one command checked before any work: each against every input (:func:`check_output`)
+    and against every other output (two flags naming one file are refused, whatever ``overwrite`` says).
+
+    Parameters
+    ----------
+    outputs : sequence of (flag, path or None, kind)
+        The command's destinations, in the order they are named in messages.
+    inputs, overwrite, opened_blend
+        As for :func:`check_output`.
+
+    Returns
+    -------
+    list of Output or None
+        One per entry of ``outputs`` (``None`` where no path was given).
+    """
+    given = [(flag, path) for flag, path, _ in outputs if path]
+    for k, (flag, path) in enumerate(given):
+        for first_flag, first in given[:k]:
+            if same_file(first, path):
+                raise ShapeSpaceError(f"{flag} {path}: is also the {first_flag} file; give two files",
+                                      ErrorCode.OVERWRITE)
+    return [check_output(flag, path, kind, inputs, overwrite, opened_blend) for flag, path, kind in outputs]

@@ -19,7 +19,7 @@ import bpy
 
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
-from .outputs import check_output, same_file
+from .outputs import check_outputs, same_file
 
 HELP = "give a head a source rig's shape keys by model transfer (landmarks, registration, deformation transfer)"
 EPILOG = """\
@@ -58,6 +58,11 @@ def _say(text: str) -> None:
     print(f"shapespace: {text}", file=sys.stderr, flush=True)
 
 
+#: Files that are never a source rig (takes, exports, reports): ``take.csv:FBHead`` is a mistake, not an object name.
+_OTHER_FILES = (".csv", ".json", ".fbx", ".glb", ".gltf", ".bvh", ".abc", ".obj", ".usd", ".usda", ".usdc",
+                ".blend1", ".txt", ".pc2")
+
+
 def _split_source(spec: str) -> tuple:
     """``FILE.blend:OBJECT`` → (file, object); a bare ``OBJECT`` → ("", object)."""
     low = spec.lower()
@@ -70,6 +75,10 @@ def _split_source(spec: str) -> tuple:
         return path, name
     if low.endswith(".blend"):
         raise ShapeSpaceError(f"--source-rig {spec}: name the rig object too (FILE.blend:OBJECT)", ErrorCode.USAGE)
+    path = spec.rpartition(":")[0]
+    if path and (os.path.isfile(path) or os.path.splitext(path)[1].lower() in _OTHER_FILES):
+        raise ShapeSpaceError(f"--source-rig {spec}: {path} is not a rig file; give the .blend holding the rig "
+                              f"(FILE.blend:OBJECT)", ErrorCode.USAGE)
     return "", spec
 
 
@@ -81,6 +90,10 @@ def _target(name, exclude):
         if ob is None or ob.type != "MESH":
             raise ShapeSpaceError(f"no mesh named {name!r} to transfer onto", ErrorCode.MISSING_OBJECT)
         return ob
+    if not meshes and exclude:
+        only = ", ".join(repr(ob.name) for ob in exclude)
+        raise ShapeSpaceError(f"no mesh to transfer onto: the only mesh is the source rig {only}; open the target's "
+                              f".blend (or --target) or add the target mesh", ErrorCode.MISSING_OBJECT)
     if len(meshes) != 1:
         shown = ", ".join(ob.name for ob in meshes[:6]) + (" …" if len(meshes) > 6 else "")
         raise ShapeSpaceError(f"{len(meshes)} meshes ({shown or 'none'}): choose the target with --object",
@@ -114,10 +127,8 @@ def transfer(args, inputs: list) -> tuple:
     src_file, src_name = _split_source(args.source_rig)
     opened = args.target or bpy.data.filepath or (inputs[0] if inputs else "")
     read = [p for p in (bpy.data.filepath, args.target, *inputs, src_file) if p]
-    out = check_output("--out", args.out, "blend", read, args.overwrite, opened)
-    if args.out and args.report and same_file(args.out, args.report):
-        raise ShapeSpaceError(f"--report {args.report}: is also the --out file; give two files", ErrorCode.OVERWRITE)
-    report_out = check_output("--report", args.report, "json", read, args.overwrite)
+    out, report_out = check_outputs([("--out", args.out, "blend"), ("--report", args.report, "json")], read,
+                                    args.overwrite, opened)
     if src_file and not os.path.isfile(src_file):
         raise ShapeSpaceError(f"--source-rig: file not found: {src_file}", ErrorCode.MISSING_FILE)
     if args.target:

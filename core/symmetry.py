@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 from . import validate
 from .errors import ErrorCode
 from .result import Result, ShapeSpaceError, Status
+from .surface import closest_on_triangles
 
 __all__ = ["MirrorMap", "Topology", "position_map", "topology_map", "fill_by_position", "find_centre_edges",
            "auto_map", "weld_coincident", "mirror_delta", "split_weights", "split_delta", "combine_deltas",
@@ -497,34 +498,79 @@ def _check_map(delta: np.ndarray, mmap: MirrorMap) -> np.ndarray:
     return mirror
 
 
-def mirror_delta(delta: ArrayLike, mmap: MirrorMap) -> Result:
+#: How far from the rest mesh (a fraction of its bounding-box diagonal: 3 mm on a 30 cm head) the reflection of a
+#: vertex without a mirror may lie for it to take the mirrored surface's motion; further, nothing is invented.
+FILL_DISTANCE = 0.01
+
+
+def mirror_delta(delta: ArrayLike, mmap: MirrorMap, positions: ArrayLike = None, triangles: ArrayLike = None) -> Result:
     """The mirrored shape delta: ``Δ'[v] = R Δ[m(v)]``, R negating the ``axis`` component.
+
+    With the rest ``positions`` (and ``triangles``), a vertex the map could not pair takes the mirrored motion of
+    the mesh at its reflected position: ``Δ'[v] = R Σ b_i Δ[t_i]`` with ``t`` the triangle closest to the
+    reflection of ``positions[v]`` and ``b`` the barycentric coordinates of that closest point (the rule the map
+    follows, ``x[m(v)] ≈ reflection of x[v]``, continued between vertices; a vertex in no triangle counts as a
+    point of the mesh), when that point lies within :data:`FILL_DISTANCE` of the mesh.
 
     Parameters
     ----------
     delta : array_like, shape (p, 3)
         Shape minus basis, object space.
     mmap : MirrorMap
+    positions : array_like, shape (p, 3), optional
+        Rest positions (object space): fill vertices without a mirror.
+    triangles : array_like of int, shape (f, 3), optional
+        The rest mesh's triangles (without them only its vertices are the mesh).
 
     Returns
     -------
     Result
-        ``value`` (p, 3) float64, zero on unmapped vertices.  WARNING when some unmapped vertex, or the mirror
-        of one, moves (``diagnostics["lost_vertices"]`` lists them): that part of the shape is not mirrored.
+        ``value`` (p, 3) float64; zero on unmapped vertices that were not filled.  WARNING when vertices were
+        filled (``diagnostics["filled"]``, their count in the message) or when an unmapped vertex that moves was
+        not (``diagnostics["lost_vertices"]``): that part of the shape is not mirrored.
     """
     d = validate.array(delta, "delta", shape=(None, 3))
     mirror = _check_map(d, mmap)
     ok = mirror >= 0
     out = np.zeros_like(d)
     out[ok] = d[mirror[ok]]
+    unmapped = np.flatnonzero(~ok)
+    filled = np.zeros(0, dtype=np.int64)
+    if positions is not None and unmapped.size:
+        motion, near = _surface_motion(d, mmap, positions, triangles, unmapped)
+        filled = unmapped[near]
+        out[filled] = motion[near]
     out[:, mmap.axis] *= -1.0
     moving = np.linalg.norm(d, axis=1) > 0
-    lost = np.flatnonzero(~ok & moving)
+    lost = np.setdiff1d(np.flatnonzero(~ok & moving), filled)
+    notes = []
+    if filled.size:
+        notes.append(f"{filled.size} vertices without a mirror took the mirrored surface's motion at their "
+                     "reflected position")
     if lost.size:
-        return Result(out, status=Status.WARNING, diagnostics={"lost_vertices": lost.tolist()},
-                      message=f"{lost.size} moving vertices have no mirror (first: {lost[:5].tolist()}): "
-                              "their motion is not mirrored")
-    return Result(out, diagnostics={"lost_vertices": []})
+        notes.append(f"{lost.size} moving vertices have no mirror (first: {lost[:5].tolist()}): their motion is not "
+                     "mirrored")
+    return Result(out, status=Status.WARNING if notes else Status.OK, message="; ".join(notes),
+                  diagnostics={"lost_vertices": lost.tolist(), "filled": filled.tolist()})
+
+
+def _surface_motion(delta: np.ndarray, mmap: MirrorMap, positions: ArrayLike, triangles, vertices: np.ndarray):
+    """``delta`` at the points of the rest mesh closest to the reflections of ``vertices`` (u,): barycentric on
+    the closest triangle, or a vertex's own when a vertex (one in no triangle) is closer.  Returns the motion
+    (u, 3), unreflected, and whether that point lies within :data:`FILL_DISTANCE` (u,) bool."""
+    co = validate.array(positions, "positions", shape=delta.shape)
+    tris = np.zeros((0, 3), np.int64) if triangles is None else np.asarray(triangles, np.int64).reshape(-1, 3)
+    if len(tris) and (tris.min() < 0 or tris.max() >= len(co)):
+        raise ShapeSpaceError(f"the triangles do not index the {len(co)} vertices", ErrorCode.STALE_MIRROR_MAP)
+    query = _reflect(co[vertices], mmap.axis, mmap.offset)
+    dist, nearest = cKDTree(co).query(query)
+    motion = delta[nearest]
+    if len(tris):
+        tri, bary, _, tri_dist = closest_on_triangles(query, co, tris)
+        on_tri = tri_dist < dist
+        motion[on_tri] = np.einsum("uk,ukj->uj", bary[on_tri], delta[tris[tri[on_tri]]])
+        dist = np.minimum(dist, tri_dist)
+    return motion, dist <= FILL_DISTANCE * _diagonal(co)
 
 
 def split_weights(positions: ArrayLike, axis: int | str = 0, offset: float = 0.0, falloff: float = 0.05) -> np.ndarray:

@@ -21,7 +21,8 @@ from numpy.typing import ArrayLike, DTypeLike
 from .errors import ErrorCode
 from .result import ShapeSpaceError
 
-__all__ = ["array", "finite_scalar", "positive", "non_negative", "in_range", "choice", "shape_text"]
+__all__ = ["ABSURD_COORDINATE", "ABSURD_MOVE", "array", "bad_coordinate", "coordinates", "finite_scalar", "positive",
+           "non_negative", "in_range", "choice", "shape_text"]
 
 
 def shape_text(shape: Sequence) -> str:
@@ -72,6 +73,34 @@ def array(x: ArrayLike, name: str, ndim: int | Sequence[int] | None = None, shap
         raise ShapeSpaceError(f"{name} contains NaN or infinite values (first at index {where})",
                               ErrorCode.NON_FINITE)
     return arr
+
+
+#: Blender units beyond which a coordinate is absurd for a face (a million: no head, whatever the unit scale).
+ABSURD_COORDINATE = 1e6
+#: Head sizes (the basis's bounding-box diagonal) beyond which a shape key's move of a vertex is absurd.
+ABSURD_MOVE = 100.0
+
+
+def bad_coordinate(co: np.ndarray, limit: float = math.inf) -> tuple | None:
+    """The first coordinate of ``co`` (p, 3) that is NaN, infinite or larger than ``limit`` in magnitude, as
+    ``(vertex, axis, value)``; None when every one is sound."""
+    bad = ~np.isfinite(co) | (np.abs(co) > limit)
+    if not bad.any():
+        return None
+    v, axis = (int(i) for i in np.argwhere(bad)[0])
+    return v, axis, float(co[v, axis])
+
+
+def coordinates(co: np.ndarray, what: str, limit: float = math.inf, fix: str = "fix or delete the key") -> np.ndarray:
+    """``co`` (p, 3) when every coordinate is finite (and at most ``limit`` in magnitude); otherwise one line
+    naming ``what`` (e.g. ``shape key 'K1' of 'Face'``), the vertex and the axis (code ``non_finite``)."""
+    found = bad_coordinate(co, limit)
+    if found is not None:
+        v, axis, value = found
+        kind = "a non-finite" if not math.isfinite(value) else "an absurd"
+        raise ShapeSpaceError(f"{what} has {kind} coordinate ({'xyz'[axis]} = {value:g}) at vertex {v}; {fix}",
+                              ErrorCode.NON_FINITE)
+    return co
 
 
 def finite_scalar(x: Any, name: str) -> float:

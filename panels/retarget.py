@@ -55,9 +55,12 @@ def _draw_result(layout, ob):
         col = box.column(align=True)
         span = f" ({rep.frame_range[0]:g}–{rep.frame_range[1]:g})" if rep.frame_range else ""
         col.label(text=f"{rep.action}: {rep.method}, {rep.frames} frames{span}", icon="ACTION")
-        if rep.velocity_error_rms is not None and rep.position_error_rms is not None:
+        if rep.position_error_mm is not None and rep.velocity_error_mm is not None:
+            col.label(text=f"error per vertex: position {rep.position_error_mm:.3g} mm, velocity "
+                           f"{rep.velocity_error_mm:.3g} mm (30 cm head)")
+        elif rep.velocity_error_rms is not None and rep.position_error_rms is not None:   # a 0.1 result
             col.label(text=f"error: position {rep.position_error_rms:.3g}, velocity "
-                           f"{rep.velocity_error_rms:.3g} (of the head size)")
+                           f"{rep.velocity_error_rms:.3g} (whole mesh, of the head size)")
         if rep.clipping_frames:
             col.label(text=f"{rep.clipping_frames} frames beyond the slider ranges", icon="ERROR")
             if rep.clipped_frames:

@@ -236,8 +236,8 @@ def _retarget_demo(bpy, np, out_dir, size):
         for o in others:
             o.hide_render = hidden[o.name]
     bpy.ops.wm.save_as_mainfile(filepath=os.path.join(out_dir, "retargeted.blend"), check_existing=False)
-    keep = ("frames", "mapped_channels", "velocity_error_rms", "position_error_rms", "clipping_frames",
-            "keys_kept_frac", "action")
+    keep = ("frames", "mapped_channels", "position_error_mm", "velocity_error_mm", "velocity_error_rms",
+            "position_error_rms", "clipping_frames", "keys_kept_frac", "action")
     return {"llf_on_facecap": {k: onto_facecap.get(k) for k in keep},
             "facecap_on_fbhead": {k: onto_fbhead.get(k) for k in keep}, "renders": renders}
 

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 from ..errors import ErrorCode
 from ..result import Report, ShapeSpaceError
 
-__all__ = ["FarmSummary", "chunk", "merge_take_reports", "read_take_report", "take_stem"]
+__all__ = ["FarmSummary", "check_stems", "chunk", "load_take_report", "merge_take_reports", "read_take_report",
+           "take_outputs", "take_stem"]
 
 
 def take_stem(take: str) -> str:
@@ -27,11 +28,9 @@ def take_stem(take: str) -> str:
     return stem
 
 
-def chunk(takes: Sequence[str], size: int) -> list[list[str]]:
-    """``takes`` in chunks of at most ``size`` (one task each), order kept; duplicate stems refused (their
-    outputs would overwrite each other)."""
-    if int(size) < 1:
-        raise ShapeSpaceError(f"chunk size must be at least 1, got {size}", ErrorCode.RANGE)
+def check_stems(takes: Sequence[str]) -> list[str]:
+    """The stem of every take; two takes with one stem are refused (their outputs would overwrite each other,
+    and a merge would read one report for both)."""
     seen = {}
     for t in takes:
         stem = take_stem(t)
@@ -39,18 +38,54 @@ def chunk(takes: Sequence[str], size: int) -> list[list[str]]:
             raise ShapeSpaceError(f"takes {seen[stem]!r} and {t!r} would both write {stem}.json: rename one",
                                   ErrorCode.USAGE)
         seen[stem] = t
+    return list(seen)
+
+
+def take_outputs(takes: Sequence[str], report_dir: str) -> list[str]:
+    """Every file the per-take tasks write in ``report_dir`` (``<stem>.json`` and ``<stem>.blend``): the
+    inputs of a merge."""
+    return [os.path.join(report_dir, f"{stem}{ext}") for stem in check_stems(takes) for ext in (".json", ".blend")]
+
+
+def chunk(takes: Sequence[str], size: int) -> list[list[str]]:
+    """``takes`` in chunks of at most ``size`` (one task each), order kept; duplicate stems refused
+    (:func:`check_stems`)."""
+    if int(size) < 1:
+        raise ShapeSpaceError(f"chunk size must be at least 1, got {size}", ErrorCode.RANGE)
+    check_stems(takes)
     items = list(takes)
     return [items[i:i + int(size)] for i in range(0, len(items), int(size))]
 
 
-def read_take_report(path: str) -> dict | None:
-    """A per-take report (the retarget command's ``--report`` JSON), or None when missing or unreadable."""
+def load_take_report(path: str) -> tuple[dict | None, str]:
+    """A per-take report (the retarget command's ``--report`` JSON) and ``""``, or ``None`` and why it cannot be
+    used: ``"missing"`` when there is no file, else the damage in a few words (not JSON, no results list, a
+    result without a boolean ``ok``)."""
+    if not os.path.lexists(path):
+        return None, "missing"
     try:
         with open(path, encoding="utf-8") as fh:
             data = json.load(fh)
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) and isinstance(data.get("results"), list) else None
+    except UnicodeDecodeError:
+        return None, "not UTF-8 text"
+    except ValueError as exc:
+        return None, f"not JSON ({getattr(exc, 'msg', exc)} at line {getattr(exc, 'lineno', '?')})"
+    except OSError as exc:
+        return None, f"unreadable ({exc.strerror or exc})"
+    if not isinstance(data, dict):
+        return None, f"a JSON {type(data).__name__}, not an object"
+    results = data.get("results")
+    if not isinstance(results, list):
+        return None, "no results list"
+    for k, res in enumerate(results):
+        if not isinstance(res, dict) or not isinstance(res.get("ok"), bool):
+            return None, f"result {k} has no ok true/false"
+    return data, ""
+
+
+def read_take_report(path: str) -> dict | None:
+    """A per-take report, or None when missing or damaged (:func:`load_take_report` says why)."""
+    return load_take_report(path)[0]
 
 
 @dataclass
@@ -94,12 +129,16 @@ def merge_take_reports(takes: Sequence[str], report_dir: str) -> FarmSummary:
     report_dir : str
         Where the per-take tasks wrote ``<stem>.json`` and ``<stem>.blend``.
     """
+    check_stems(takes)
     summary = FarmSummary(takes=len(takes))
     for take in takes:
         stem = take_stem(take)
-        rep = read_take_report(os.path.join(report_dir, f"{stem}.json"))
+        path = os.path.join(report_dir, f"{stem}.json")
+        rep, problem = load_take_report(path)
         if rep is None:
-            summary.failed.append({"take": take, "error": f"no report: the task for {stem} did not finish"})
+            error = (f"no report: the task for {stem} did not finish" if problem == "missing" else
+                     f"report {path} is damaged: {problem}")
+            summary.failed.append({"take": take, "error": error})
             continue
         summary.target = summary.target or str(rep.get("target", ""))
         summary.method = summary.method or str(rep.get("method", ""))
@@ -107,9 +146,9 @@ def merge_take_reports(takes: Sequence[str], report_dir: str) -> FarmSummary:
         for res in rep["results"]:
             entry = {**res, "take": take, "blend": blend if os.path.isfile(blend) else None}
             summary.results.append(entry)
-            if not res.get("ok", False):
+            if not res["ok"]:
                 summary.failed.append({"take": take, "error": str(res.get("error", "failed"))})
-        if all(r.get("ok", False) for r in rep["results"]) and rep["results"]:
+        if all(r["ok"] for r in rep["results"]) and rep["results"]:
             summary.succeeded.append(take)
         elif not rep["results"]:
             summary.failed.append({"take": take, "error": "the report lists no result"})

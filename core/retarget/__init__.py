@@ -16,7 +16,7 @@ from .capture import WeightStream, parse_timecode, read_live_link_csv, resample
 from .cloning import (LearnedCloning, cloning_matrix, copy_weights, key_frames_in_span, key_poses,
                       learned_cloning, moving_channels, split_mapping, suggest_key_frames)
 from .landmarks import check_landmarks, closest_points, landmark_layout, landmark_warp, peak_landmarks, procrustes
-from .metrics import clipping_frames, position_error_rms, slider_scales, velocity_error_rms
+from .metrics import clipping_frames, per_vertex_mm, position_error_rms, slider_scales, velocity_error_rms
 from .perframe import fit_frames
 from .performance import (GEOMETRIC_METHODS, METHODS, PerformanceFit, normalised_basis, retarget_positions,
                           retarget_weights)
@@ -37,5 +37,5 @@ __all__ = [
     "stabilise", "transfer_motion", "moving_vertices",
     # whole performances, metrics, report
     "METHODS", "GEOMETRIC_METHODS", "PerformanceFit", "normalised_basis", "retarget_weights", "retarget_positions",
-    "position_error_rms", "velocity_error_rms", "clipping_frames", "slider_scales", "RetargetReport",
+    "position_error_rms", "velocity_error_rms", "per_vertex_mm", "clipping_frames", "slider_scales", "RetargetReport",
 ]

@@ -8,6 +8,8 @@ One definition of each, used by every retarget path (weights or dense meshes):
 - :func:`velocity_error_rms` — the same on frame-to-frame differences (the
   quantity space-time cloning matches, thesis ch. 5);
 - :func:`weight_errors` — both, for a weight difference on a rig, without forming the dense residual;
+- :func:`per_vertex_mm` — either one as the RMS per vertex in mm with the head scaled to a 30 cm
+  bounding-box diagonal (the unit of every other ShapeSpace distance; what the report shows);
 - :func:`clipping_frames` — frames whose ideal weights leave the slider ranges;
 - :func:`slider_scales` — the per-slider scales σ of the space-time regulariser.
 """
@@ -16,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["position_error_rms", "velocity_error_rms", "weight_errors", "clipping_frames", "slider_scales"]
+__all__ = ["position_error_rms", "velocity_error_rms", "weight_errors", "per_vertex_mm", "clipping_frames",
+           "slider_scales", "HEAD_MM"]
 
 #: Floor of the slider scales σ_k, as a fraction of the slider's range.
 SIGMA_FLOOR = 0.05
@@ -41,6 +44,28 @@ def position_error_rms(residual: ArrayLike, size: float) -> float:
     """
     R = np.asarray(residual, dtype=np.float64).reshape(len(residual), -1)
     return float(np.sqrt(np.mean(np.sum(R ** 2, axis=1))) / size)
+
+
+#: The head size every ShapeSpace distance in mm refers to: a 30 cm bounding-box diagonal.
+HEAD_MM = 300.0
+
+
+def per_vertex_mm(error_rms: float, vertices: int) -> float:
+    """An error of :func:`position_error_rms` or :func:`velocity_error_rms` (a whole-mesh frame norm over the
+    size) as the RMS over frames and vertices of one vertex's distance, in mm at a 30 cm head:
+    ``HEAD_MM · error_rms / √p`` (``‖x_f − s_f‖² = Σ_v |x_fv − s_fv|²``).
+
+    Parameters
+    ----------
+    error_rms : float
+    vertices : int
+        ``p``, the vertices the residual covers.
+
+    Returns
+    -------
+    float
+    """
+    return HEAD_MM * float(error_rms) / float(np.sqrt(vertices)) if vertices > 0 else 0.0
 
 
 def velocity_error_rms(residual: ArrayLike, size: float) -> float:

@@ -33,7 +33,8 @@ from ..errors import ErrorCode
 from ..progress import ProgressFn, notify, scaled
 from ..result import ShapeSpaceError
 from ..validate import array, choice, positive
-from .metrics import clipping_frames, position_error_rms, slider_scales, velocity_error_rms, weight_errors
+from .metrics import (clipping_frames, per_vertex_mm, position_error_rms, slider_scales, velocity_error_rms,
+                      weight_errors)
 from .perframe import fit_frames
 from .report import clipped_mask
 from .spacetime_solver import SpacetimeResult, spacetime
@@ -73,6 +74,8 @@ class PerformanceFit:
         The space-time solve, for the ``spacetime`` method.
     clipped : ndarray of bool (f,) or None
         Which frames clip (``clipping_frames`` of them), :func:`~.report.clipped_mask`.
+    vertices : int
+        The target's vertex count (the errors per vertex, :attr:`position_error_mm`).
     """
 
     weights: np.ndarray
@@ -82,6 +85,17 @@ class PerformanceFit:
     clipping_frames: int
     solver: SpacetimeResult | None = None
     clipped: np.ndarray | None = None
+    vertices: int = 0
+
+    @property
+    def position_error_mm(self) -> float:
+        """RMS per vertex of the position error, mm at a 30 cm head (:func:`~.metrics.per_vertex_mm`)."""
+        return per_vertex_mm(self.position_error_rms, self.vertices)
+
+    @property
+    def velocity_error_mm(self) -> float:
+        """RMS per vertex of the frame-to-frame error, mm at a 30 cm head."""
+        return per_vertex_mm(self.velocity_error_rms, self.vertices)
 
 
 def normalised_basis(model: BlendshapeModel) -> tuple:
@@ -225,7 +239,7 @@ def retarget_weights(model: BlendshapeModel, ideal: ArrayLike, method: str, lam:
     pos, vel = weight_errors(W - raw, model.delta_matrix, model.scale)
     notify(progress, 1.0)
     clipped = clipped_mask(raw, lo, hi)
-    return PerformanceFit(W, raw, pos, vel, clipping_frames(raw, lo, hi), solver, clipped)
+    return PerformanceFit(W, raw, pos, vel, clipping_frames(raw, lo, hi), solver, clipped, model.n_vertices)
 
 
 def retarget_positions(model: BlendshapeModel, positions: ArrayLike, method: str,
@@ -275,4 +289,4 @@ def retarget_positions(model: BlendshapeModel, positions: ArrayLike, method: str
     notify(progress, 1.0)
     return PerformanceFit(W, ideal, position_error_rms(residual, model.scale),
                           velocity_error_rms(residual, model.scale), clipping_frames(ideal, lo, hi, 1e-6), solver,
-                          clipped_mask(ideal, lo, hi, 1e-6))
+                          clipped_mask(ideal, lo, hi, 1e-6), model.n_vertices)

@@ -107,8 +107,13 @@ class RetargetReport(Report):
         Space-time: the solver's message.
     converged : bool or None
         Space-time: the solver met its tolerance.
+    position_error_mm, velocity_error_mm : float or None
+        How far the result is from the unlimited source motion: RMS over frames and vertices of one vertex's
+        distance (of its frame-to-frame motion), mm with the head scaled to a 30 cm bounding-box diagonal
+        (:func:`~.metrics.per_vertex_mm`).
     position_error_rms, velocity_error_rms : float or None
-        See :mod:`.metrics`.
+        The same as whole-mesh frame norms over the head size (the space-time objective's unit), see
+        :mod:`.metrics`; they grow with the square root of the vertex count.
     clipping_frames : int or None
         Frames whose ideal weights leave the slider ranges.
     clipped_frames : list of [first, last] or None
@@ -140,6 +145,8 @@ class RetargetReport(Report):
     solver_iterations: int | None = None
     status: str | None = None
     converged: bool | None = None
+    position_error_mm: float | None = None
+    velocity_error_mm: float | None = None
     position_error_rms: float | None = None
     velocity_error_rms: float | None = None
     clipping_frames: int | None = None
@@ -157,6 +164,8 @@ class RetargetReport(Report):
         with the scene ``frames`` (f,) of its rows, the clipped frames as runs and the frame range too."""
         self.position_error_rms = fit.position_error_rms
         self.velocity_error_rms = fit.velocity_error_rms
+        self.position_error_mm = fit.position_error_mm
+        self.velocity_error_mm = fit.velocity_error_mm
         self.clipping_frames = fit.clipping_frames
         if frames is not None:
             frames = np.asarray(frames, dtype=np.float64)

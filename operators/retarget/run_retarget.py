@@ -108,8 +108,8 @@ def result_message(rep) -> str:
     text = f"{rep.action}: {rep.frames} frames"
     if rep.frame_range:
         text += f" ({rep.frame_range[0]:g}–{rep.frame_range[1]:g})"
-    if rep.position_error_rms is not None:
-        text += f", position error {rep.position_error_rms:.2g} of the size"
+    if rep.position_error_mm is not None:
+        text += f", position error {rep.position_error_mm:.2g} mm per vertex (30 cm head)"
     if rep.clipped_frames:
         text += f"; beyond the slider ranges at {format_ranges(rep.clipped_frames)}"
     if rep.scene_range_extended:

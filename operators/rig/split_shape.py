@@ -13,7 +13,7 @@ halves add up exactly to the original, which is kept (muted)"""
     bl_label = "Split Shape L/R"
     bl_options = {"REGISTER", "UNDO"}
 
-    falloff: bpy.props.FloatProperty(name="Falloff", default=0.05, min=0.0, max=1.0, precision=3,
+    falloff: bpy.props.FloatProperty(name="Falloff", default=0.05, soft_min=0.0, soft_max=1.0, precision=3,
                                      description="Width of the blend across the centre line, as a fraction of "
                                                  "the mesh's bounding-box diagonal (0: a hard cut)")
 

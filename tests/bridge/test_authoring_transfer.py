@@ -344,6 +344,30 @@ def test_fewer_than_five_landmarks_or_one_side_only_are_refused(registered):
     assert blend_fingerprint() == before
 
 
+@pytest.mark.parametrize("key, value, what", [("Basis", np.inf, "a non-finite coordinate (y = inf)"),
+                                              ("Basis", 1e30, "an absurd coordinate (y = 1e+30)"),
+                                              ("JawOpen", 1e30, "an absurd coordinate (y = 1e+30)"),
+                                              ("JawOpen", 50.0, "moves vertex 7 by ")])
+def test_non_finite_or_absurd_source_coordinates_are_refused_by_name(registered, key, value, what):
+    """#26.9: inf or 1e30 in the source Basis, 1e30 (or a 50 m move) in a source key: refused naming the key and the
+    vertex, nothing written (before: 'all 8 landmarks are on its centre line', or transferred silently)."""
+    src, tgt = _rig_and_target()
+    kb = src.data.shape_keys.key_blocks[key]
+    co = np.empty(len(kb.data) * 3, np.float32)
+    kb.data.foreach_get("co", co)
+    co[3 * 7 + 1] = value
+    kb.data.foreach_set("co", co)
+    before = blend_fingerprint()
+    with pytest.raises(ShapeSpaceError) as err:
+        authoring.transfer_shapes(src, tgt)
+    assert f"source rig 'FBHead': shape key '{key}'" in str(err.value) and what in str(err.value)
+    assert "at vertex 7" in str(err.value) or "vertex 7 by" in str(err.value)
+    bpy.context.view_layer.objects.active = tgt
+    with pytest.raises(RuntimeError, match=f"shape key '{key}'"):
+        bpy.ops.shapespace.transfer_shapes()
+    assert blend_fingerprint() == before
+
+
 def test_stale_landmarks_after_a_topology_change_are_refused(registered):
     src, tgt = _rig_and_target()
     bpy.context.view_layer.objects.active = tgt

@@ -219,3 +219,27 @@ def test_run_cli_works_from_a_python_without_bpy():
     code, out, err = cli(BLEND, "--", "info", python=os.path.join(ROOT, ".venv", "core", "bin", "python"))
     assert code == 0, err
     assert json.loads(out)["shape_key_meshes"][0]["object"] == "FBHead"
+
+
+# ----------------------------------------------------------------------------------------- #26.10
+def test_source_rig_in_a_take_file_says_it_is_not_a_rig_file(shot):
+    blend, take = shot
+    code, _, err = cli(blend, "--", "transfer", "--source-rig", f"{take}:FBHead", "--dry-run")
+    assert code == 2 and errors(err) == [f"shapespace: error: --source-rig {take}:FBHead: {take} is not a rig "
+                                         "file; give the .blend holding the rig (FILE.blend:OBJECT)"]
+
+
+def test_transfer_source_that_is_the_only_mesh_names_it(shot):
+    blend, _ = shot
+    code, _, err = cli(blend, "--", "transfer", "--source-rig", "FBHead", "--dry-run")
+    assert code == 1 and errors(err) == ["shapespace: error: no mesh to transfer onto: the only mesh is the source "
+                                         "rig 'FBHead'; open the target's .blend (or --target) or add the target "
+                                         "mesh"]
+
+
+def test_missing_key_pose_action_is_said_not_to_exist(shot):
+    blend, take = shot
+    code, _, err = cli(blend, "--", "retarget", "--source", take, "--method", "learned", "--key-poses", "NoSuch",
+                       "--dry-run")
+    assert code == 1 and errors(err) == [f"shapespace: error: {take}: key-pose action 'NoSuch' does not exist in "
+                                         "this file"]

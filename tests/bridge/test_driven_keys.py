@@ -117,3 +117,26 @@ def test_inbetween_and_combination_operators(registered):
     assert blend_fingerprint() == before
     ob.active_shape_key_index = 0
     assert not bpy.ops.shapespace.add_inbetween.poll()
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+@pytest.mark.parametrize("op_name, kwargs", [("add_combination", {"first": "K0", "second": "K1"}),
+                                             ("add_inbetween", {"primary": "K0", "weight": 0.5})])
+def test_nan_in_an_input_key_is_refused_by_name(registered, op_name, kwargs, value):
+    """#26.6: a NaN coordinate in an input key is refused naming the key and the vertex; nothing changes (before:
+    FINISHED, the NaN copied into the new key)."""
+    from blender_support import sphere_rig
+    ob = sphere_rig(3)
+    kb = ob.data.shape_keys.key_blocks["K0"]
+    co = np.empty(len(kb.data) * 3, np.float32)
+    kb.data.foreach_get("co", co)
+    co[3 * 7 + 2] = value
+    kb.data.foreach_set("co", co)
+    bpy.context.view_layer.objects.active = ob
+    ob.active_shape_key_index = 3                       # K2: the sculpt
+    before = blend_fingerprint()
+    with pytest.raises(RuntimeError, match=rf"shape key 'K0' of 'Face' has a non-finite coordinate \(z = {value}\) "
+                                           r"at vertex 7"):
+        getattr(bpy.ops.shapespace, op_name)("EXEC_DEFAULT", **kwargs)
+    assert blend_fingerprint() == before
+    assert [k.name for k in ob.data.shape_keys.key_blocks] == ["Basis", "K0", "K1", "K2"]

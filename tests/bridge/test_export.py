@@ -209,6 +209,67 @@ def test_merge_reports_command(tmp_path):
     assert merged["succeeded"] == ["a.csv"] and not merged["ok"] and merged["takes"] == 2
 
 
+def test_export_out_and_report_on_one_file_are_refused_before_any_work(tmp_path):
+    """#26.2: ``--out x.glb --report x.glb`` would leave the JSON report in place of the glTF."""
+    same = tmp_path / "x.glb"
+    code, out, err = _cli(BLEND, "--", "export", "--out", str(same), "--report", str(same))
+    assert code == 1 and out == "" and "exported" not in err
+    assert _errors(err) == [f"shapespace: error: --report {same}: is also the --out file; give two files"]
+    assert not os.listdir(tmp_path)
+    shot = tmp_path / "shot.blend"
+    shot.write_bytes(open(BLEND, "rb").read())
+    kept = shot.read_bytes()
+    code, _, err = _cli(str(shot), "--", "export", "--out", str(tmp_path / "a.glb"), "--report", str(shot))
+    assert code == 1 and _errors(err) == [f"shapespace: error: --report {shot}: would overwrite the input {shot}"]
+    assert shot.read_bytes() == kept and not (tmp_path / "a.glb").exists()
+
+
+def _take_report(path, source, ok=True):
+    path.write_text(json.dumps({"target": "FBHead", "method": "copy", "results": [{"source": source, "ok": ok}]}))
+
+
+def test_merge_reports_never_overwrites_a_take_report(tmp_path):
+    """#26.3: ``--out R/a.json`` is take a's own report, an input of the merge: refused, the report kept."""
+    _take_report(tmp_path / "a.json", "a.csv")
+    kept = (tmp_path / "a.json").read_bytes()
+    code, _, err = _cli("--", "merge-reports", "--takes", "a.csv", "--reports-dir", str(tmp_path),
+                        "--out", str(tmp_path / "a.json"))
+    assert code == 1
+    assert _errors(err) == [f"shapespace: error: --out {tmp_path / 'a.json'}: would overwrite the input "
+                            f"{tmp_path / 'a.json'}"]
+    assert (tmp_path / "a.json").read_bytes() == kept and sorted(os.listdir(tmp_path)) == ["a.json"]
+
+
+def test_merge_reports_messages(tmp_path):
+    """#26.10: a damaged report is one line naming the damage; a missing --reports-dir is said once, up front;
+    duplicate take stems are refused up front."""
+    _take_report(tmp_path / "a.json", "a.csv")
+    (tmp_path / "b.json").write_text('{"target": "FBHead", "results": [{"source": "b.csv", "ok"')
+    (tmp_path / "c.json").write_text(json.dumps({"target": "FBHead", "results": [1, 2, 3]}))
+    (tmp_path / "d.json").write_text(json.dumps({"target": "FBHead", "results": [{}, {}, {}, {}]}))
+    out = tmp_path / "merged.json"
+    code, _, err = _cli("--", "merge-reports", "--takes", "a.csv", "b.csv", "c.csv", "d.csv", "--reports-dir",
+                        str(tmp_path), "--out", str(out))
+    assert code == 1 and "Traceback" not in err and "unexpected" not in err
+    assert _errors(err) == [
+        f"shapespace: error: b.csv: report {tmp_path / 'b.json'} is damaged: not JSON (Expecting ':' delimiter "
+        "at line 1)",
+        f"shapespace: error: c.csv: report {tmp_path / 'c.json'} is damaged: result 0 has no ok true/false",
+        f"shapespace: error: d.csv: report {tmp_path / 'd.json'} is damaged: result 0 has no ok true/false"]
+    merged = json.loads(out.read_text())
+    assert merged["succeeded"] == ["a.csv"] and [f["take"] for f in merged["failed"]] == ["b.csv", "c.csv", "d.csv"]
+    gone = tmp_path / "gone"
+    code, _, err = _cli("--", "merge-reports", "--takes", "a.csv", "b.csv", "c.csv", "--reports-dir", str(gone),
+                        "--out", str(tmp_path / "m2.json"))
+    assert code == 1 and _errors(err) == [f"shapespace: error: --reports-dir {gone}: no such folder (no take's "
+                                          "report can be read)"]
+    code, _, err = _cli("--", "merge-reports", "--takes", "x/a.csv", "y/a.csv", "--reports-dir", str(tmp_path),
+                        "--out", str(tmp_path / "m3.json"))
+    assert code == 2 and _errors(err) == ["shapespace: error: takes 'x/a.csv' and 'y/a.csv' would both write "
+                                          "a.json: rename one"]
+    assert not (tmp_path / "m2.json").exists() and not (tmp_path / "m3.json").exists()
+
+
 @gltf_exits
 def test_weights_beyond_unit_range_are_split_and_survive_a_clamping_importer(registered, tmp_path):
     """A key animated −1.36…1.72 (as baked PSD weights run on CesiumMan) leaves the glTF as two keys weighted in

@@ -144,6 +144,32 @@ def test_dense_performance_same_topology_recovers_the_capture():
     assert abs(actions.sample_curve(curves["jawOpen"], [60.0])[0] - truth) < 0.02
 
 
+def test_mesh_performance_error_is_per_vertex_mm_at_a_30_cm_head(registered):
+    """#26.11: the report's position error of a mesh performance is the RMS per vertex in mm at a 30 cm head,
+    measured here on Blender's own evaluation of the written action against the source mesh (before: only a
+    whole-mesh frame norm over the size, √p times larger)."""
+    from blender_support import evaluated
+    src, scene = _facecap_scene()
+    dst, _ = _copy_rig(src)
+    dst.data.shape_keys.key_blocks["jawOpen"].slider_max = 0.1           # the target cannot follow the jaw
+    rep = retarget.retarget_dense(dst, src, "perframe")
+    frames = range(scene.frame_start, scene.frame_end + 1)
+    res = []
+    for f in frames:
+        scene.frame_set(f)
+        res.append(evaluated(dst) - evaluated(src))
+    res = np.stack(res)
+    rest = shapekeys.read_blendshape_model(dst).neutral
+    mm = 300.0 * np.sqrt(np.mean(np.sum(res ** 2, axis=2))) / np.linalg.norm(np.ptp(rest, axis=0))
+    assert mm > 0.1                                                        # a real error, not float noise
+    assert rep["position_error_mm"] == pytest.approx(mm, rel=1e-3)
+    assert rep["velocity_error_mm"] < rep["position_error_mm"]
+    stored = retarget.last_report(dst)
+    assert stored.position_error_mm == pytest.approx(rep["position_error_mm"])
+    from shapespace.operators.retarget.run_retarget import result_message
+    assert f"position error {rep['position_error_mm']:.2g} mm per vertex (30 cm head)" in result_message(stored)
+
+
 def test_dense_performance_through_landmarks_on_a_different_mesh():
     src, scene = _facecap_scene()
     T = np.eye(4)

@@ -293,3 +293,67 @@ def test_without_a_stored_map_an_off_centre_head_is_refused_until_a_map_is_built
     _set(ob, {"jawOpen_L": 1.0})
     left = evaluated(ob) - rest
     assert np.abs(left[rest[:, 0] < mmap.offset - 0.05 * np.linalg.norm(np.ptp(rest, 0))]).max() <= _tol(ob)
+
+
+def test_vertices_without_a_mirror_take_the_mirrored_surface_motion(registered):
+    """#26.12: a map that could not pair part of the lid: Update Mirrored (and Mirror Shape) give those vertices
+    the mirrored surface's motion at their reflected position, and say how many; a mirrored blink closes the
+    whole lid (before: the unpaired vertices stayed still)."""
+    ob = _fbhead()
+    _run("build_mirror_map")
+    full = symmetry.load_map(ob)
+    assert full.coverage == 1.0
+    expected = core_sym.mirror_delta(symmetry.key_delta(ob, "EyeBlinkRight"), full).value   # the whole lid
+    motion = np.linalg.norm(expected, axis=1)
+    lid = np.argsort(motion)[-46:]                          # the 46 fastest vertices of the mirrored blink
+    mirror = full.mirror.copy()
+    mirror[mirror[lid]] = -1
+    mirror[lid] = -1
+    damaged = core_sym.MirrorMap(mirror, axis=full.axis, offset=full.offset, method=full.method,
+                                 diagnostics=dict(full.diagnostics))
+    symmetry.store_map(ob, damaged)
+    unpaired = int(np.sum(mirror < 0))
+    _make_active(ob, "EyeBlinkRight")
+    assert _run("update_mirrored") == {"FINISHED"}
+    _set(ob, {"EyeBlinkLeft": 1.0})
+    got = evaluated(ob) - symmetry.rest_positions(ob)
+    err = np.linalg.norm(got - expected, axis=1)
+    assert err[lid].max() <= 0.02 * motion[lid].max(), (err[lid].max(), motion[lid].max())
+    assert err.max() <= 0.02 * motion.max()
+    name, res = symmetry.update_mirrored(ob, "EyeBlinkRight", damaged)
+    assert name == "EyeBlinkLeft" and res.status != 0
+    assert res.message.startswith(f"{unpaired} vertices without a mirror took the mirrored surface's motion")
+    # Mirror Shape: the same fill into a new key
+    _make_active(ob, "JawOpen")
+    name, res = symmetry.mirror_shape(ob, "JawOpen", damaged)
+    want = core_sym.mirror_delta(symmetry.key_delta(ob, "JawOpen"), full).value
+    got = symmetry.key_delta(ob, name)
+    scale = np.linalg.norm(want, axis=1).max()
+    assert np.linalg.norm(got - want, axis=1).max() <= 0.02 * scale and str(unpaired) in res.message
+
+
+def test_split_falloff_out_of_range_is_refused(registered):
+    """#26.12: falloff −1 or 1e9 is refused with a message (before: clamped to 0 / 1 and split silently)."""
+    ob = _fbhead()
+    _run("build_mirror_map")
+    _make_active(ob, "JawOpen")
+    fp = blend_fingerprint()
+    for falloff in (-1.0, 1e9):
+        with pytest.raises(RuntimeError, match=r"falloff \(a fraction of the mesh's size\) must be in \[0.0, 1.0\]"):
+            _run("split_shape", falloff=falloff)
+        assert blend_fingerprint() == fp
+    assert _run("split_shape", falloff=1.0) == {"FINISHED"}
+
+
+def test_update_mirrored_refuses_a_side_key_without_its_partner(registered):
+    """#26.12: Update Mirrored on BrowDownLeft without a BrowDownRight names the missing key and changes nothing
+    (before: BrowDownLeft was rewritten in place as a middle shape)."""
+    ob = _fbhead()
+    _run("build_mirror_map")
+    ob.shape_key_remove(ob.data.shape_keys.key_blocks["BrowDownRight"])
+    _make_active(ob, "BrowDownLeft")
+    fp = blend_fingerprint()
+    with pytest.raises(RuntimeError, match="'BrowDownLeft' is a one-side shape but 'FBHead' has no 'BrowDownRight' "
+                                           "to update: Mirror Shape creates it"):
+        _run("update_mirrored")
+    assert blend_fingerprint() == fp

@@ -182,6 +182,37 @@ def test_mirror_delta_known_answer_and_twice_is_identity():
     np.testing.assert_array_equal(S.mirror_delta(once.value, m).value, delta)
 
 
+def test_mirror_fills_unpaired_vertices_from_the_mirrored_surface():
+    """#26.12: a vertex the map cannot pair takes the mirrored motion of the surface at its reflected position,
+    interpolated (exact for a linear motion field); one whose reflection is off the mesh is left still and
+    reported, as before."""
+    xs, ys = np.linspace(-1.0, 1.0, 5), np.linspace(0.0, 1.0, 3)
+    grid = np.array([[x, y, 0.0] for y in ys for x in xs])
+    tris = []
+    for j in range(2):
+        for i in range(4):
+            a, b, c, d = j * 5 + i, j * 5 + i + 1, (j + 1) * 5 + i, (j + 1) * 5 + i + 1
+            tris += [[a, b, d], [a, d, c]]
+    extra = np.array([[-0.3, 0.4, 0.0],                 # right side; its reflection lies inside a left triangle
+                      [-0.7, 0.2, 0.5]])                # its reflection is 0.5 off the mesh: nothing to take
+    co = np.vstack([grid, extra])
+    mmap = S.position_map(co)
+    assert mmap.unmapped.tolist() == [15, 16]
+    rng = np.random.default_rng(0)
+    A, b = rng.normal(size=(3, 3)), rng.normal(size=3)
+    delta = co @ A.T + b                                  # a linear motion field
+    res = S.mirror_delta(delta, mmap, co, np.array(tris))
+    field = lambda p: p @ A.T + b                         # noqa: E731
+    reflect = lambda p: p * [-1.0, 1.0, 1.0]              # noqa: E731
+    np.testing.assert_allclose(res.value[15], reflect(field(reflect(co[15]))), atol=1e-12)
+    np.testing.assert_allclose(res.value[:15], reflect(field(reflect(co[:15]))), atol=1e-12)
+    np.testing.assert_array_equal(res.value[16], 0.0)
+    assert res.diagnostics["filled"] == [15] and res.diagnostics["lost_vertices"] == [16]
+    assert res.status == Status.WARNING and res.message.startswith(
+        "1 vertices without a mirror took the mirrored surface's motion at their reflected position; 1 moving")
+    assert S.mirror_delta(delta, mmap).diagnostics["filled"] == []    # without the rest mesh: no fill
+
+
 def test_split_and_combine_exact():
     co, *_ = grid_mesh()
     rng = np.random.default_rng(1)

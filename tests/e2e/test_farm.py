@@ -188,6 +188,21 @@ def test_openjd_missing_take_fails_alone_and_the_merge_names_it(takes, tmp_path)
     assert f"shapespace: error: {missing}:" in out + err
 
 
+def test_openjd_blender_parameter_is_words_never_shell_and_flag_takes_are_refused(takes, tmp_path):
+    """#26.13: the Blender parameter is split into words, never run through bash (a ``$( )`` in it runs nothing);
+    a take shaped like a flag is refused by the take's task and by the merge."""
+    mark = tmp_path / "ran"
+    params = {"Rig": RIG, "Takes": [takes[0]], "OutputDir": str(tmp_path / "out"),
+              "Blender": f"{shlex.join(BLENDER)} $(touch {mark})"}
+    openjd("run", TEMPLATE, "-p", json.dumps(params), "--step", "Retarget", "--task-param", f"Take={takes[0]}")
+    assert not mark.exists()
+    params = {**params, "Blender": shlex.join(BLENDER), "Takes": ["-x.csv", takes[0]]}
+    for step in (["--step", "Retarget", "--task-param", "Take=-x.csv"],
+                 ["--step", "MergeReports", "--no-run-dependencies"]):
+        code, out, err = openjd("run", TEMPLATE, "-p", json.dumps(params), *step)
+        assert code != 0 and "take '-x.csv' looks like a command-line flag: give it as a path (./-x.csv)" in out + err
+
+
 # -- Flamenco ---------------------------------------------------------------------------------------------------
 
 def compile_flamenco(tmp_path, settings):
@@ -265,3 +280,24 @@ def test_flamenco_chunks_and_refusals(takes, tmp_path):
     path.write_text("{}")
     code, _, err = run([NODE, HARNESS, str(script), str(path)])
     assert code == 1 and "no command" in err
+
+
+@pytest.mark.skipif(NODE is None, reason="node is needed for the Flamenco job type")
+def test_flamenco_takes_as_a_json_list_keep_semicolons_and_flag_takes_are_refused(tmp_path):
+    """#26.13: a path holding ';' given in the JSON list form stays one take; a take shaped like a flag is refused
+    (';' form and JSON form)."""
+    odd = str(tmp_path / "shot;2" / "take;1.csv")
+    compiled = compile_flamenco(tmp_path, {**flamenco_settings([], tmp_path), "takes": json.dumps([odd, "b.csv"])})
+    names = [t["name"] for t in compiled["tasks"]]
+    assert names == ["retarget-take;1", "retarget-b", "merge-reports"]
+    (retarget,) = compiled["tasks"][0]["commands"]
+    args = retarget["parameters"]["args"]
+    assert args[args.index("--source") + 1] == odd
+    merge_args = compiled["tasks"][2]["commands"][0]["parameters"]["args"]
+    assert merge_args[merge_args.index("--takes") + 1:merge_args.index("--reports-dir")] == [odd, "b.csv"]
+    path = tmp_path / "bad.json"
+    for takes in ("a.csv; --overwrite", json.dumps(["a.csv", "-b"]), "[not json", f"{tmp_path}/shot;2/take.csv"):
+        path.write_text(json.dumps({**flamenco_settings([], tmp_path), "takes": takes}))
+        code, _, err = run([NODE, HARNESS, JOB_TYPE, str(path)])
+        assert code == 1 and ("looks like a command-line flag" in err or "not a JSON list" in err
+                              or f'"{tmp_path}/shot" is a path without a file name extension' in err), err

@@ -24,7 +24,8 @@ const JOB_TYPE = {
         "merge the per-take reports",
     settings: [
         { key: "takes", type: "string", required: true, visible: "submission",
-          description: "Takes to retarget: Live Link Face CSV paths (or action names), separated by ';'" },
+          description: "Takes to retarget: Live Link Face CSV paths (or action names), separated by ';', or a " +
+              "JSON list of paths (for a path that holds ';')" },
         { key: "chunk_size", type: "int32", default: 1, propargs: { min: 1 }, visible: "submission",
           description: "Takes per task" },
         { key: "output_dir", type: "string", subtype: "dir_path", required: true, visible: "submission",
@@ -83,8 +84,38 @@ function compileJob(job) {
     job.addTask(merge);
 }
 
+// The takes: a JSON list of paths (exact: a path may hold ';'), else paths separated by ';'.  A take shaped
+// like a flag (a leading '-') is refused: `--takes` would read it as an option of merge-reports.
 function splitTakes(text) {
-    return (text || "").split(";").map((t) => t.trim()).filter((t) => t.length > 0);
+    const given = (text || "").trim();
+    let takes;
+    if (given.startsWith("[")) {
+        let list;
+        try {
+            list = JSON.parse(given);
+        } catch (err) {
+            throw `takes: not a JSON list of paths (${err.message}); or separate the paths with ';'`;
+        }
+        if (!Array.isArray(list) || !list.every((t) => typeof t === "string")) {
+            throw "takes: the JSON list must hold only paths (strings)";
+        }
+        takes = list;
+    } else {
+        takes = given.split(";");
+        // "/takes/a;b.csv" split in two leaves a folder path without a file extension: refuse it, never run it
+        const cut = takes.map((t) => t.trim()).find((t) => /[\\/]/.test(t) && !/\.[^.\\/]+$/.test(t));
+        if (takes.length > 1 && cut !== undefined) {
+            throw `takes: ${JSON.stringify(cut)} is a path without a file name extension: is it part of a path ` +
+                "holding ';'? Give the takes as a JSON list of paths";
+        }
+    }
+    takes = takes.map((t) => t.trim()).filter((t) => t.length > 0);
+    for (const take of takes) {
+        if (take.startsWith("-")) {
+            throw `take ${JSON.stringify(take)} looks like a command-line flag: give it as a path (./${take})`;
+        }
+    }
+    return takes;
 }
 
 function takeStem(take) {
