@@ -18,6 +18,9 @@ parameter as the constraint
 added to the least-squares system with weight ``w`` (:func:`constraint_matrix`).  Where the source's
 contours meet at a shape's full weight the target's meet, where the source keeps them apart so does the
 target, at the target's own proportions (a stylised big eye closes over its own gap, not the source's).
+Lips that touch at rest have no gap to take a fraction of: such an opening carries the source's *change* of
+the gap instead, turned into the target's frame and scaled by the ratio of the two contours' lengths
+(:func:`gap_changes`).
 """
 from __future__ import annotations
 
@@ -31,7 +34,8 @@ from numpy.typing import ArrayLike
 from ..errors import ErrorCode
 from ..result import ShapeSpaceError
 
-__all__ = ["Opening", "facing_pairs", "opening", "constraint_matrix", "closures", "gap_fractions", "gap_left"]
+__all__ = ["Opening", "SHUT", "facing_pairs", "opening", "constraint_matrix", "closures", "gap_changes",
+           "gap_fractions", "gap_left"]
 
 
 @dataclass
@@ -48,6 +52,13 @@ class Opening:
         Their arc-length parameter in [0, 1], increasing.
     target_pairs : ndarray of int (m_t, 2)
     target_t : ndarray (m_t,)
+    mode : {"ratio", "offset"}
+        ``ratio``: the source's closure carried onto the target's own gap (eyes); ``offset``: an opening that
+        is shut on either head at rest (lips that touch) has no gap to take a fraction of, so the source's
+        change of the gap, turned by the registration's rotation and scaled by :attr:`scale`, is carried.
+    scale : float
+        Target contour length over the source's (the feature's size ratio: a smile on a small mouth moves
+        its corners in proportion).
     """
 
     name: str
@@ -55,6 +66,8 @@ class Opening:
     source_t: np.ndarray
     target_pairs: np.ndarray
     target_t: np.ndarray
+    mode: str = "ratio"
+    scale: float = 1.0
 
 
 def _arc(verts, path):
@@ -93,14 +106,26 @@ def facing_pairs(verts: ArrayLike, upper: Sequence[int], lower: Sequence[int]) -
     return pairs[keep], tu[keep]
 
 
+SHUT = 0.05          # an opening whose median gap is below this × its contour length is shut at rest
+
+
+def _length(verts, path):
+    return float(np.linalg.norm(np.diff(verts[np.asarray(path)], axis=0), axis=1).sum())
+
+
 def opening(name: str, src_verts: ArrayLike, src_upper: Sequence[int], src_lower: Sequence[int],
             dst_verts: ArrayLike, dst_upper: Sequence[int], dst_lower: Sequence[int]) -> Opening:
-    """An :class:`Opening` from the two heads' contour paths (same corner first on both heads)."""
-    sp_, st = facing_pairs(src_verts, src_upper, src_lower)
-    tp, tt = facing_pairs(dst_verts, dst_upper, dst_lower)
+    """An :class:`Opening` from the two heads' contour paths (same corner first on both heads); ``offset``
+    mode when either head's opening is shut at rest (median gap below :data:`SHUT` × contour length)."""
+    S, T = np.asarray(src_verts, dtype=np.float64), np.asarray(dst_verts, dtype=np.float64)
+    sp_, st = facing_pairs(S, src_upper, src_lower)
+    tp, tt = facing_pairs(T, dst_upper, dst_lower)
     if sp_.shape[0] == 0 or tp.shape[0] == 0:
         raise ShapeSpaceError(f"opening {name}: the upper and lower contours coincide", ErrorCode.DEGENERATE)
-    return Opening(name, sp_, st, tp, tt)
+    ls, lt = _length(S, src_upper), _length(T, dst_upper)
+    shut = any(np.median(np.linalg.norm(V[p[:, 0]] - V[p[:, 1]], axis=1)) < SHUT * length
+               for V, p, length in ((S, sp_, ls), (T, tp, lt)))
+    return Opening(name, sp_, st, tp, tt, "offset" if shut else "ratio", lt / ls if ls > 0 else 1.0)
 
 
 def constraint_matrix(openings: Sequence[Opening], n_t: int) -> sp.csr_matrix:
@@ -123,6 +148,29 @@ def closures(openings: Sequence[Opening], src_verts: np.ndarray, src_deltas: np.
         out.append(np.stack([np.interp(o.target_t, o.source_t, ck) for ck in c]) if c.shape[0] else
                    np.zeros((0, o.target_t.size)))
     return np.concatenate(out, axis=1) if out else np.zeros((src_deltas.shape[0], 0))
+
+
+def gap_changes(openings: Sequence[Opening], src_verts: np.ndarray, src_deltas: np.ndarray, dst_verts: np.ndarray,
+                rotation: np.ndarray | None = None) -> np.ndarray:
+    """The change ``d_u − d_l`` every target pair must make, per shape: (k, m, 3).
+
+    ``ratio`` openings: ``−c · (u − l)`` with the source's closure ``c`` at the pair's arc length
+    (:func:`closures`); ``offset`` openings: ``scale · R (Δu − Δl)`` of the source, interpolated at the pair's
+    arc length (``R`` the registration's rotation, source → target).
+    """
+    R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
+    k = src_deltas.shape[0]
+    out = []
+    for o in openings:
+        G_t = dst_verts[o.target_pairs[:, 0]] - dst_verts[o.target_pairs[:, 1]]
+        if o.mode == "ratio":
+            out.append(-closures([o], src_verts, src_deltas)[:, :, None] * G_t[None])
+            continue
+        dG = src_deltas[:, o.source_pairs[:, 0]] - src_deltas[:, o.source_pairs[:, 1]]   # (k, m_s, 3)
+        at = np.stack([[np.interp(o.target_t, o.source_t, dG[s, :, c]) for c in range(3)] for s in range(k)]) \
+            if k else np.zeros((0, 3, o.target_t.size))
+        out.append(o.scale * np.einsum("ij,kjm->kmi", R, at))
+    return np.concatenate(out, axis=1) if out else np.zeros((k, 0, 3))
 
 
 def gap_fractions(verts: np.ndarray, deltas: np.ndarray, pairs: np.ndarray) -> np.ndarray:

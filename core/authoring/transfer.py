@@ -41,7 +41,7 @@ from ..errors import ErrorCode
 from ..names import canonical_name
 from ..progress import ProgressFn, notify
 from ..result import Issue, Result, ShapeSpaceError, Status
-from .contacts import Opening, closures, constraint_matrix
+from .contacts import Opening, constraint_matrix, gap_changes
 from .mesh import check_mesh, face_normals, inv3
 from .registration import Correspondence
 
@@ -162,8 +162,6 @@ class Transfer:
         self.openings = list(openings)
         self._C = constraint_matrix(self.openings, self.n_t)
         self._wc = contact_weight * K.diagonal().mean()
-        pairs = np.concatenate([o.target_pairs for o in self.openings]) if self.openings else np.zeros((0, 2), int)
-        self._gap = T[pairs[:, 0]] - T[pairs[:, 1]]
         K = K + self._wc * (self._C.T @ self._C)
         self._lu = splu((K + sp.diags(self._M)).tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
                         options={"SymmetricMode": True})
@@ -225,8 +223,7 @@ class Transfer:
             rhs = self._G.T @ (self._a[:, None] * rhs_g)
             rhs += self._M[:, None] * anchors[sl].transpose(1, 0, 2).reshape(self.n_t, 3 * kk)
             if self.openings:
-                c = closures(self.openings, self.S, D[sl])                      # (kk, m)
-                z = -c[:, :, None] * self._gap[None]                            # (kk, m, 3)
+                z = gap_changes(self.openings, self.S, D[sl], self.T, self.corr.similarity[1])   # (kk, m, 3)
                 rhs += self._wc * (self._C.T @ z.transpose(1, 0, 2).reshape(-1, 3 * kk))
             x = np.empty_like(rhs)
             for col in range(rhs.shape[1]):      # SuperLU is several times faster column by column
