@@ -159,8 +159,8 @@ def publish(zips, repo_dir: str) -> str:
     Older zips of the same extension move to ``repo_dir/previous/``; other extensions' zips stay.  Every
     check runs before anything is copied or moved.
     """
-    ids = {_zip_manifest(z)["id"] for z in zips}
-    if len(ids) != 1:
+    ids = {_zip_manifest(z).get("id") for z in zips}
+    if len(ids) != 1 or None in ids:
         raise SystemExit(f"build: publish one extension at a time, got {sorted(ids)}")
     names = {os.path.basename(z) for z in zips}
     os.makedirs(repo_dir, exist_ok=True)
@@ -178,22 +178,37 @@ def publish(zips, repo_dir: str) -> str:
             older.append(path)
     if older:
         os.makedirs(previous, exist_ok=True)
-    for path in older:
-        shutil.move(path, os.path.join(previous, os.path.basename(path)))
-    for z in zips:
-        dest = os.path.join(repo_dir, os.path.basename(z))
-        if not os.path.exists(dest):
-            shutil.copyfile(z, dest)
-    proc = blender_extension(["server-generate", "--repo-dir", repo_dir, "--html"])
+    moved = [(path, os.path.join(previous, os.path.basename(path))) for path in older]
+    copied = [os.path.join(repo_dir, os.path.basename(z)) for z in zips
+              if not os.path.exists(os.path.join(repo_dir, os.path.basename(z)))]
+    for src, dest in moved:
+        shutil.move(src, dest)
+    for dest in copied:
+        shutil.copyfile(next(z for z in zips if os.path.basename(z) == os.path.basename(dest)), dest)
     index = os.path.join(repo_dir, "index.json")
+    why = _server_generate(repo_dir, index, ids, names)
+    if why:                    # put the repository back as it was (the old index still lists the old zips)
+        for dest in copied:
+            os.remove(dest)
+        for src, dest in moved:
+            shutil.move(dest, src)
+        _server_generate(repo_dir, index, ids, None)
+        raise SystemExit(f"build: {why}; the repository is as it was")
+    return index
+
+
+def _server_generate(repo_dir: str, index: str, ids: set, names) -> str:
+    """Run Blender's ``extension server-generate --html`` in ``repo_dir``; '' when ``index`` then lists exactly
+    ``names`` for the extension ``ids`` (any listing when ``names`` is None), else why not."""
+    proc = blender_extension(["server-generate", "--repo-dir", repo_dir, "--html"])
     if proc.returncode != 0 or not os.path.isfile(index):
-        why = (proc.stdout + proc.stderr).strip().splitlines() or ["no output"]
-        raise SystemExit(f"build: Blender's server-generate failed in {repo_dir}: {why[-1]}")
+        lines = (proc.stdout + proc.stderr).strip().splitlines() or ["no output"]
+        return f"Blender's server-generate failed in {repo_dir}: {lines[-1]}"
     with open(index, encoding="utf-8") as fh:
         listed = {os.path.basename(e["archive_url"]) for e in json.load(fh)["data"] if e["id"] in ids}
-    if listed != names:
-        raise SystemExit(f"build: {index} lists {sorted(listed)}, expected {sorted(names)}")
-    return index
+    if names is not None and listed != names:
+        return f"{index} lists {sorted(listed)}, expected {sorted(names)}"
+    return ""
 
 
 def _zip_manifest(path: str) -> dict:

@@ -148,6 +148,23 @@ def test_publishing_never_replaces_a_published_zip_with_other_content(built_zips
     assert not (repo / "previous").exists()
 
 
+def test_a_publish_that_fails_leaves_the_repository_as_it_was(built_zips, tmp_path):
+    """A zip Blender's server-generate cannot list (its manifest is broken) is refused after the fact: the zips
+    and the index are put back, the build that was published stays published."""
+    build = _build_tool()
+    repo = tmp_path / "repo"
+    build.publish([str(built_zips["linux-x64"])], str(repo))
+    before = {p.name: p.read_bytes() for p in repo.iterdir() if p.is_file() and p.name != "index.html"}
+    broken = tmp_path / "broken" / "shapespace-9.9.9-linux-x64.zip"
+    broken.parent.mkdir()
+    _with_version(built_zips["linux-x64"], broken, "not a version")
+    with pytest.raises(SystemExit, match="the repository is as it was"):
+        build.publish([str(broken)], str(repo))
+    after = {p.name: p.read_bytes() for p in repo.iterdir() if p.is_file() and p.name != "index.html"}
+    assert after == before
+    assert not any((repo / "previous").iterdir())
+
+
 def test_install_enable_run_operator_and_cli(built_zips, tmp_path):
     user = tmp_path / "blender-user"
     home = tmp_path / "home"
