@@ -8,6 +8,7 @@ from ..core.inventory import (ActionInfo, ArmatureInfo, ArmatureModifierInfo, Fi
                               ShapeKeyMeshInfo, SkinnedMeshInfo)
 from ..core.names import ARKIT_52, canonical_name
 from ..core.skinning import diagnose_weights
+from ..core.version import version
 from . import actions, shapekeys, skin, storage
 
 
@@ -82,6 +83,7 @@ def describe_file() -> FileInventory:
     return FileInventory(
         file=bpy.data.filepath or None,
         blender=bpy.app.version_string,
+        shapespace=version(),
         scene=SceneInfo(scene.name, scene.render.fps / scene.render.fps_base, scene.frame_start, scene.frame_end),
         shape_key_meshes=[describe_shape_keys(ob) for ob in meshes if ob.data.shape_keys],
         skinned_meshes=[describe_skin(ob) for ob in meshes if skin.armature_modifiers(ob)],

@@ -68,13 +68,24 @@ def _upgraded(text, schema: _schema.Schema, where_: str):
         return None
 
 
+def pin_settings(data) -> int:
+    """Store explicitly every ShapeSpace setting whose default changed since the file was made, at the value
+    the file meant: a pose space with examples and no stored distance was made before 0.2.0 and keeps Skin
+    Weighted.  Runs after each load and before each save; linked (library) data is left untouched (it reads
+    the same through ``bridge.posespace.stored.wpsd_distance``).  Returns how many settings it wrote."""
+    from .posespace import stored
+    return sum(stored.pin_wpsd_distance(ob.shapespace_psd) for ob in data.objects
+               if ob.library is None and ob.type == "MESH" and len(ob.shapespace_psd.examples))
+
+
 def upgrade_file(data) -> int:
-    """Rewrite every readable older-version blob in ``data`` (``bpy.data``) at the current schema version.
+    """Rewrite every readable older-version blob in ``data`` (``bpy.data``) at the current schema version,
+    and pin the settings whose default changed (:func:`pin_settings`).
 
     Runs before each save, so files written by this version hold only current blobs; linked (library)
-    data and damaged blobs are left untouched.  Returns how many blobs were rewritten.
+    data and damaged blobs are left untouched.  Returns how many blobs and settings were rewritten.
     """
-    count = 0
+    count = pin_settings(data)
     key_schemas = _key_blob_schemas()
     for key in data.shape_keys:
         if key.library is not None:

@@ -19,6 +19,7 @@ import sys
 import bpy
 
 from ..core.result import ShapeSpaceError
+from ..core.version import version
 
 COMMAND = "shapespace"
 
@@ -61,6 +62,8 @@ def _number(positive: bool):
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=f"blender --command {COMMAND}",
                      description="ShapeSpace example-based deformation tools.")
+    parser.add_argument("--version", action="version", version=f"ShapeSpace {version()}",
+                        help="print ShapeSpace's version (from its blender_manifest.toml) and exit")
     sub = parser.add_subparsers(dest="command", required=True)
     info = sub.add_parser("info", help="list the rigs (shape-key meshes, armatures, skins, actions) as JSON")
     info.add_argument("files", nargs="*", help=".blend/.glb/.gltf/.fbx/.bvh files; default: the open file")

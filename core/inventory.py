@@ -95,6 +95,7 @@ class FileInventory(Report):
 
     file: str | None
     blender: str
+    shapespace: str
     scene: SceneInfo
     shape_key_meshes: list = field(default_factory=list)
     skinned_meshes: list = field(default_factory=list)

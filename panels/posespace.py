@@ -73,6 +73,9 @@ class SHAPESPACE_PT_correctives(ShapeSpaceSidebar, bpy.types.Panel):
         layout.prop(st, "method")
         if st.method == "WPSD":
             layout.prop(st, "wpsd_distance")
+            if posespace.wpsd_distance(st) != st.wpsd_distance:     # appended or linked from before 0.2.0
+                layout.label(text="Uses Skin Weighted: this pose space was made before ShapeSpace 0.2.0",
+                             icon="INFO")
         layout.prop(st, "live_preview")
         message = _problem(ob)
         if message:

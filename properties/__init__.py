@@ -32,10 +32,17 @@ def _upgrade_before_save(_filepath, *_):
     storage.upgrade_file(bpy.data)
 
 
+@persistent
+def _pin_after_load(_filepath, *_):
+    """A file made before a default changed keeps the value it meant (e.g. its pose spaces' distance)."""
+    storage.pin_settings(bpy.data)
+
+
 def register():
     for cls in classes:
         bpy.utils.register_class(cls)
     bpy.app.handlers.save_pre.append(_upgrade_before_save)
+    bpy.app.handlers.load_post.append(_pin_after_load)
     bpy.types.Object.shapespace = bpy.props.PointerProperty(type=SHAPESPACE_PG_settings)
     bpy.types.Object.shapespace_psd = bpy.props.PointerProperty(type=SHAPESPACE_PG_psd)
     bpy.types.Object.shapespace_retarget = bpy.props.PointerProperty(type=SHAPESPACE_PG_retarget)
@@ -49,6 +56,8 @@ def unregister():
     live_session.unregister()    # receivers stopped: takes finished, sockets closed, threads joined, timer off
     if _upgrade_before_save in bpy.app.handlers.save_pre:
         bpy.app.handlers.save_pre.remove(_upgrade_before_save)
+    if _pin_after_load in bpy.app.handlers.load_post:
+        bpy.app.handlers.load_post.remove(_pin_after_load)
     del bpy.types.Object.shapespace_authoring
     del bpy.types.Scene.shapespace_live
     del bpy.types.Object.shapespace_face

@@ -75,8 +75,8 @@ class SHAPESPACE_PG_psd(bpy.types.PropertyGroup):
                ("PAIRS", "Bone Pairs", "Each vertex sees how its bones turn relative to each other (what skinning "
                 "artefacts grow with), plus a quarter of each bone's own rotation: fewer examples for joint "
                 "correctives")],
-        default="SKIN",
-        description="Weighted PSD's pose distance (files made before this option use Skin Weighted)")
+        default="BLEND",
+        description="Weighted PSD's pose distance (pose spaces made before ShapeSpace 0.2.0 keep Skin Weighted)")
     readers: bpy.props.CollectionProperty(type=SHAPESPACE_PG_reader)
     active_reader: bpy.props.IntProperty(name="Active Reader")
     examples: bpy.props.CollectionProperty(type=SHAPESPACE_PG_example)

@@ -11,14 +11,23 @@ Runs itself in ``.venv/bpy50`` (tools/env.py) unless this Python already has ``b
    validates the manifest and writes one zip per platform holding only that
    platform's wheels (one per Python version: Blender installs the one matching its Python) and the
    pure-Python ones.
-3. Names them ``dist/shapespace-<version>-<platform>.zip`` and checks each holds exactly the
-   manifest's wheels for its platform plus every pure-Python wheel.
+3. Names them ``dist/shapespace-<version>-<platform>.zip``, runs Blender's validator on each finished zip
+   (``blender --command extension validate ZIP``, through the bpy module: ``tools/run_cli.py``) and checks each
+   holds exactly the manifest's wheels for its platform plus every pure-Python wheel.
+4. With ``--repo DIR``: publishes the zips into DIR, a static extension repository a studio can host
+   (a web server or a shared folder: Blender's *Add Remote Repository* with ``https://…/index.json`` or
+   ``file:///…/index.json``).  This version's zips are copied in, older ShapeSpace zips are moved to
+   ``DIR/previous/`` (one version per platform in the listing; nothing is deleted), and Blender's
+   ``extension server-generate --html`` writes ``index.json`` and ``index.html``.  A zip of the same name but
+   other content is refused before anything is written: publish a new build under a new version.
 """
 from __future__ import annotations
 
 import argparse
+import filecmp
 import glob
 import importlib.util
+import json
 import os
 import re
 import shutil
@@ -31,16 +40,20 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import env  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+RUN_CLI = os.path.join(ROOT, "tools", "run_cli.py")
 WHEEL_NAME = re.compile(r"(?P<dist>[^-]+)-(?P<ver>[^-]+)-(?P<py>cp\d+|py\d+)-(?P<abi>[^-]+)-(?P<plat>.+)\.whl$")
 BLENDER_PLATFORM = {  # Blender platform → (start, end) of its wheels' platform tags
     "linux-x64": ("manylinux", "_x86_64"),
     "windows-x64": ("win", "_amd64"),
+    "windows-arm64": ("win", "_arm64"),
     "macos-arm64": ("macosx", "_arm64"),
     "macos-x64": ("macosx", "_x86_64"),
 }
 PLATFORM_TAG = {  # wheel platform tag → pip --platform
     "manylinux_2_17_x86_64.manylinux2014_x86_64": "manylinux_2_17_x86_64",
+    "manylinux_2_27_x86_64.manylinux_2_28_x86_64": "manylinux_2_28_x86_64",
     "win_amd64": "win_amd64",
+    "win_arm64": "win_arm64",
     "macosx_12_0_arm64": "macosx_12_0_arm64",
     "macosx_10_13_x86_64": "macosx_10_13_x86_64",
 }
@@ -118,8 +131,93 @@ def build(out_dir: str) -> list:
     if got != expected:
         raise SystemExit(f"build: expected zips for {sorted(expected)}, got {sorted(got)}")
     for path in made:
+        validate(path)
         check_wheels(path, info.get("wheels", []))
     return made
+
+
+def blender_extension(args) -> subprocess.CompletedProcess:
+    """Blender's own ``blender --command extension ARGS…`` (validate, server-generate, …), run with the bpy
+    module (there is no ``blender`` binary in the bpy wheel): ``tools/run_cli.py --command extension``."""
+    return subprocess.run([sys.executable, RUN_CLI, "--command", "extension", *args], capture_output=True,
+                          text=True)
+
+
+def validate(zip_path: str) -> None:
+    """Blender's validator (``blender --command extension validate``) must accept the finished zip."""
+    proc = blender_extension(["validate", zip_path])
+    if proc.returncode != 0:
+        why = (proc.stdout + proc.stderr).strip().splitlines() or ["no output"]
+        raise SystemExit(f"build: Blender's validator rejected {os.path.basename(zip_path)}: {why[-1]}")
+    print("build: validated", os.path.basename(zip_path), file=sys.stderr)
+
+
+def publish(zips, repo_dir: str) -> str:
+    """Publish ``zips`` (one version's, all of one extension) into the static repository ``repo_dir``; returns
+    the path of its ``index.json``.
+
+    Older zips of the same extension move to ``repo_dir/previous/``; other extensions' zips stay.  Every
+    check runs before anything is copied or moved.
+    """
+    ids = {_zip_manifest(z).get("id") for z in zips}
+    if len(ids) != 1 or None in ids:
+        raise SystemExit(f"build: publish one extension at a time, got {sorted(ids)}")
+    names = {os.path.basename(z) for z in zips}
+    os.makedirs(repo_dir, exist_ok=True)
+    previous = os.path.join(repo_dir, "previous")
+    older = []
+    for path in sorted(glob.glob(os.path.join(repo_dir, "*.zip"))):
+        name = os.path.basename(path)
+        if name in names:
+            if not filecmp.cmp(path, next(z for z in zips if os.path.basename(z) == name), shallow=False):
+                raise SystemExit(f"build: {repo_dir} already holds another {name}: publish a new build under a "
+                                 "new version (blender_manifest.toml)")
+        elif _zip_manifest(path).get("id") in ids:
+            if os.path.exists(os.path.join(previous, name)):
+                raise SystemExit(f"build: {os.path.join(previous, name)} exists: move it away first")
+            older.append(path)
+    if older:
+        os.makedirs(previous, exist_ok=True)
+    moved = [(path, os.path.join(previous, os.path.basename(path))) for path in older]
+    copied = [os.path.join(repo_dir, os.path.basename(z)) for z in zips
+              if not os.path.exists(os.path.join(repo_dir, os.path.basename(z)))]
+    for src, dest in moved:
+        shutil.move(src, dest)
+    for dest in copied:
+        shutil.copyfile(next(z for z in zips if os.path.basename(z) == os.path.basename(dest)), dest)
+    index = os.path.join(repo_dir, "index.json")
+    why = _server_generate(repo_dir, index, ids, names)
+    if why:                    # put the repository back as it was (the old index still lists the old zips)
+        for dest in copied:
+            os.remove(dest)
+        for src, dest in moved:
+            shutil.move(dest, src)
+        _server_generate(repo_dir, index, ids, None)
+        raise SystemExit(f"build: {why}; the repository is as it was")
+    return index
+
+
+def _server_generate(repo_dir: str, index: str, ids: set, names) -> str:
+    """Run Blender's ``extension server-generate --html`` in ``repo_dir``; '' when ``index`` then lists exactly
+    ``names`` for the extension ``ids`` (any listing when ``names`` is None), else why not."""
+    proc = blender_extension(["server-generate", "--repo-dir", repo_dir, "--html"])
+    if proc.returncode != 0 or not os.path.isfile(index):
+        lines = (proc.stdout + proc.stderr).strip().splitlines() or ["no output"]
+        return f"Blender's server-generate failed in {repo_dir}: {lines[-1]}"
+    with open(index, encoding="utf-8") as fh:
+        listed = {os.path.basename(e["archive_url"]) for e in json.load(fh)["data"] if e["id"] in ids}
+    if names is not None and listed != names:
+        return f"{index} lists {sorted(listed)}, expected {sorted(names)}"
+    return ""
+
+
+def _zip_manifest(path: str) -> dict:
+    """The ``blender_manifest.toml`` at the root of an extension zip ({} when there is none)."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            return tomllib.loads(z.read("blender_manifest.toml").decode("utf-8"))
+    except (KeyError, zipfile.BadZipFile, tomllib.TOMLDecodeError, UnicodeDecodeError):
+        return {}
 
 
 def check_wheels(zip_path: str, wheels) -> None:
@@ -141,9 +239,13 @@ def main(argv=None) -> int:
     env.reexec_in("bpy50", os.path.abspath(__file__), sys.argv[1:] if argv is None else argv)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=os.path.join(ROOT, "dist"))
+    ap.add_argument("--repo", help="also publish the zips into this static extension repository (index.json)")
     args = ap.parse_args(argv)
-    for path in build(args.out):
+    made = build(args.out)
+    for path in made:
         print(path, f"{os.path.getsize(path) / 1e6:.1f} MB")
+    if args.repo:
+        print(publish(made, args.repo))
     return 0
 
 

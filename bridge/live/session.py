@@ -275,6 +275,19 @@ def _loopback(address: str) -> bool:
     return address.startswith("127.") or address in ("localhost", "::1")
 
 
+def network_refusal(address: str, online_access: bool, override: bool) -> str | None:
+    """Why listening on ``address`` is refused, or None: beyond this computer it needs Blender's online access
+    (``bpy.app.online_access``).  ``override`` (``bpy.app.online_access_override``): Blender was started with
+    ``--offline-mode`` or ``--online-mode``, which overrule the preference, so the way out is to restart."""
+    if _loopback(address) or online_access:
+        return None
+    if override:
+        return ("Blender was started with --offline-mode: restart it without that option to receive from a "
+                "phone, or listen on 127.0.0.1 only")
+    return ("Blender's online access is off (Preferences ▸ System ▸ Network ▸ Allow Online Access): allow it to "
+            "receive from a phone, or listen on 127.0.0.1 only")
+
+
 def _session() -> _Session:
     if RUNTIME.session is None:
         raise ShapeSpaceError("live capture is not running: press Start first", ErrorCode.LIVE_STATE)
@@ -289,10 +302,10 @@ def start(scene, target) -> LiveStatus:
     settings = scene.shapespace_live
     label, make_decoder = SOURCES[settings.source]
     address = (settings.address or "0.0.0.0").strip()
-    if not _loopback(address) and not getattr(bpy.app, "online_access", True):
-        raise ShapeSpaceError("Blender's online access is off (Preferences ▸ System ▸ Network ▸ Allow Online "
-                              "Access): allow it to receive from a phone, or listen on 127.0.0.1 only",
-                              ErrorCode.NETWORK)
+    refusal = network_refusal(address, getattr(bpy.app, "online_access", True),
+                              getattr(bpy.app, "online_access_override", False))
+    if refusal:
+        raise ShapeSpaceError(refusal, ErrorCode.NETWORK)
     pipeline = build_pipeline(scene, settings, target)
     mailbox = Mailbox()
     port = settings.port or DEFAULT_PORTS[settings.source]

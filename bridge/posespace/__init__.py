@@ -23,14 +23,14 @@ from .preview import (cached_model, clear_preview_message, forget_models, model_
                       write_wpsd_preview)
 from .sculpt import TEMP_KEY, apply_example, modelled_exactly
 from .stored import (POSE_SCHEMA, PSEUDO_POSE_SCHEMA, SCULPT_SUFFIX, TARGET_VALUES_SCHEMA, WPSD_KEY, check_examples,
-                     example_pose, find_example, interpolation_pose, pseudo_pose, target_values)
+                     example_pose, find_example, interpolation_pose, pseudo_pose, target_values, wpsd_distance)
 from .targets import add_target, read_targets, record_targets, target_driver, write_targets
 from .training import flag_examples, trained_deformer
 
 __all__ = [
     "settings", "armature_of", "readers", "read_pose", "default_readers", "add_default_readers",
     "SCULPT_SUFFIX", "WPSD_KEY", "POSE_SCHEMA", "PSEUDO_POSE_SCHEMA", "TARGET_VALUES_SCHEMA", "find_example",
-    "example_pose", "pseudo_pose", "interpolation_pose", "target_values",
+    "example_pose", "pseudo_pose", "interpolation_pose", "target_values", "wpsd_distance",
     "add_example", "posed_copy", "remove_example", "remove_sculpt_copy", "move_example", "check_topology",
     "check_examples", "check_not_editing", "problem",
     "pre_armature_positions", "example_keys", "example_correctives",

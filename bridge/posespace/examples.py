@@ -15,8 +15,8 @@ from ...core.result import ShapeSpaceError
 from .. import meshes, shapekeys
 from ..arrays import read_float
 from .pose import add_readers, armature_of, default_readers, read_pose, readers, settings
-from .stored import (SCULPT_SUFFIX, WPSD_KEY, check_examples, deleted_key, find_example, set_example_pose,
-                     set_pseudo_pose, set_target_values)
+from .stored import (SCULPT_SUFFIX, WPSD_KEY, check_examples, deleted_key, find_example, pin_wpsd_distance,
+                     set_example_pose, set_pseudo_pose, set_target_values)
 from .targets import read_targets
 
 
@@ -143,6 +143,7 @@ def add_example(obj, name: str = None, make_sculpt_copy: bool = True) -> str:
     targets = read_targets(obj)
     add_readers(obj, bones)
     kb = new_corrective_key(obj, name or f"PSD_{len(st.examples) + 1:02d}")
+    pin_wpsd_distance(st)
     ex = st.examples.add()
     ex.name = kb.name
     set_example_pose(ex, pose)

@@ -18,7 +18,7 @@ from .. import symmetry
 from ..arrays import write_float
 from .examples import basis_positions, check_not_editing, example_correctives, new_corrective_key
 from .pose import armature_of, readers, settings
-from .stored import check_examples, example_pose, find_example, set_example_pose
+from .stored import check_examples, example_pose, find_example, pin_wpsd_distance, set_example_pose
 
 
 def _check_mirror_bones(obj, rs) -> None:
@@ -80,6 +80,7 @@ def mirror_example(obj, example_name: str, tolerance: float = 1e-4) -> str:
         name = ex.name + "_mirror"
     kb = new_corrective_key(obj, name)
     write_float(kb.data, "co", basis + mirrored)
+    pin_wpsd_distance(st)
     new = st.examples.add()
     new.name = kb.name
     set_example_pose(new, pose)

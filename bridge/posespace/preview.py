@@ -22,7 +22,7 @@ from .. import shapekeys
 from ..arrays import read_float, write_float
 from .examples import basis_positions, check_finite_positions, check_not_editing, example_keys, shape_keys
 from .pose import read_pose, settings
-from .stored import WPSD_KEY
+from .stored import WPSD_KEY, wpsd_distance
 from .targets import target_driver, write_targets
 from .training import trained_deformer
 
@@ -30,7 +30,8 @@ from .training import trained_deformer
 def model_method(obj) -> str:
     """The method a trained model is for: ``st.method``, with weighted PSD's distance option (``WPSD:BLEND``)."""
     st = settings(obj)
-    return f"{st.method}:{st.wpsd_distance}" if st.method == "WPSD" and st.wpsd_distance != "SKIN" else st.method
+    distance = wpsd_distance(st)
+    return f"{st.method}:{distance}" if st.method == "WPSD" and distance != "SKIN" else st.method
 
 
 class _Scratch:

@@ -41,6 +41,29 @@ FINAL_SHAPE_SCHEMA = Schema("pose-space example final shape", 1,
                                     "pose": "object", "fingerprint": "object"})
 
 
+#: Weighted PSD's distance for pose spaces made before ShapeSpace 0.2.0 (when Blended became the default).
+#: Blender saves a property only once it is set, and those files never set it: with examples and no stored
+#: distance, a pose space is one of them and keeps Skin Weighted.
+LEGACY_WPSD_DISTANCE = "SKIN"
+
+
+def wpsd_distance(st) -> str:
+    """Weighted PSD's distance of the pose space ``st`` (``SHAPESPACE_PG_psd``): the stored one; unset, the
+    default (Blended) for a pose space without examples and Skin Weighted for one made before 0.2.0."""
+    if st.is_property_set("wpsd_distance") or not len(st.examples):
+        return st.wpsd_distance
+    return LEGACY_WPSD_DISTANCE
+
+
+def pin_wpsd_distance(st) -> bool:
+    """Store the pose space's distance explicitly (before its first example is added, on load and on save),
+    so no later change of the default changes it.  Returns whether it wrote."""
+    if st.is_property_set("wpsd_distance"):
+        return False
+    st.wpsd_distance = wpsd_distance(st)
+    return True
+
+
 def find_example(obj, name: str):
     """The example called ``name`` (code ``missing_example`` when there is none)."""
     ex = settings(obj).examples.get(name)

@@ -11,7 +11,7 @@ from ...core.result import Issue, ShapeSpaceError
 from .. import skin
 from .examples import example_correctives
 from .pose import readers, settings
-from .stored import check_examples, interpolation_pose
+from .stored import check_examples, interpolation_pose, wpsd_distance
 
 
 def trained_deformer(obj) -> tuple:
@@ -42,7 +42,7 @@ def trained_deformer(obj) -> tuple:
     method = st.method.lower()
     kwargs = {}
     if method == "wpsd":
-        kwargs = _wpsd_inputs(obj, rs, st.wpsd_distance)
+        kwargs = _wpsd_inputs(obj, rs, wpsd_distance(st))
     return train_psd(np.array(poses), D, method, **kwargs), [ex.name for ex in active]
 
 

@@ -21,6 +21,9 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from shapespace.bridge import posespace  # noqa: E402
+from shapespace.bridge.posespace import stored as posespace_stored  # noqa: E402
+
 DATA = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data")
 BLEND = os.path.join(DATA, "shapespace_0_1_0.blend")
 with open(os.path.join(DATA, "shapespace_0_1_0.json")) as _fh:
@@ -333,6 +336,49 @@ def test_update_correctives_reproduces_the_0_1_0_sculpts(old_file):
     assert np.abs(co[side["vertices"]] - np.array(side["sculpt_at_ex1"]["co"])).max() / diag < TOL
     assert bpy.ops.shapespace.psd_confidence(heat_map=False) == {"FINISHED"}
     assert ob.shapespace_face.confidence == pytest.approx(0.0, abs=1e-6)
+
+
+def _trained_skin_weighted(ob) -> bool:
+    """Update Correctives with Weighted PSD; whether the model it trained uses the skin-weighted distance only."""
+    ob.shapespace_psd.method = "WPSD"
+    _set_pose(bpy.data.objects["Armature"], SIDE["Limb"]["states"]["between"]["pose"])
+    assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
+    deformer = posespace.cached_model(ob)[0]
+    return deformer.method == "wpsd" and deformer.blend is None and deformer.pairs is None
+
+
+def test_0_1_0_pose_spaces_keep_the_skin_weighted_distance(old_file, tmp_path):
+    """Issue #26 item 18: new pose spaces default to Blended, but 0.1.0 stored no distance (Blender saves only
+    values set): opened, the pose space keeps Skin Weighted, stored explicitly, trains with it, and so after a
+    save and reopen."""
+    ob = _activate("Limb")
+    st = ob.shapespace_psd
+    assert st.wpsd_distance == "SKIN" and st.is_property_set("wpsd_distance")
+    assert _trained_skin_weighted(ob)
+    path = str(tmp_path / "resaved.blend")
+    assert bpy.ops.wm.save_as_mainfile(filepath=path) == {"FINISHED"}
+    assert bpy.ops.wm.open_mainfile(filepath=path) == {"FINISHED"}
+    st = bpy.data.objects["Limb"].shapespace_psd
+    assert st.wpsd_distance == "SKIN" and st.is_property_set("wpsd_distance")
+
+
+def test_a_0_1_0_pose_space_appended_into_a_new_file_keeps_skin_weighted(registered, tmp_path):
+    """Appending runs no load handler: the unset distance of a pose space with examples still reads as the
+    0.1.0 one wherever ShapeSpace reads it, and the next save stores it."""
+    assert bpy.ops.wm.read_homefile(use_empty=True) == {"FINISHED"}
+    with bpy.data.libraries.load(BLEND, link=False) as (src, dst):
+        dst.objects = ["Limb", "Armature"]
+    for o in dst.objects:
+        bpy.context.scene.collection.objects.link(o)
+    ob = _activate("Limb")
+    st = ob.shapespace_psd
+    assert len(st.examples) and not st.is_property_set("wpsd_distance")
+    assert posespace_stored.wpsd_distance(st) == "SKIN"
+    assert _trained_skin_weighted(ob)
+    path = str(tmp_path / "appended.blend")
+    assert bpy.ops.wm.save_as_mainfile(filepath=path) == {"FINISHED"}
+    st = bpy.data.objects["Limb"].shapespace_psd
+    assert st.wpsd_distance == "SKIN" and st.is_property_set("wpsd_distance")
 
 
 def test_old_examples_can_be_moved_back_and_extended(old_file):

@@ -117,3 +117,21 @@ def test_panels_on_a_skinned_character(registered):
     drawn = _draw_all(bpy.context)
     assert "SHAPESPACE_PT_correctives" in drawn
     assert ("operator", "shapespace.psd_add_example") in drawn["SHAPESPACE_PT_correctives"]
+
+
+def test_correctives_panel_says_when_an_appended_old_pose_space_uses_skin_weighted(registered, tmp_path):
+    """A pose space appended from a 0.1.0 file has no stored distance (no load handler ran): the property shows
+    the new default (Blended) but the pose space uses Skin Weighted, and the panel says so until it is stored."""
+    blend = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "data", "shapespace_0_1_0.blend")
+    with bpy.data.libraries.load(blend, link=False) as (_src, dst):
+        dst.objects = ["Limb", "Armature"]
+    for o in dst.objects:
+        bpy.context.scene.collection.objects.link(o)
+    ob = bpy.data.objects["Limb"]
+    bpy.context.view_layer.objects.active = ob
+    ob.shapespace_psd.method = "WPSD"
+    note = ("label", "Uses Skin Weighted: this pose space was made before ShapeSpace 0.2.0")
+    assert note in _draw_all(bpy.context)["SHAPESPACE_PT_correctives"]
+    assert bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "appended.blend")) == {"FINISHED"}
+    assert ob.shapespace_psd.wpsd_distance == "SKIN"                  # stored on save
+    assert note not in _draw_all(bpy.context)["SHAPESPACE_PT_correctives"]

@@ -124,6 +124,7 @@ def test_a_corrective_edited_directly_is_seen_by_the_next_update(registered):
     ob, arm, rest, size = _rig()
     st = ob.shapespace_psd
     st.method = "WPSD"
+    st.wpsd_distance = "SKIN"                                     # the reference below is skin-weighted
     assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
     first = posespace.cached_model(ob)[0]
     assert posespace.cached_model(ob)[0] is first              # nothing changed: the same model
@@ -142,6 +143,7 @@ def test_method_and_distance_changes_retrain_update_and_live_preview(registered)
     ob, arm, rest, size = _rig()
     st = ob.shapespace_psd
     st.method = "WPSD"
+    st.wpsd_distance = "SKIN"                                     # new pose spaces start Blended (0.2.0)
     st.live_preview = True
     bpy.context.view_layer.update()
     assert posespace_preview.refresh(ob) in (True, False)
@@ -164,6 +166,23 @@ def test_old_files_use_the_skin_weighted_distance(registered):
     with_examples = [o for o in bpy.data.objects if o.type == "MESH" and len(o.shapespace_psd.examples)]
     assert with_examples
     assert all(o.shapespace_psd.wpsd_distance == "SKIN" for o in with_examples)
+
+
+def test_new_pose_spaces_default_to_the_blended_distance_and_keep_it(registered, tmp_path):
+    """Issue #26 item 18: a pose space made now is Blended, stored explicitly from its first example on (a
+    later change of the default cannot change it), through save and reopen; Update trains the blended model."""
+    ob, arm, rest, size = _rig()
+    st = ob.shapespace_psd
+    assert st.wpsd_distance == "BLEND" and st.is_property_set("wpsd_distance")
+    st.method = "WPSD"
+    assert bpy.ops.shapespace.psd_update() == {"FINISHED"}
+    want = rest + _reference(ob, "auto").evaluate(posespace.read_pose(ob))
+    assert np.abs(_corrected_rest(ob) - want).max() <= 1e-6 * size
+    path = str(tmp_path / "new.blend")
+    assert bpy.ops.wm.save_as_mainfile(filepath=path) == {"FINISHED"}
+    assert bpy.ops.wm.open_mainfile(filepath=path) == {"FINISHED"}
+    st = bpy.data.objects["Cesium_Man"].shapespace_psd
+    assert st.wpsd_distance == "BLEND" and st.is_property_set("wpsd_distance")
 
 
 def shared_fixture():

@@ -29,11 +29,13 @@ def _parse_with_pip(cmd):
     ("scipy-1.15.3-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl", "311", "manylinux_2_17_x86_64"),
     ("scipy-1.15.3-cp313-cp313-win_amd64.whl", "313", "win_amd64"),
     ("scipy-1.15.3-cp313-cp313-macosx_12_0_arm64.whl", "313", "macosx_12_0_arm64"),
+    ("scipy-1.17.1-cp311-cp311-win_arm64.whl", "311", "win_arm64"),
+    ("scipy-1.17.1-cp313-cp313-manylinux_2_27_x86_64.manylinux_2_28_x86_64.whl", "313", "manylinux_2_28_x86_64"),
 ])
 def test_platform_wheel_download_command(tmp_path, wheel, python, platform):
     cmd = _build_module().pip_download_command(wheel, str(tmp_path))
     options, args = _parse_with_pip(cmd)
-    assert args == ["scipy==1.15.3"]
+    assert args == ["scipy==" + wheel.split("-")[1]]
     assert os.path.samefile(options.download_dir, tmp_path)
     assert options.platforms == [platform]
     assert "".join(str(p) for p in options.python_version) == python
