@@ -59,7 +59,9 @@ def closest_on_triangles(points: np.ndarray, verts: np.ndarray, tris: np.ndarray
     """Closest point on a triangle surface for each query point.
 
     Candidate triangles are the ``candidates`` nearest by centroid (plus every triangle of the nearest
-    vertex's ring would be exact; centroid candidates are exact for reasonably even meshes).
+    vertex's ring would be exact; centroid candidates are exact for reasonably even meshes).  A candidate is
+    skipped for the points it cannot improve: no point of a triangle is nearer than the centroid's distance
+    minus the triangle's radius about its centroid (the result is the same as testing every candidate).
 
     Parameters
     ----------
@@ -82,17 +84,23 @@ def closest_on_triangles(points: np.ndarray, verts: np.ndarray, tris: np.ndarray
     if tree is None:
         tree = cKDTree(verts[tris].mean(axis=1))
     k = min(candidates, tris.shape[0])
-    _, cand = tree.query(P, k=k)
-    cand = cand.reshape(P.shape[0], k)
+    dc, cand = tree.query(P, k=k)
+    dc, cand = dc.reshape(P.shape[0], k), cand.reshape(P.shape[0], k)
+    corners = verts[tris]
+    radius = np.linalg.norm(corners - corners.mean(axis=1, keepdims=True), axis=2).max(axis=1)
     best_d = np.full(P.shape[0], np.inf)
     best_t = np.zeros(P.shape[0], dtype=np.int64)
     best_b = np.zeros((P.shape[0], 3))
     best_p = np.zeros_like(P)
     for j in range(k):
-        t = tris[cand[:, j]]
-        q, b = _closest_point_triangle(P, verts[t[:, 0]], verts[t[:, 1]], verts[t[:, 2]])
-        d = np.linalg.norm(q - P, axis=1)
-        better = d < best_d
-        best_d[better], best_t[better] = d[better], cand[better, j]
-        best_b[better], best_p[better] = b[better], q[better]
+        rows = np.flatnonzero(dc[:, j] - radius[cand[:, j]] < best_d)
+        if rows.size == 0:
+            continue
+        t = tris[cand[rows, j]]
+        q, b = _closest_point_triangle(P[rows], verts[t[:, 0]], verts[t[:, 1]], verts[t[:, 2]])
+        d = np.linalg.norm(q - P[rows], axis=1)
+        better = d < best_d[rows]
+        r = rows[better]
+        best_d[r], best_t[r] = d[better], cand[r, j]
+        best_b[r], best_p[r] = b[better], q[better]
     return best_t, best_b, best_p, best_d

@@ -29,7 +29,10 @@ same ARKit name (shapes empty on either rig are skipped):
   to the slider ranges [0, 1]) both the FBHead rig with facecap's shapes transferred and FBHead's authored
   rig; per-vertex RMS difference over all frames, mm (linear blendshape evaluation, exactly what Blender's
   relative keys compute);
-- symmetry keys from ``bench_symmetry.run`` (helper E's suite) when that file is present.
+- symmetry keys from ``bench_symmetry.run`` (helper E's suite) when that file is present;
+- the transfer v2 keys of issue #22 (``bench_transfer_v2``: whole heads with their parts, every ordered pair of
+  Face Cap, FBHead, ICT FaceKit and Ready Player Me; ``transfer_s_<pair>`` there replaces the v1 time of the
+  same pair and includes registration and parts).
 """
 from __future__ import annotations
 
@@ -39,6 +42,7 @@ import time
 
 import numpy as np
 
+import bench_transfer_v2
 from bench_support import ASSETS, shared_data
 
 HEADS = {
@@ -186,4 +190,5 @@ def run(quick: bool = False) -> dict:
         bench_symmetry = None
     if bench_symmetry is not None:
         out.update(bench_symmetry.run(quick=quick))
+    out.update(bench_transfer_v2.run(quick=quick))        # issue #22: whole heads, every ordered pair of four
     return out
