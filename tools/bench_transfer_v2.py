@@ -17,18 +17,21 @@ each in world space, keys of one name on several objects joined.  Per pair ``<sr
 - ``transfer_report_status_<pair>``: the per-key checks' verdict (``core.authoring.quality``).
 
 Landmarks for the registration come from the shapes both rigs share (the placed-landmark stand-in of the v1
-suite); the lid pairs are placed from known vertices: the upper-lid vertices the head's own eyeBlink moves at
-least 60 % of its most, each paired with the low-motion skin vertex its blink lands on.
+suite).  The openings (eyes and inner lips) are the contours between the heads' named landmarks as a user
+places them (``tools/landmarks/<head>.json``, ``core.authoring.named.contour_paths``), given to the transfer
+(``core.authoring.contacts``); the blink metrics are measured on the target's lid contours.
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from bench_support import shared_data
+
+LANDMARKS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "landmarks")
 
 HEADS = {"facecap": ("facecap/facecap_decoded.glb", ("Mesh_2", "Mesh_0", "Mesh_1", "Mesh_3")),
          "fbhead": ("llf_fbhead/Live_Link_Face.blend", ("FBHead",)),
@@ -70,32 +73,23 @@ def read_head(tag):
     return np.concatenate(verts), np.concatenate(tris), D, names
 
 
-def lid_pairs(V, D, names, part, side, lr_axis):
-    """(pairs (m, 2), t (m,)) of one eye, placed from the head's own eyeBlink (see the module docstring)."""
-    d = D[names.index(f"eyeBlink{side}")]
-    L = np.linalg.norm(d, axis=1)
-    L[part != 0] = 0.0
-    low = np.flatnonzero((part == 0) & (L < 0.5 * L.max()))
-    cand = np.flatnonzero(L >= 0.6 * L.max())
-    dist, j = cKDTree(V[low]).query(V[cand] + d[cand])
-    ok = dist <= 0.3 * L[cand]
-    u, lo = cand[ok], low[j[ok]]
-    t = np.abs(V[u, lr_axis] - V[part == 0, lr_axis].mean())
-    t = (t - t.min()) / max(float(np.ptp(t)), 1e-300)
-    o = np.argsort(t, kind="stable")
-    return np.c_[u, lo][o], t[o]
+OPENINGS = (("eye_L", "lid_upper_L", "lid_lower_L"), ("eye_R", "lid_upper_R", "lid_lower_R"),
+            ("mouth", "lip_upper_inner", "lip_lower_inner"))
 
 
-def _openings(S, SD, SN, s_part, T, TD, TN, t_part):
-    from shapespace.core.authoring import contacts, parts
-    out = []
-    for side in ("Left", "Right"):
-        if f"eyeBlink{side}" not in SN or f"eyeBlink{side}" not in TN:
-            continue
-        sp, st = lid_pairs(S, SD, SN, s_part, side, parts._lr_axis(S, s_part))
-        tp, tt = lid_pairs(T, TD, TN, t_part, side, parts._lr_axis(T, t_part))
-        out.append(contacts.Opening("eye_" + side[0], sp, st, tp, tt))
-    return out
+def named_contours(tag, V, T):
+    """Contour paths of the head's named landmarks (``tools/landmarks/<tag>.json``; indices of its first
+    object, which starts the joined mesh)."""
+    from shapespace.core.authoring import named
+    lm = named.load_head_file(os.path.join(LANDMARKS, f"{tag}.json"))
+    return named.contour_paths(V, T, lm)
+
+
+def _openings(src_tag, S, ST, dst_tag, T, TT):
+    from shapespace.core.authoring import contacts
+    cs, ct = named_contours(src_tag, S, ST), named_contours(dst_tag, T, TT)
+    return [contacts.opening(name, S, cs[up], cs[lo], T, ct[up], ct[lo]) for name, up, lo in OPENINGS
+            if all(c in cs and c in ct for c in (up, lo))]
 
 
 def _scores(T, TD, TN, DT, SN, t_part, openings):
@@ -111,7 +105,7 @@ def _scores(T, TD, TN, DT, SN, t_part, openings):
     out = {"transfer_rel_energy": float(np.linalg.norm(X - A) / np.linalg.norm(A)),
            "transfer_rel_median": float(np.median(per)), "transfer_parts_moved_frac": float(parts_frac)}
     gaps, gaps_a, cross = [], [], 0
-    for o in openings:
+    for o in (o for o in openings if o.name.startswith("eye")):
         name = "eyeBlink" + {"L": "Left", "R": "Right"}[o.name[-1]]
         gaps.append(float(contacts.gap_left(T, DT[idx[name]][None], o.target_pairs)[0]))
         gaps_a.append(float(contacts.gap_left(T, TD[TN.index(name)][None], o.target_pairs)[0]))
@@ -122,7 +116,7 @@ def _scores(T, TD, TN, DT, SN, t_part, openings):
     return out, (max(gaps_a) if gaps_a else None)
 
 
-def pair(src, dst):
+def pair(src, dst, src_tag, dst_tag):
     """Metrics of one ordered pair (keys without the pair suffix) and the target's authored blink gap."""
     from shapespace.core import authoring
     from shapespace.core.authoring import parts, quality
@@ -133,7 +127,7 @@ def pair(src, dst):
     t_part, _ = authoring.triangle_parts(T.shape[0], TT)
     lm = authoring.landmarks_from_shared_shapes(S, SD, SN, T, TD, TN, src_mask=s_part == 0, dst_mask=t_part == 0)
     reg = authoring.register(S, ST, T, TT, lm.value)
-    openings = _openings(S, SD, SN, s_part, T, TD, TN, t_part)
+    openings = _openings(src_tag, S, ST, dst_tag, T, TT)
     tr = authoring.Transfer(S, ST, T, TT, reg.value, openings=openings)
     DT = tr.solve(SD)
     plan = parts.plan_for_transfer(S, ST, SD, SN, T, TT, DT, reg.value.part_map)
@@ -155,7 +149,7 @@ def run(quick: bool = False) -> dict:
         for d in HEADS:
             if s == d or heads[s] is None or heads[d] is None:
                 continue
-            m, authored = pair(heads[s], heads[d])
+            m, authored = pair(heads[s], heads[d], s, d)
             out.update({f"{k}_{s}_{d}": v for k, v in m.items()})
             out[f"transfer_blink_gap_frac_authored_{d}"] = authored
             print(f"bench transfer v2: {s} -> {d}: rel energy {m['transfer_rel_energy']:.3f} median "

@@ -7,6 +7,8 @@ For every transferred key:
   :data:`MAX_GAP_LEFT` where the source's own gap left is at most that;
 - ``crossings``: facing pairs whose sides passed each other (gap fraction below :data:`CROSSING`) where the
   source's do not; fails when any;
+- ``lips`` (openings shut at rest, the inner lips): a key that leaves the source's lips meeting must leave the
+  target's meeting (median gap below :data:`~core.authoring.contacts.SHUT` × the contour's span);
 - ``symmetry``: for a key with a side (``…Left``/``…_L``) and its partner, ``‖Δ_L − H Δ_R∘m‖ / max(‖Δ_L‖,
   ‖Δ_R‖)`` with ``H`` the reflection across the target's mirror plane and ``m`` the mirror map (barycentric
   on the closest triangle at each vertex's reflection, :func:`mirror_map`);
@@ -29,7 +31,7 @@ from scipy.spatial import cKDTree
 from ..names import canonical_name
 from ..result import Issue, Status
 from ..symmetry import counterpart_name
-from .contacts import Opening, gap_fractions, gap_left
+from .contacts import SHUT, Opening, gap_fractions, gap_left
 from .mesh import bbox_diagonal, closest_on_triangles, symmetry_plane
 from .parts import PartPlan
 
@@ -131,11 +133,32 @@ _MESSAGES = {
                      f"{100 * k['source_gap_left']:.0f} %)",
     "crossing": lambda k: f"{k['crossings']} lid points pass through the other lid",
     "symmetry": lambda k: f"differs from its mirrored partner by {100 * k['asymmetry']:.0f} %",
+    "lips": lambda k: "leaves the lips apart where the source's meet",
 }
+
+
+def _shut(V, D, pairs):
+    """Per shape (k,): is the opening shut after the shape (median gap below SHUT × the contour's span)?"""
+    span = max(float(np.linalg.norm(V[pairs[0, 0]] - V[pairs[-1, 0]])), 1e-300)
+    G = V[pairs[:, 0]] - V[pairs[:, 1]]
+    gap = np.linalg.norm(G[None] + D[:, pairs[:, 0]] - D[:, pairs[:, 1]], axis=2)
+    return np.median(gap, axis=1) < SHUT * span
+
+
+def _check_lips(keys, o, S, SD, T, TD):
+    """An opening shut at rest (lips): a key that leaves the source's shut must leave the target's shut."""
+    src, dst = _shut(S, SD, o.source_pairs), _shut(T, TD, o.target_pairs)
+    for i, key in enumerate(keys):
+        key["lips_meet"] = bool(dst[i])
+        if src[i] and not dst[i]:
+            key["failed"].append("lips")
 
 
 def _check_openings(keys, canon, openings, S, SD, T, TD):
     for o in openings:
+        if o.mode == "offset":
+            _check_lips(keys, o, S, SD, T, TD)
+            continue
         side = {"L": "Left", "R": "Right"}.get(o.name[-1])
         left_t, left_s, cross_t, cross_s = _gap_checks(o, S, SD, T, TD)
         for i, c in enumerate(canon):

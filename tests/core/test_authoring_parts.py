@@ -220,3 +220,17 @@ def test_shut_lips_carry_the_sources_gap_change_turned_and_scaled():
     assert np.abs(got - expect).max() < 1e-12
     eyes = contacts.opening("eye_L", T, range(5), range(5, 10), T, range(5), range(5, 10))
     assert eyes.mode == "ratio"
+
+
+def test_lips_check_fails_when_the_target_opens_lips_the_source_keeps_shut():
+    x = np.linspace(0.0, 1.0, 5)
+    S = np.r_[np.c_[x, np.zeros(5), np.zeros(5)], np.c_[x, np.zeros(5), np.zeros(5)]]
+    o = contacts.opening("mouth", S, range(5), range(5, 10), S, range(5), range(5, 10))
+    D = np.zeros((2, 10, 3))
+    D[:, :, 2] = 0.05                                  # both lips pushed forward together: still meeting
+    T = D.copy()
+    T[1, 5:, 1] = -0.1                                 # the transfer drops the lower lip of the second key
+    keys, issues, status = quality.check_keys(S, D, ["mouthPucker", "mouthFunnel"], S, T, openings=[o])
+    assert keys[0]["lips_meet"] and not keys[0]["failed"]
+    assert not keys[1]["lips_meet"] and keys[1]["failed"] == ["lips"] and status == Status.WARNING
+    assert "mouthFunnel: leaves the lips apart" in issues[0].message
