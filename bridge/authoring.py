@@ -32,7 +32,7 @@ from ..core.progress import notify, scaled
 from ..core.result import Result, ShapeSpaceError, Status, to_jsonable
 from ..core.schema import Schema
 from ..core.validate import ABSURD_COORDINATE, coordinates
-from . import driven, shapekeys, storage
+from . import driven, part_objects, shapekeys, storage
 from .arrays import read_float, write_float
 from .meshes import vertex_groups
 
@@ -88,6 +88,8 @@ class TargetMesh:
     triangles: np.ndarray               # (u, 3) int
     keys: list                          # existing shape-key names (reference first), [] without keys
     parts: int                          # connected parts through triangles (loose vertices in none)
+    own: int = -1                       # the target object's own vertices (the first rows); -1: all
+    objects: list = field(default_factory=list)     # part objects appended after them (bridge.part_objects)
 
 
 def _mesh_object(obj, role: str):
@@ -518,6 +520,7 @@ class TransferReport:
     status: str = "ok"                                   # "warning" when a per-key check failed (CLI exit 1)
     keys: list = field(default_factory=list)             # per-key checks (core.authoring.quality.check_keys)
     parts: list = field(default_factory=list)            # per-part kind, size, confidence, reason
+    part_objects: list = field(default_factory=list)     # per part object: keys created / overwritten / skipped
 
     def to_json(self) -> dict:
         return to_jsonable(self)
@@ -550,8 +553,9 @@ def _new_names(rig: SourceRig, naming: str) -> dict:
     return out
 
 
-def _plan(rig: SourceRig, tgt: TargetMesh, names: dict, existing: str, target_obj) -> tuple:
-    """Which source keys are written, which target keys are replaced, which are skipped (by policy)."""
+def _plan(rig: SourceRig, tgt: TargetMesh, names: dict, existing: str, target_obj, groups: bool = True) -> tuple:
+    """Which source keys are written, which target keys are replaced, which are skipped (by policy); masks
+    (vertex groups) only where ``groups``."""
     if existing not in EXISTING:
         raise ShapeSpaceError(f"unknown policy for existing keys {existing!r}: {', '.join(EXISTING)}",
                               ErrorCode.METHOD)
@@ -576,7 +580,7 @@ def _plan(rig: SourceRig, tgt: TargetMesh, names: dict, existing: str, target_ob
     write = [n for n in rig.names if n not in skip]
     replace = [names[n] for n in write if names[n] in have]
     groups_clash = sorted({rig.groups[n] for n in write if n in rig.groups
-                           and rig.groups[n] in target_obj.vertex_groups})
+                           and rig.groups[n] in target_obj.vertex_groups}) if groups else []
     if groups_clash and existing == "refuse":
         raise ShapeSpaceError(f"{tgt.name!r} already has vertex groups named {', '.join(groups_clash)} (masks of "
                               f"the source keys): choose to skip or overwrite existing keys", ErrorCode.DUPLICATE_NAME)
@@ -723,6 +727,7 @@ class TransferPlan:
     unmatched_parts: str
     signature: tuple                     # the target as read (see _target_signature)
     started: float
+    part_plans: list = field(default_factory=list)   # (PartObject, write, replace, skipped) per part object
 
 
 @dataclass
@@ -735,17 +740,42 @@ class TransferOutcome:
     report: TransferReport
 
 
-def _target_signature(target) -> tuple:
+def _target_signature(target, parts=()) -> tuple:
     """What a transfer's write depends on: mode, link state, vertices (the neutral), shape keys and groups."""
     key = target.data.shape_keys
     keys = tuple(kb.name for kb in key.key_blocks) if key is not None else ()
     return (target.mode, target.library is not None or target.data.library is not None, len(target.data.vertices),
-            _neutral(target).tobytes(), keys, tuple(g.name for g in target.vertex_groups))
+            _neutral(target).tobytes(), keys, tuple(g.name for g in target.vertex_groups),
+            part_objects.signature(target, list(parts)))
+
+
+def _with_part_objects(target, source, tgt: TargetMesh, parts) -> TargetMesh:
+    """``tgt`` with the part objects appended (their rows after the target's own)."""
+    verts, tris, objects = part_objects.read_part_objects(target, source, parts, len(tgt.neutral), triangles,
+                                                          _finite)
+    if not objects:
+        return tgt
+    neutral, tri = np.vstack([tgt.neutral, verts]), np.vstack([tgt.triangles, tris])
+    return TargetMesh(name=tgt.name, neutral=neutral, triangles=tri, keys=tgt.keys,
+                      parts=len(core.triangle_parts(len(neutral), tri)[1]), own=len(tgt.neutral), objects=objects)
+
+
+def _part_plans(rig, tgt: TargetMesh, names: dict, existing: str) -> list:
+    """Each part object's keys to write / replace / skip under the same policy (no masks on part objects)."""
+    out = []
+    for p in tgt.objects:
+        ob = bpy.data.objects[p.name]
+        mesh = TargetMesh(name=p.name, neutral=np.zeros((0, 3)), triangles=np.zeros((0, 3), int), keys=p.keys,
+                          parts=0)
+        write, replace, skipped, _ = _plan(rig, mesh, names, existing, ob, groups=False)
+        out.append((p, write, replace, skipped))
+    return out
 
 
 def read_transfer(source, target, naming: str = "source", existing: str = "refuse",
-                  unmatched_parts: str = "keep") -> TransferPlan:
-    """Step 1 of :func:`transfer_shapes` (main thread): validate and read everything; writes nothing."""
+                  unmatched_parts: str = "keep", parts=None) -> TransferPlan:
+    """Step 1 of :func:`transfer_shapes` (main thread): validate and read everything; writes nothing.
+    ``parts``: part objects transferred with the target (:func:`bridge.part_objects.meshes_of`)."""
     start = time.perf_counter()
     if source is not None and target is not None and source == target:
         raise ShapeSpaceError("the source rig and the target are the same object", ErrorCode.SAME_KEY)
@@ -756,15 +786,19 @@ def read_transfer(source, target, naming: str = "source", existing: str = "refus
     tgt = read_target(target)
     if target.library is not None or target.data.library is not None:
         raise ShapeSpaceError(f"{target.name!r} is linked from a library: make it local first", ErrorCode.LINKED)
+    parts = list(parts or ())
+    tgt = _with_part_objects(target, source, tgt, parts)
     names = _new_names(rig, naming)
     write, replace, skipped, groups_clash = _plan(rig, tgt, names, existing, target)
+    part_plans = _part_plans(rig, tgt, names, existing)
     if not write:
         raise ShapeSpaceError(f"{target.name!r} already has every shape of {source.name!r}: nothing to transfer",
                               ErrorCode.NO_TARGETS)
     pairs = _landmarks_for(source, target, rig, tgt)
     return TransferPlan(source=source.name, target=target.name, rig=rig, tgt=tgt, pairs=pairs, names=names,
                         write=write, replace=replace, skipped=skipped, groups_clash=groups_clash, existing=existing,
-                        unmatched_parts=unmatched_parts, signature=_target_signature(target), started=start)
+                        unmatched_parts=unmatched_parts, signature=_target_signature(target, parts), started=start,
+                        part_plans=part_plans)
 
 
 def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
@@ -834,6 +868,19 @@ def _check_and_move_parts(rig, tgt, write, sculpts, solved, corr, moving, report
     report.status = "warning" if status != Status.OK else "ok"
 
 
+def _write_part_objects(outcome: TransferOutcome, report: TransferReport) -> None:
+    """Each part object gets its keys (its rows of the result, in its own object space), after the head."""
+    plan = outcome.plan
+    for p, write, replace, skipped in plan.part_plans:
+        ob = bpy.data.objects[p.name]
+        own = TransferReport(source=plan.source, target=p.name)
+        local = part_objects.to_part_space(p, outcome.full[:, p.start:p.start + p.count])
+        _write(ob, plan.rig, plan.names, write, replace, local, part_objects.own_neutral(ob), {},
+               plan.existing == "overwrite", own)
+        report.part_objects.append({"object": p.name, "created": own.created, "overwritten": own.overwritten,
+                                    "skipped": [plan.names[n] for n in skipped]})
+
+
 def write_transfer(outcome: TransferOutcome) -> TransferReport:
     """Step 3 (main thread): write the new keys (and mask groups) in one step; returns the report.
 
@@ -842,11 +889,15 @@ def write_transfer(outcome: TransferOutcome) -> TransferReport:
     """
     plan, report = outcome.plan, outcome.report
     target = bpy.data.objects.get(plan.target)
-    if target is None or target.type != "MESH" or _target_signature(target) != plan.signature:
-        raise ShapeSpaceError(f"{plan.target!r} changed while the transfer computed (mode, mesh, shape keys or "
-                              "vertex groups): nothing was written; transfer again", ErrorCode.RIG_CHANGED)
-    _write(target, plan.rig, plan.names, plan.write, plan.replace, outcome.full, plan.tgt.neutral, outcome.masks,
-           plan.existing == "overwrite", report)
+    parts = [bpy.data.objects.get(p.name) for p in plan.tgt.objects]
+    if target is None or target.type != "MESH" or _target_signature(target, parts) != plan.signature:
+        raise ShapeSpaceError(f"{plan.target!r} changed while the transfer computed (mode, mesh, shape keys, "
+                              "vertex groups or part objects): nothing was written; transfer again",
+                              ErrorCode.RIG_CHANGED)
+    own = plan.tgt.own if plan.tgt.own >= 0 else len(plan.tgt.neutral)
+    _write(target, plan.rig, plan.names, plan.write, plan.replace, outcome.full[:, :own], plan.tgt.neutral[:own],
+           {g: w[:own] for g, w in outcome.masks.items()}, plan.existing == "overwrite", report)
+    _write_part_objects(outcome, report)
     clear_preview(target)                       # it served its purpose; the result file does not keep it
     report.skipped = [plan.names[n] for n in plan.skipped] + (
         [f"vertex group {g} (kept)" for g in plan.groups_clash] if plan.existing == "skip" else [])
@@ -874,7 +925,7 @@ def finish_transfer_job(job: BackgroundJob) -> TransferReport:
 
 
 def transfer_shapes(source, target, naming: str = "source", existing: str = "refuse", unmatched_parts: str = "keep",
-                    progress=None) -> TransferReport:
+                    progress=None, parts=None) -> TransferReport:
     """Transfer every shape key of ``source`` onto ``target``: :func:`read_transfer` → :func:`compute_transfer`
     → :func:`write_transfer` (validate → compute → write).
 
@@ -893,13 +944,16 @@ def transfer_shapes(source, target, naming: str = "source", existing: str = "ref
     progress : callable(fraction) or None
         :mod:`core.progress` protocol; raising :class:`~core.progress.Cancelled` from it stops the transfer
         with nothing written.
+    parts : sequence of bpy.types.Object, optional
+        Part objects (eyes, teeth as meshes of their own) transferred with the target; each gets shape keys
+        of the same names (:mod:`bridge.part_objects`).
 
     Raises
     ------
     core.ShapeSpaceError
         Before anything is written; the file is unchanged.
     """
-    plan = read_transfer(source, target, naming, existing, unmatched_parts)
+    plan = read_transfer(source, target, naming, existing, unmatched_parts, parts)
     return write_transfer(compute_transfer(plan, progress))
 
 

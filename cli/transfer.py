@@ -2,7 +2,8 @@
 
     blender -b target.blend --command shapespace transfer --source-rig template.blend:Object --object Head \\
         --out rigged.blend [--naming source|arkit|suffix|pascal] [--existing refuse|skip|overwrite]
-        [--landmarks auto|stored|shapes|geometry] [--unmatched-parts move|keep|refuse] [--report FILE] [--dry-run]
+        [--landmarks auto|stored|shapes|geometry] [--unmatched-parts move|keep|refuse]
+        [--parts-collection COLLECTION] [--report FILE] [--dry-run]
 
 The source rig is appended from its .blend, used, and removed again: the saved file holds the target with its
 new keys only (plus the landmark pairs used, stored on the target for the next run).  stdout carries only the
@@ -45,7 +46,11 @@ def add_parser(sub) -> None:
     tr.add_argument("--landmarks", choices=("auto", "stored", "shapes", "geometry"), default="auto",
                     help="landmark pairs: stored on the target, proposed from shared shapes or geometry, or auto")
     tr.add_argument("--unmatched-parts", choices=("move", "keep", "refuse"), default="move",
-                    help="target parts without a source counterpart (eyes, teeth): keep them still, or refuse")
+                    help="target parts the source does not move (eyes, teeth, lashes): move them as rigged "
+                         "(default), keep them still, or refuse")
+    tr.add_argument("--parts-collection", metavar="COLLECTION",
+                    help="meshes of this collection (eyes, teeth as objects of their own) are transferred with the "
+                         "target as its parts and get shape keys of the same names")
     tr.add_argument("--target", help="target .blend to open first (default: the open file)")
     tr.add_argument("--out", help="save the result as this .blend")
     tr.add_argument("--dry-run", action="store_true", help="compute and report only; save nothing")
@@ -101,6 +106,19 @@ def _target(name, exclude):
     return meshes[0]
 
 
+def _parts(target, name) -> list:
+    """The part objects of ``--parts-collection`` (refused by name when the collection does not exist)."""
+    from ..bridge import part_objects
+    if name is None:
+        return []
+    coll = bpy.data.collections.get(name)
+    if coll is None:
+        have = ", ".join(sorted(c.name for c in bpy.data.collections)) or "none"
+        raise ShapeSpaceError(f"--parts-collection: no collection named {name!r} in this file (it has: {have})",
+                              ErrorCode.MISSING_OBJECT)
+    return part_objects.meshes_of(coll, target)
+
+
 def _landmarks(bridge, source, target, how: str) -> str:
     if how == "stored":
         return "stored"                      # the transfer refuses fewer than 5, stale or damaged pairs
@@ -148,6 +166,7 @@ def transfer(args, inputs: list) -> tuple:
         if target == source:
             raise ShapeSpaceError("--source-rig and --object name the same mesh", ErrorCode.SAME_KEY)
         _say(f"transfer {source.name} → {target.name}")
+        parts = _parts(target, args.parts_collection)
         landmarks = _landmarks(bridge, source, target, args.landmarks)
         step = {"last": -1}
 
@@ -158,7 +177,7 @@ def transfer(args, inputs: list) -> tuple:
                 _say(f"{tenth * 10}%")
 
         rep = bridge.transfer_shapes(source, target, naming=args.naming, existing=args.existing,
-                                     unmatched_parts=args.unmatched_parts, progress=progress)
+                                     unmatched_parts=args.unmatched_parts, progress=progress, parts=parts)
     finally:
         bridge.remove_appended(appended)
     for warning in rep.warnings:

@@ -29,6 +29,7 @@ class SHAPESPACE_PT_transfer_shapes(ShapeSpaceSidebar, bpy.types.Panel):
         col.prop(st, "naming")
         col.prop(st, "existing")
         col.prop(st, "unmatched_parts")
+        col.prop(st, "parts_collection")
         box = layout.box()
         n, problem = authoring.landmark_count(ob)
         enough = n >= authoring.MIN_LANDMARKS

@@ -32,3 +32,7 @@ class SHAPESPACE_PG_authoring(bpy.types.PropertyGroup):
                                      description="What to do when this mesh already has keys of the new names")
     unmatched_parts: bpy.props.EnumProperty(name="Unmatched Parts", items=PARTS, default="move",
                                             description="Separate parts of this mesh the source rig does not have")
+    parts_collection: bpy.props.PointerProperty(
+        name="Part Objects", type=bpy.types.Collection,
+        description="Meshes of this collection (eyes, teeth, tongue as objects of their own) are transferred with "
+                    "this mesh as its parts and get shape keys of the same names")

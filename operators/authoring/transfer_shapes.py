@@ -8,7 +8,7 @@ same three steps synchronously, with window-manager progress.
 """
 import bpy
 
-from ...bridge import authoring
+from ...bridge import authoring, part_objects
 from ..progress import ThreeStepJob
 from ..reporting import FAILED, attempt
 from ._polls import transfer_target
@@ -36,7 +36,7 @@ nothing is written then)"""
         ob = context.active_object
         st = ob.shapespace_authoring
         return attempt(self, authoring.read_transfer, st.source, ob, naming=st.naming, existing=st.existing,
-                       unmatched_parts=st.unmatched_parts)
+                       unmatched_parts=st.unmatched_parts, parts=part_objects.meshes_of(st.parts_collection, ob))
 
     @staticmethod
     def job_label(plan):
@@ -55,6 +55,11 @@ nothing is written then)"""
             extra.append(f"{len(rep.overwritten)} replaced")
         if rep.empty:
             extra.append(f"empty on the source: {', '.join(rep.empty[:4])}")
+        if rep.part_objects:
+            extra.append(f"also on {', '.join(p['object'] for p in rep.part_objects)}")
+        failed = [k["name"] for k in rep.keys if k["failed"]]
+        if failed:
+            extra.append(f"{len(failed)} failed a check: {', '.join(failed[:4])}")
         tail = f" ({'; '.join(extra)})" if extra else ""
         self.report({"INFO"}, f"{len(rep.created)} shape keys transferred onto {rep.target} in {rep.seconds:.1f} s, "
                               f"registration residual {rep.registration_residual_mm:.2f} mm{tail}")
