@@ -2,7 +2,8 @@
 
     blender -b target.blend --command shapespace transfer --source-rig template.blend:Object --object Head \\
         --out rigged.blend [--naming source|arkit|suffix|pascal] [--existing refuse|skip|overwrite]
-        [--landmarks auto|stored|shapes|geometry|FILE.json] [--unmatched-parts keep|refuse] [--report FILE] [--dry-run]
+        [--landmarks auto|stored|shapes|geometry|named|FILE.json] [--unmatched-parts keep|refuse]
+        [--report FILE] [--dry-run]
 
 The source rig is appended from its .blend, used, and removed again: the saved file holds the target with its
 new keys only (plus the landmark pairs used, stored on the target for the next run).  stdout carries only the
@@ -48,9 +49,10 @@ def add_parser(sub) -> None:
     tr.add_argument("--existing", choices=("refuse", "skip", "overwrite"), default="refuse",
                     help="target keys that already have a new name: refuse (default), keep them, or replace them")
     tr.add_argument("--landmarks", type=_landmark_choice, default="auto",
-                    metavar="auto|stored|shapes|geometry|FILE.json",
-                    help="landmark pairs: stored on the target, proposed from shared shapes or geometry, auto, or a "
-                         "file of named source and target vertices")
+                    metavar="auto|stored|shapes|geometry|named|FILE.json",
+                    help="landmark pairs: stored on the target, proposed from shared shapes or geometry, auto, the "
+                         "named landmarks proposed (unsure ones left out), or a file of named source and target "
+                         "vertices")
     tr.add_argument("--unmatched-parts", choices=("keep", "refuse"), default="keep",
                     help="target parts without a source counterpart (eyes, teeth): keep them still, or refuse")
     tr.add_argument("--target", help="target .blend to open first (default: the open file)")
@@ -63,9 +65,10 @@ def add_parser(sub) -> None:
 
 def _landmark_choice(value: str) -> str:
     import argparse
-    if value in ("auto", "stored", "shapes", "geometry") or value.lower().endswith(".json"):
+    if value in ("auto", "stored", "shapes", "geometry", "named") or value.lower().endswith(".json"):
         return value
-    raise argparse.ArgumentTypeError(f"{value!r}: auto, stored, shapes, geometry or a FILE.json of named landmarks")
+    raise argparse.ArgumentTypeError(f"{value!r}: auto, stored, shapes, geometry, named or a FILE.json of named "
+                                     f"landmarks")
 
 
 def _say(text: str) -> None:

@@ -45,10 +45,12 @@ HOW = {
     "lip_upper_inner": "the rim vertex of the mouth opening nearest the midline, upper lip",
     "lip_lower_inner": "the rim vertex of the mouth opening nearest the midline, lower lip",
     "lip_upper_outer": "the most forward midline vertex of the upper lip (below the nose tip's half-way)",
-    "lip_lower_outer": "the most forward midline vertex of the lower lip (0.4 mouth widths below the opening)",
-    "nose_tip": "the most forward midline vertex between the mouth and the eyes",
+    "lip_lower_outer": "the most forward midline vertex of the lower lip (0.25 eye distances below the opening)",
+    "nose_tip": "the most forward midline vertex between the mouth and the eyes (profile points: in the frame of "
+                "the head's mirror plane and the line from its mouth landmarks to its eye landmarks)",
     "nostril": "the vertex on that side noseSneer moves most",
-    "chin": "the most forward midline vertex 0.35 to 1.2 mouth widths below the lower lip",
+    "chin": "the chin's corner: the midline vertex farthest forward-and-down (45°) 0.15 to 1 eye distances below "
+            "the lower lip",
     "jaw_angle": "the most backward vertex on that side that jawOpen moves by at least 30 % of its peak, "
                  "at or below the mouth",
 }
@@ -245,6 +247,14 @@ def _eye(head: Head, frame: FaceFrame, blink: np.ndarray, blink_delta: np.ndarra
             f"eye_inner_{side}": int(ring[inner]), f"eye_outer_{side}": int(ring[outer])}
 
 
+def _nearest_midline(idx: np.ndarray, X: np.ndarray, diag: float) -> int:
+    """The vertex nearest the midline; of several as near (within 0.01 % of the diagonal) the one on the left
+    (a loop with an edge, not a vertex, on the midline), then the most forward."""
+    near = np.abs(X[:, 0]) <= np.abs(X[:, 0]).min() + 1e-4 * diag
+    side = np.round(X[near, 0] / (1e-4 * diag))
+    return int(idx[near][np.lexsort((X[near, 2], side))[-1]])
+
+
 def _mouth(head: Head, frame: FaceFrame, near: np.ndarray, radius: float = 0.12) -> dict:
     """Mouth corners and inner lip midpoints from the mouth opening's rim around ``near`` (a hole loop), else
     from where the lips touch (:func:`contact_band`)."""
@@ -260,9 +270,7 @@ def _mouth(head: Head, frame: FaceFrame, near: np.ndarray, radius: float = 0.12)
     cand, Xc = ring[mid], X[mid]
     centre_up = np.median(Xc[:, 1])
     hi, lo = Xc[:, 1] >= centre_up, Xc[:, 1] <= centre_up
-    # ties (a loop with no vertex on the midline) go to the left one
-    upper = int(cand[hi][np.argmin(np.abs(Xc[hi, 0]) - 1e-3 * Xc[hi, 1] - 1e-6 * Xc[hi, 0])])
-    lower = int(cand[lo][np.argmin(np.abs(Xc[lo, 0]) + 1e-3 * Xc[lo, 1] - 1e-6 * Xc[lo, 0])])
+    upper, lower = _nearest_midline(cand[hi], Xc[hi], head.diag), _nearest_midline(cand[lo], Xc[lo], head.diag)
     return {"mouth_corner_L": int(ring[np.argmax(X[:, 0])]), "mouth_corner_R": int(ring[np.argmin(X[:, 0])]),
             "lip_upper_inner": upper, "lip_lower_inner": lower}
 
@@ -287,18 +295,19 @@ def _profile(head: Head, frame: FaceFrame, out: dict) -> dict:
     C = frame.coords(head.verts)
     ui, li = C[out["lip_upper_inner"], 1], C[out["lip_lower_inner"], 1]
     eye = 0.5 * (C[out["lid_upper_L"], 1] + C[out["lid_upper_R"], 1])
-    width = abs(C[out["mouth_corner_L"], 0] - C[out["mouth_corner_R"], 0])
+    eyes = abs(C[out["lid_upper_L"], 0] - C[out["lid_upper_R"], 0])          # the scale: eye to eye
     res = {}
     win = (X[:, 1] > ui) & (X[:, 1] < eye)
     res["nose_tip"] = _argmax(line[win], X[win, 2])
     nose = C[res["nose_tip"], 1] if res["nose_tip"] >= 0 else eye
     win = (X[:, 1] >= ui) & (X[:, 1] < ui + 0.35 * (nose - ui))
     res["lip_upper_outer"] = _argmax(line[win], X[win, 2])
-    win = (X[:, 1] <= li) & (X[:, 1] > li - 0.4 * width)
+    win = (X[:, 1] <= li) & (X[:, 1] > li - 0.25 * eyes)
     res["lip_lower_outer"] = _argmax(line[win], X[win, 2])
     lo = C[res["lip_lower_outer"], 1] if res["lip_lower_outer"] >= 0 else li
-    win = (X[:, 1] < lo - 0.35 * width) & (X[:, 1] > lo - 1.2 * width)
-    res["chin"] = _argmax(line[win], X[win, 2])
+    # the chin's corner (gnathion): the profile's extreme forward-and-down, for prominent and receding chins
+    win = (X[:, 1] < lo - 0.15 * eyes) & (X[:, 1] > lo - 1.0 * eyes)
+    res["chin"] = _argmax(line[win], X[win, 2] - X[win, 1])
     return res
 
 
@@ -325,6 +334,29 @@ def _jaw(head: Head, frame: FaceFrame, jaw: np.ndarray, mouth_up: float, side: s
     C = frame.coords(head.verts)
     mask = _side(head, frame, side) & (jaw >= 0.3 * jaw.max()) & (C[:, 1] <= mouth_up)
     return _argmax(np.flatnonzero(mask), -C[mask, 2])
+
+
+def _own_frame(head: Head, frame: FaceFrame, marks: dict) -> FaceFrame:
+    """The head's own frame from its eye and mouth landmarks: left = its mirror normal (the sign of ``frame``'s),
+    up = from the mouth (corners and inner lips) to the eyes (corners and lids), origin on the mirror plane.
+    The midline profile is measured in it, so that a head's profile points do not depend on how another
+    head's frame was tilted onto it."""
+    V = head.verts
+    normal, offset, _ = symmetry_plane(V[head.skin])
+    left = normal if normal @ frame.axes[0] > 0 else -normal
+    eyes = [marks[n] for n in marks if n.startswith(("lid_", "eye_"))]
+    mouth = [marks[n] for n in ("mouth_corner_L", "mouth_corner_R", "lip_upper_inner", "lip_lower_inner")
+             if n in marks]
+    if not eyes or not mouth:
+        return frame
+    up = V[eyes].mean(axis=0) - V[mouth].mean(axis=0)
+    up -= (up @ left) * left
+    if np.linalg.norm(up) == 0:
+        return frame
+    up /= np.linalg.norm(up)
+    origin = V[mouth].mean(axis=0)
+    origin = origin - (origin @ left - offset * (normal @ left)) * left
+    return FaceFrame(origin, np.stack([left, up, np.cross(left, up)]))
 
 
 def locate_from_shapes(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, names) -> tuple:
@@ -360,7 +392,7 @@ def locate_from_shapes(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, nam
     near = near + frame.axes[1] * (frame.coords(head.verts[pucker >= 0.5 * pucker.max()])[:, 1].mean())
     out.update(_mouth(head, frame, near))
     if all(k in out for k in ("lid_upper_L", "lid_upper_R")):
-        out.update(_profile(head, frame, out))
+        out.update(_profile(head, _own_frame(head, frame, out), out))
     for side, full in (("L", "Left"), ("R", "Right")):
         inner = _shape(names, D, head.skin, f"browInnerUp{full}", "browInnerUp")
         outer = _shape(names, D, head.skin, f"browOuterUp{full}")
@@ -415,10 +447,12 @@ def locate_on_geometry(head: Head, frame: FaceFrame, rough: dict) -> tuple:
         c = frame.coords(centre[None])[0]
         lat = np.abs(X[:, 0])
         up_half, low_half = ring[X[:, 1] >= c[1]], ring[X[:, 1] < c[1]]
-        for n, half in ((names[0], up_half), (names[1], low_half)):
-            if half.size:
-                out[n] = int(half[np.argmin(np.linalg.norm(V[half] - V[rough[n]], axis=1))])
-                supported[n] = True
+        if up_half.size and low_half.size:
+            out[names[0]] = int(up_half[np.argmin(np.linalg.norm(V[up_half] - V[rough[names[0]]], axis=1))])
+            # the lower lid opposite the upper one (where the closing lid lands)
+            across = np.abs(frame.coords(V[low_half])[:, 0] - frame.coords(V[[out[names[0]]]])[0, 0])
+            out[names[1]] = int(low_half[np.argmin(across)])
+            supported[names[0]] = supported[names[1]] = True
         out[names[2]], out[names[3]] = int(ring[np.argmin(lat)]), int(ring[np.argmax(lat)])
         supported[names[2]] = supported[names[3]] = True
     mouth = ("mouth_corner_L", "mouth_corner_R", "lip_upper_inner", "lip_lower_inner")
@@ -430,9 +464,14 @@ def locate_on_geometry(head: Head, frame: FaceFrame, rough: dict) -> tuple:
             found = {}
         out.update(found)
         supported.update({n: True for n in found})
+        normal, offset, _ = symmetry_plane(V[head.skin])
+        for n in ("lip_upper_inner", "lip_lower_inner"):
+            # no rim vertex on the midline (an edge crosses it): which side's vertex is a guess
+            if n in found:
+                supported[n] = bool(abs(V[out[n]] @ normal - offset) <= 0.004 * head.diag)
     if all(n in out for n in ("lip_upper_inner", "lip_lower_inner", "mouth_corner_L", "mouth_corner_R",
                               "lid_upper_L", "lid_upper_R")):
-        prof = {k: v for k, v in _profile(head, frame, out).items() if v >= 0}
+        prof = {k: v for k, v in _profile(head, _own_frame(head, frame, out), out).items() if v >= 0}
         out.update(prof)
         supported.update({n: True for n in prof})
     return out, supported

@@ -265,7 +265,7 @@ def propose_landmark_pairs(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas
     diag = {"fit_residual": rel, "similarity": (s, R, t), "plane_error": (es, et),
             "degenerate_hypotheses": degenerate}
     warn = rel > 0.02 or es > 0.02 or et > 0.02
-    pairs = _named_pairs(S, ST, D, src_names, T, TT, (s, R, t), snap, flag) if named else None
+    pairs = _named_pairs(S, ST, D, src_names, T, TT, (s, R, t), snap, flag, diag) if named else None
     if pairs is None:
         moved = s * S[idx] @ R.T + t
         dst_idx = skin_t[_snap_facing(moved, vertex_normals(S, ST)[idx] @ R.T, T_skin, TN_skin, skin_tree, snap)]
@@ -281,14 +281,16 @@ def propose_landmark_pairs(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas
     return Result(pairs, status=Status.WARNING if warn else Status.OK, message=msg, diagnostics=diag)
 
 
-def _named_pairs(S, ST, D, src_names, T, TT, sim, snap, flag):
+def _named_pairs(S, ST, D, src_names, T, TT, sim, snap, flag, diagnostics):
     """The named landmarks (:mod:`.named`): found on the source from its shapes, moved onto the target by the
     similarity ``sim``, snapped, and refined on the target's eye and mouth openings and midline profile.
 
-    Confidence per point: ``exp(−(shift / 2 %)²) · exp(−(mirror / 1 %)²)``, ×0.45 without a geometric feature
+    Confidence per point: ``exp(−(shift / 4 %)²) · exp(−(mirror / 1 %)²)``, ×0.45 without a geometric feature
     confirming it — ``shift`` the refinement's distance from the moved source point, ``mirror`` the point's
     distance from the mirror image of its partner on the target (a midline point: twice its distance from
-    the target's mirror plane), both relative to the target's diagonal.  Points below ``flag`` are flagged.
+    the target's mirror plane) beyond twice the target's own mean mirror distance, both relative to the
+    target's diagonal (``diagnostics["named_shift"]``, ``["named_mirror"]``, ``["named_supported"]``).  Points
+    below ``flag`` are flagged.
     None when the source's named landmarks cannot be found from its shapes (no ARKit eye/mouth shapes)."""
     s, R, t = sim
     try:
@@ -307,7 +309,7 @@ def _named_pairs(S, ST, D, src_names, T, TT, sim, snap, flag):
     t_frame = FaceFrame(s * R @ frame.origin + t, frame.axes @ R.T)
     refined, supported = locate_on_geometry(head, t_frame, dict(zip(order, rough_idx.tolist())))
     ti = np.array([refined[n] for n in order])
-    normal, offset, _ = symmetry_plane(T[skin_t])
+    normal, offset, asym = symmetry_plane(T[skin_t])
     P = T[ti]
     mirrored = P - 2.0 * ((P @ normal) - offset)[:, None] * normal
     pos = {n: k for k, n in enumerate(order)}
@@ -316,6 +318,9 @@ def _named_pairs(S, ST, D, src_names, T, TT, sim, snap, flag):
     mis = np.where([n in CENTRE for n in order], np.abs(P @ normal - offset) * 2.0, mis)
     diag_t = head.diag
     shift = np.linalg.norm(P - moved, axis=1) / diag_t
-    conf = np.exp(-(shift / 0.02) ** 2) * np.exp(-(mis / diag_t / 0.01) ** 2)
+    excess = np.maximum(mis / diag_t - 2.0 * asym, 0.0)       # beyond the target's own asymmetry
+    conf = np.exp(-(shift / 0.04) ** 2) * np.exp(-(excess / 0.01) ** 2)
     conf *= np.where([supported.get(n, False) for n in order], 1.0, 0.45)
+    diagnostics.update(named_shift=dict(zip(order, shift.tolist())), named_mirror=dict(zip(order, excess.tolist())),
+                       named_supported={n: bool(supported.get(n, False)) for n in order})
     return LandmarkPairs(S[si].copy(), P.copy(), si, ti, tuple(order), conf, conf < flag)

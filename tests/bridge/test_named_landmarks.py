@@ -183,10 +183,11 @@ def test_proposal_from_ict_facekit_gives_the_named_set_with_flags(registered):
     tgt = _fbhead()                                     # (opening the .blend first: it replaces the scene)
     import_file(shared("ict_facekit", "ict_facekit_expressions.glb"))
     src = bpy.data.objects["ICTFace"]
-    result = authoring.propose_landmarks(src, tgt, method="geometry")
-    assert result.value >= 20, result.message
-    pairs_from = result.diagnostics
-    assert set(pairs_from["flagged"]) <= set(NAMES) and "unsure of" in result.message
+    result = authoring.propose_landmarks(src, tgt, method="named")
+    flagged = result.diagnostics["flagged"]
+    assert flagged and set(flagged) <= set(NAMES) and "unsure of" in result.message
+    assert f"the {len(flagged)} unsure ones are not used" in result.message
+    assert result.value == len(NAMES) - len(flagged) >= 5                # the named set, the sure ones stored
     placed = load_head_file(PLACED, len(tgt.data.vertices))
     _, tv = authoring.landmark_pairs(tgt, src)
     assert placed["nose_tip"] in tv.tolist()                           # found on the midline profile
