@@ -15,7 +15,7 @@ from ..core.schema import Schema
 from . import authoring, storage
 from . import symmetry as bsym
 
-__all__ = ["PROP", "SCHEMA", "named_landmarks", "next_name", "place", "remove", "clear", "mirror_complete",
+__all__ = ["PROP", "SCHEMA", "named_landmarks", "next_name", "place", "remove", "clear_named", "mirror_complete",
            "named_status", "use_for_transfer"]
 
 PROP = "shapespace_named_landmarks"
@@ -81,7 +81,7 @@ def remove(obj, name: str) -> dict:
     return marks
 
 
-def clear(obj) -> None:
+def clear_named(obj) -> None:
     if PROP in obj.data:
         del obj.data[PROP]
 

@@ -15,6 +15,7 @@ Everything works on the *skin*: the largest connected part of the mesh (eyes, te
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,7 +36,7 @@ __all__ = ["FaceFrame", "HOW", "boundary_loops", "face_frame_from_shapes", "open
 #: How :func:`locate_from_shapes` finds each landmark (by name without side).
 HOW = {
     "lid_upper": "the vertex of the eye opening's rim that eyeBlink moves most",
-    "lid_lower": "the vertex of the eye opening's rim nearest to where lid_upper lands at eyeBlink = 1",
+    "lid_lower": "the vertex of the eye opening's rim below the corners' line opposite lid_upper (nearest across)",
     "eye_inner": "the rim vertex of the eye opening nearest the midplane (its medial extreme)",
     "eye_outer": "the rim vertex of the eye opening farthest from the midplane (its lateral extreme)",
     "brow_inner": "the vertex on that side browInnerUp moves most",
@@ -124,7 +125,7 @@ def _need(motion, what):
     return motion
 
 
-def face_frame_from_shapes(head: Head, deltas: np.ndarray, names) -> FaceFrame:
+def face_frame_from_shapes(head: Head, deltas: np.ndarray, names: Sequence[str]) -> FaceFrame:
     """The face frame of a rig from its mirror plane and its eyeBlinkLeft and mouthPucker shapes."""
     V, skin = head.verts, head.skin
     normal, offset, _ = symmetry_plane(V[skin])
@@ -223,6 +224,15 @@ def _argmax(idx, score):
     return int(idx[int(np.argmax(score))]) if len(idx) else -1
 
 
+def _lid_split(X: np.ndarray) -> tuple:
+    """Of an eye opening's rim in face coordinates (m, 3): the inner and outer corner (medial and lateral
+    extremes) and which rim vertices are on the upper lid (on or above the line through the corners)."""
+    lat = np.abs(X[:, 0])
+    inner, outer = int(np.argmin(lat)), int(np.argmax(lat))
+    t = (X[:, 0] - X[inner, 0]) / (X[outer, 0] - X[inner, 0] or 1.0)
+    return inner, outer, X[:, 1] >= X[inner, 1] + t * (X[outer, 1] - X[inner, 1])
+
+
 def _eye(head: Head, frame: FaceFrame, blink: np.ndarray, blink_delta: np.ndarray, side: str) -> dict:
     """lid_upper / lid_lower / eye_inner / eye_outer of one eye from its blink motion (n,) and deltas (n, 3)."""
     V = head.verts
@@ -232,17 +242,11 @@ def _eye(head: Head, frame: FaceFrame, blink: np.ndarray, blink_delta: np.ndarra
     if ring.size < 4:
         raise ShapeSpaceError(f"no eye opening found around vertex {top} (eye {side})", ErrorCode.DEGENERATE)
     X = frame.coords(V[ring])
-    lat = np.abs(X[:, 0])
-    inner, outer = int(np.argmin(lat)), int(np.argmax(lat))
-    # the line through the corners splits the rim into the upper and the lower lid
-    t = (X[:, 0] - X[inner, 0]) / (X[outer, 0] - X[inner, 0] or 1.0)
-    above = X[:, 1] >= X[inner, 1] + t * (X[outer, 1] - X[inner, 1])
+    inner, outer, above = _lid_split(X)
     upper = _argmax(ring[above], blink[ring[above]]) if above.any() else -1
     lower = -1
-    if upper >= 0 and (~above).any():
-        landed = frame.coords((V[upper] + blink_delta[upper])[None])[0]
-        flat = np.linalg.norm(X[~above, :2] - landed[:2], axis=1)   # in the frontal plane: it may land inside
-        lower = int(ring[~above][np.argmin(flat)])
+    if upper >= 0 and (~above).any():                # opposite the upper lid (across the opening)
+        lower = int(ring[~above][np.argmin(np.abs(X[~above, 0] - frame.coords(V[[upper]])[0, 0]))])
     return {f"lid_upper_{side}": upper, f"lid_lower_{side}": lower,
             f"eye_inner_{side}": int(ring[inner]), f"eye_outer_{side}": int(ring[outer])}
 
@@ -265,13 +269,19 @@ def _mouth(head: Head, frame: FaceFrame, near: np.ndarray, radius: float = 0.12)
             raise ShapeSpaceError("no mouth opening found", ErrorCode.DEGENERATE)
         return _mouth_band(head, frame, band, partner)
     X = frame.coords(head.verts[ring])
-    width = np.ptp(X[:, 0])
-    mid = np.abs(X[:, 0]) <= 0.1 * width
-    cand, Xc = ring[mid], X[mid]
-    centre_up = np.median(Xc[:, 1])
-    hi, lo = Xc[:, 1] >= centre_up, Xc[:, 1] <= centre_up
-    upper, lower = _nearest_midline(cand[hi], Xc[hi], head.diag), _nearest_midline(cand[lo], Xc[lo], head.diag)
-    return {"mouth_corner_L": int(ring[np.argmax(X[:, 0])]), "mouth_corner_R": int(ring[np.argmin(X[:, 0])]),
+    left, right = int(np.argmax(X[:, 0])), int(np.argmin(X[:, 0]))
+    # the loop without its corners falls into the upper and the lower lip (the lips may touch: not by height)
+    keep = np.ones(ring.size, dtype=bool)
+    keep[[left, right]] = False
+    n_arcs, arc = connected_components(head.graph[ring[keep]][:, ring[keep]], directed=False)
+    if n_arcs == 2:
+        up_arc = int(np.argmax([X[keep][arc == a, 1].mean() for a in range(2)]))
+        hi, lo = np.flatnonzero(keep)[arc == up_arc], np.flatnonzero(keep)[arc != up_arc]
+    else:
+        centre_up = np.median(X[:, 1])
+        hi, lo = np.flatnonzero(X[:, 1] >= centre_up), np.flatnonzero(X[:, 1] <= centre_up)
+    upper, lower = _nearest_midline(ring[hi], X[hi], head.diag), _nearest_midline(ring[lo], X[lo], head.diag)
+    return {"mouth_corner_L": int(ring[left]), "mouth_corner_R": int(ring[right]),
             "lip_upper_inner": upper, "lip_lower_inner": lower}
 
 
@@ -359,7 +369,7 @@ def _own_frame(head: Head, frame: FaceFrame, marks: dict) -> FaceFrame:
     return FaceFrame(origin, np.stack([left, up, np.cross(left, up)]))
 
 
-def locate_from_shapes(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, names) -> tuple:
+def locate_from_shapes(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, names: Sequence[str]) -> tuple:
     """Every named landmark of a rig, found from its own ARKit shapes and its eye and mouth openings.
 
     Parameters
@@ -444,16 +454,14 @@ def locate_on_geometry(head: Head, frame: FaceFrame, rough: dict) -> tuple:
         if ring.size < 4:
             continue
         X = frame.coords(V[ring])
-        c = frame.coords(centre[None])[0]
-        lat = np.abs(X[:, 0])
-        up_half, low_half = ring[X[:, 1] >= c[1]], ring[X[:, 1] < c[1]]
+        inner, outer, above = _lid_split(X)
+        up_half, low_half = ring[above], ring[~above]
         if up_half.size and low_half.size:
             out[names[0]] = int(up_half[np.argmin(np.linalg.norm(V[up_half] - V[rough[names[0]]], axis=1))])
-            # the lower lid opposite the upper one (where the closing lid lands)
-            across = np.abs(frame.coords(V[low_half])[:, 0] - frame.coords(V[[out[names[0]]]])[0, 0])
+            across = np.abs(X[~above, 0] - frame.coords(V[[out[names[0]]]])[0, 0])   # opposite the upper lid
             out[names[1]] = int(low_half[np.argmin(across)])
             supported[names[0]] = supported[names[1]] = True
-        out[names[2]], out[names[3]] = int(ring[np.argmin(lat)]), int(ring[np.argmax(lat)])
+        out[names[2]], out[names[3]] = int(ring[inner]), int(ring[outer])
         supported[names[2]] = supported[names[3]] = True
     mouth = ("mouth_corner_L", "mouth_corner_R", "lip_upper_inner", "lip_lower_inner")
     if all(n in rough for n in mouth):

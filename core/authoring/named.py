@@ -163,7 +163,7 @@ def _index(value, where: str, n_verts: int | None) -> int:
     return value
 
 
-def check_named(entries, where: str, n_verts: int | None = None) -> dict:
+def check_named(entries: Mapping | object, where: str, n_verts: int | None = None) -> dict:
     """Validate one ``{name: vertex index}`` object; returns it as a dict in :data:`NAMES` order.
 
     Raises

@@ -101,7 +101,7 @@ class SHAPESPACE_OT_clear_named_landmarks(bpy.types.Operator):
         return ob is not None
 
     def execute(self, context):
-        named.clear(context.active_object)
+        named.clear_named(context.active_object)
         return {"FINISHED"}
 
 
