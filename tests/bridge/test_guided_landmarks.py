@@ -205,3 +205,26 @@ def test_named_proposal_stores_only_the_sure_landmarks_and_they_are_the_placed_o
     placed = load_head_file(PLACED, len(tgt.data.vertices))
     _, tv = authoring.landmark_pairs(tgt, src)
     assert tv.tolist() == [placed[n] for n in sure]
+
+
+def test_contours_on_fbhead_run_along_its_eye_and_mouth_openings(registered):
+    """FBHead's eyes and mouth are holes in its skin: the lid and inner-lip contours between the placed
+    landmarks run along those holes' borders (edges used by one triangle), from their first to their last
+    landmark through the middle one."""
+    from shapespace.core.authoring import triangle_parts
+    from shapespace.core.authoring.mesh import boundary_vertices
+    from shapespace.core.authoring.named import CONTOURS, contour_paths
+    ob = _fbhead()
+    V = shapekeys.read_blendshape_model(ob).neutral
+    T = authoring.triangles(ob.data)
+    placed = load_head_file(PLACED, len(V))
+    names = ("lid_upper_L", "lid_lower_L", "lid_upper_R", "lid_lower_R", "lip_upper_inner", "lip_lower_inner")
+    paths = contour_paths(V, T, placed, names)
+    border = boundary_vertices(len(V), T)
+    part, _ = triangle_parts(len(V), T)
+    for name in names:
+        first, middle, last = (placed[n] for n in CONTOURS[name])
+        path = paths[name]
+        assert path[0] == first and path[-1] == last and middle in path
+        assert len(set(path.tolist())) == len(path) and (part[path] == 0).all()
+        assert border[path].mean() >= 0.85, (name, border[path].mean())
