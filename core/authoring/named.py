@@ -119,7 +119,7 @@ def shortest_path(graph: sp.csr_matrix, a: int, b: int) -> np.ndarray:
 
 
 def contour_paths(verts: ArrayLike, tris: ArrayLike, landmarks: Mapping[str, int],
-                  names: tuple | None = None) -> dict:
+                  names: tuple | None = None, corridor: float = 0.3) -> dict:
     """The vertex path of each contour whose three landmarks are given.
 
     Parameters
@@ -130,28 +130,51 @@ def contour_paths(verts: ArrayLike, tris: ArrayLike, landmarks: Mapping[str, int
         Named landmark vertices of this mesh (e.g. one side of a landmark file).
     names : tuple of str, optional
         Contours wanted (default: every one of :data:`CONTOURS` whose landmarks are all given).
+    corridor : float
+        Each half (first → middle, middle → last) keeps to the vertices within this × its length of the
+        straight segment between its landmarks when such a path exists, else within three times that, else
+        anywhere on the mesh (0: anywhere).
 
     Returns
     -------
     dict of str to ndarray of int
         ``contour -> (p,)`` vertex indices from its first landmark through its middle one to its last
-        (shortest paths along mesh edges).  A contour whose landmarks are not connected by edges is left out.
+        (shortest paths along mesh edges, within the corridor).  A contour whose landmarks are not connected
+        by edges is left out.
     """
     wanted = tuple(CONTOURS) if names is None else tuple(names)
     for c in wanted:
         if c not in CONTOURS:
             raise ShapeSpaceError(f"no contour named {c!r} (one of {', '.join(CONTOURS)})", ErrorCode.MISSING_KEY)
     G = edge_graph(verts, tris)
+    V = np.asarray(verts, dtype=np.float64)
     out = {}
     for c in wanted:
         ends = CONTOURS[c]
         if not all(k in landmarks for k in ends):
             continue
         a, m, b = (int(landmarks[k]) for k in ends)
-        first, second = shortest_path(G, a, m), shortest_path(G, m, b)
+        first, second = _corridor_path(G, V, a, m, corridor), _corridor_path(G, V, m, b, corridor)
         if first.size and second.size:
             out[c] = np.concatenate([first, second[1:]])
     return out
+
+
+def _corridor_path(G: sp.csr_matrix, V: np.ndarray, a: int, b: int, corridor: float) -> np.ndarray:
+    """Shortest edge path from ``a`` to ``b`` through the vertices within ``corridor`` × |ab| of the segment ab
+    (so that it follows the feature, not a detour through a mouth bag); unrestricted when that has none."""
+    p, q = V[a], V[b]
+    d = q - p
+    t = np.clip((V - p) @ d / max(float(d @ d), 1e-300), 0.0, 1.0)
+    off = np.linalg.norm(V - (p + t[:, None] * d), axis=1) / max(float(np.linalg.norm(d)), 1e-300)
+    for width in (corridor, 3.0 * corridor) if corridor > 0 else ():       # a wider corridor before none
+        near = np.flatnonzero(off <= width)
+        local = {int(v): k for k, v in enumerate(near)}
+        if a in local and b in local:
+            path = shortest_path(G[near][:, near], local[a], local[b])
+            if path.size:
+                return near[path]
+    return shortest_path(G, a, b)
 
 
 def _index(value, where: str, n_verts: int | None) -> int:
