@@ -69,7 +69,7 @@ def evaluate(heads: dict, placed: dict, sources: dict) -> dict:
         errs, unflagged, worst, flagged = [], [], [], 0
         for src in sources[tag]:
             SV, ST, SD, SN = heads[src]
-            res = propose_landmark_pairs(SV, ST, SD, SN, TV, TT)
+            res = propose_landmark_pairs(SV, ST, SD, SN, TV, TT, named=True)
             pairs = res.value
             if pairs is None:
                 continue

@@ -34,7 +34,7 @@ landmark warp locally; with 2 % the mean relative transfer error with proposed l
 (``tools/bench_transfer.py``, ``transfer_rel_auto_*``) was facecap → FBHead 0.80 instead of 0.91, the other
 pairs within ±0.02.
 
-Named landmarks (issue #22 §3, ``named=True``, the default): when the source's ARKit shapes locate the 26
+Named landmarks (issue #22 §3, ``named=True``): when the source's ARKit shapes locate the 26
 named landmarks (:func:`~core.authoring.features.locate_from_shapes`), those are proposed instead: moved by the
 winning similarity, snapped, then re-found on the target's own features
 (:func:`~core.authoring.features.locate_on_geometry`: the eye openings' rims for the corners and lids, the
@@ -170,7 +170,7 @@ def propose_landmark_pairs(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas
                            src_names: Sequence[str], dst_verts: ArrayLike, dst_tris: ArrayLike, *,
                            iterations: int = 25, trim: float = 0.3, sample: int = 2500, face: float = 0.1,
                            face_trim: float = 0.1, scale_bounds: tuple = (0.7, 1.43), snap: int = 16,
-                           spacing: float = 0.02, named: bool = True, flag: float = 0.5) -> Result:
+                           spacing: float = 0.02, named: bool = False, flag: float = 0.5) -> Result:
     """Landmark pairs for a target head without shapes, proposed from the source rig's shapes and geometry.
 
     Parameters
@@ -204,7 +204,8 @@ def propose_landmark_pairs(src_verts: ArrayLike, src_tris: ArrayLike, src_deltas
 
     named : bool
         Propose the named landmarks (:mod:`.named`) when the source's ARKit shapes locate them (eyeBlink,
-        mouthPucker …), else — or with False — one landmark per strong source shape, named after it.
+        mouthPucker …; else, and by default, one landmark per strong source shape, named after it).  Register
+        with ``value.unflagged()`` to leave out the ones it is unsure of.
     flag : float
         Named landmarks whose confidence is below this are flagged (``LandmarkPairs.flagged``).
 
