@@ -49,11 +49,11 @@ HOW = {
     "lip_lower_outer": "the most forward midline vertex of the lower lip (0.25 eye distances below the opening)",
     "nose_tip": "the most forward midline vertex between the mouth and the eyes (profile points: in the frame of "
                 "the head's mirror plane and the line from its mouth landmarks to its eye landmarks)",
-    "nostril": "the vertex on that side noseSneer moves most",
+    "nostril": "the vertex on that side noseSneer moves most within 0.35 eye distances of the midline",
     "chin": "the chin's corner: the midline vertex farthest forward-and-down (45°) 0.15 to 1 eye distances below "
             "the lower lip",
-    "jaw_angle": "the most backward vertex on that side that jawOpen moves by at least 30 % of its peak, "
-                 "at or below the mouth",
+    "jaw_angle": "the most backward outward-facing vertex on that side, 0.6 eye distances or more from the "
+                 "midline, that jawOpen moves by at least 30 % of its peak, at or below the mouth",
 }
 
 
@@ -340,9 +340,13 @@ def _brow(head: Head, frame: FaceFrame, inner: np.ndarray, outer: np.ndarray, si
     return {f"brow_inner_{side}": a, f"brow_mid_{side}": m, f"brow_outer_{side}": b}
 
 
-def _jaw(head: Head, frame: FaceFrame, jaw: np.ndarray, mouth_up: float, side: str) -> int:
+def _jaw(head: Head, frame: FaceFrame, jaw: np.ndarray, mouth_up: float, side: str, eyes: float) -> int:
+    """The most backward outer-skin vertex on that side jawOpen moves by ≥ 30 % of its peak, at or below the
+    mouth: at least 0.6 eye distances from the midline and facing outwards (not the inside of a mouth bag)."""
     C = frame.coords(head.verts)
-    mask = _side(head, frame, side) & (jaw >= 0.3 * jaw.max()) & (C[:, 1] <= mouth_up)
+    sign = 1.0 if side == "L" else -1.0
+    mask = (_side(head, frame, side) & (jaw >= 0.3 * jaw.max()) & (C[:, 1] <= mouth_up)
+            & (np.abs(C[:, 0]) >= 0.6 * eyes) & (sign * head.normals @ frame.axes[0] > 0))
     return _argmax(np.flatnonzero(mask), -C[mask, 2])
 
 
@@ -403,20 +407,23 @@ def locate_from_shapes(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, nam
     out.update(_mouth(head, frame, near))
     if all(k in out for k in ("lid_upper_L", "lid_upper_R")):
         out.update(_profile(head, _own_frame(head, frame, out), out))
+    C = frame.coords(head.verts)
+    eyes = abs(C[out["lid_upper_L"], 0] - C[out["lid_upper_R"], 0]) if "lid_upper_L" in out and "lid_upper_R" in out \
+        else 0.0
     for side, full in (("L", "Left"), ("R", "Right")):
         inner = _shape(names, D, head.skin, f"browInnerUp{full}", "browInnerUp")
         outer = _shape(names, D, head.skin, f"browOuterUp{full}")
         if inner is not None and outer is not None:
             out.update(_brow(head, frame, inner, outer, side))
         sneer = _shape(names, D, head.skin, f"noseSneer{full}")
-        if sneer is not None:
-            mask = _side(head, frame, side)
+        if sneer is not None and eyes > 0:          # on the nose (not the cheek noseSneer may pull more)
+            mask = _side(head, frame, side) & (np.abs(C[:, 0]) <= 0.35 * eyes)
             out[f"nostril_{side}"] = _argmax(np.flatnonzero(mask), sneer[mask])
     jaw = _shape(names, D, head.skin, "jawOpen")
-    if jaw is not None:
-        mouth_up = frame.coords(head.verts[[out["mouth_corner_L"]]])[0, 1]
+    if jaw is not None and eyes > 0:
+        mouth_up = C[out["mouth_corner_L"], 1]
         for side in ("L", "R"):
-            out[f"jaw_angle_{side}"] = _jaw(head, frame, jaw, mouth_up, side)
+            out[f"jaw_angle_{side}"] = _jaw(head, frame, jaw, mouth_up, side, eyes)
     return {n: int(out[n]) for n in NAMES if out.get(n, -1) >= 0}, frame
 
 
