@@ -46,7 +46,7 @@ below 0.5 it is flagged.  A starting alignment that collapses (a similarity on c
 and counted (``degenerate_hypotheses``), never the end of the proposal.  Measured
 (``tools/bench_landmarks.py``, every other shared head as the source, against ``tools/landmarks/<head>.json``,
 mm at a 30 cm head): largest error over the points not flagged facecap 0.0, FBHead 0.0, ICT 1.4, Ready Player
-Me 0.0; over all points 28 / 21 / 31 / 19 (the jaw angles, flagged); per source and target 0–14 of the 26
+Me 0.0; over all points 32 / 24 / 22 / 30 (the jaw angles, flagged); per source and target 0–14 of the 26
 points are left unflagged (an ICT source: the fewest).
 
 Limits: this is a rigid + uniform-scale fit.  The proposal is only as good as the two heads are alike after
