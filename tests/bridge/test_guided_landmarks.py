@@ -175,6 +175,11 @@ def test_command_line_transfer_with_a_named_landmark_file(registered, tmp_path):
     code, _, stderr = _cli("-b", tgt_path, "--command", "shapespace", "transfer", "--source-rig",
                            f"{src_path}:FBHead", "--object", "Head", "--landmarks", "nope.txt", "--out", again)
     assert code == 2 and "FILE.json of named landmarks" in stderr
+    # the named landmarks proposed from the geometry (the moved copy has no keys)
+    code, stdout, stderr = _cli("-b", tgt_path, "--command", "shapespace", "transfer", "--source-rig",
+                                f"{src_path}:FBHead", "--object", "Head", "--landmarks", "named", "--dry-run")
+    rep = json.loads(stdout)
+    assert rep["landmarks_from"] == "proposed" and rep["saved"] is None and rep["landmarks"] >= 5, stderr
 
 
 def test_proposal_from_ict_facekit_gives_the_named_set_with_flags(registered):
