@@ -323,13 +323,15 @@ def propose_landmarks(source, target, method: str = "auto") -> Result:
 
     ``method``: ``shapes`` (from the shape keys both meshes share), ``geometry`` (geometric features of
     both heads: for a target without shapes), ``auto`` (shapes when the target has shapes the source
-    shares, else geometry).  Returns the core result (value: the number of pairs stored); nothing is
-    stored when it fails.
+    shares, else geometry), ``named`` (the named landmarks, :mod:`core.authoring.named`, proposed with a
+    confidence each; the ones flagged as unsure are not stored while 5 others remain).  Returns the core
+    result (value: the number of pairs stored); nothing is stored when it fails.
     """
     rig = read_source_rig(source)
     tgt = read_target(target)
-    if method not in ("auto", "shapes", "geometry"):
-        raise ShapeSpaceError(f"unknown landmark method {method!r}: auto, shapes or geometry", ErrorCode.METHOD)
+    if method not in ("auto", "shapes", "geometry", "named"):
+        raise ShapeSpaceError(f"unknown landmark method {method!r}: auto, shapes, geometry or named",
+                              ErrorCode.METHOD)
     result = None
     if method in ("auto", "shapes") and len(tgt.keys) > 1:
         model = shapekeys.read_blendshape_model(target)
@@ -350,15 +352,24 @@ def propose_landmarks(source, target, method: str = "auto") -> Result:
                                   f"geometric proposal or place them by hand", ErrorCode.TOO_FEW_LANDMARKS)
         from ..core.authoring.proposal import propose_landmark_pairs
         result = propose_landmark_pairs(rig.neutral, rig.triangles, rig.full_sculpts(), rig.names, tgt.neutral,
-                                        tgt.triangles)
+                                        tgt.triangles, named=method == "named")
     if result.value is None:
         raise ShapeSpaceError(result.message or "no landmarks could be proposed", ErrorCode.TOO_FEW_LANDMARKS)
-    pairs = result.value
+    pairs, message = _usable(result.value, result.message)
     src = _snap(pairs.source, pairs.source_index, rig.neutral)
     dst = _snap(pairs.target, pairs.target_index, tgt.neutral)
     count = set_landmarks(target, source, src, dst)
-    return Result(count, status=result.status, message=result.message, diagnostics=dict(result.diagnostics),
+    return Result(count, status=result.status, message=message, diagnostics=dict(result.diagnostics),
                   issues=list(result.issues))
+
+
+def _usable(pairs, message: str) -> tuple:
+    """The proposed pairs to store: without the ones the proposal flagged as unsure while at least
+    :data:`MIN_LANDMARKS` others remain (they are named in the message, to be placed by hand)."""
+    kept = pairs.unflagged()
+    if len(kept) == len(pairs) or len(kept) < MIN_LANDMARKS:
+        return pairs, message
+    return kept, f"{message} (the {len(pairs) - len(kept)} unsure ones are not used)"
 
 
 def _landmarks_for(source, target, rig: SourceRig, tgt: TargetMesh):

@@ -2,7 +2,7 @@
 
     blender -b target.blend --command shapespace transfer --source-rig template.blend:Object --object Head \\
         --out rigged.blend [--naming source|arkit|suffix|pascal] [--existing refuse|skip|overwrite]
-        [--landmarks auto|stored|shapes|geometry] [--unmatched-parts move|keep|refuse]
+        [--landmarks auto|stored|shapes|geometry|named|FILE.json] [--unmatched-parts move|keep|refuse]
         [--parts-collection COLLECTION] [--report FILE] [--dry-run]
 
 The source rig is appended from its .blend, used, and removed again: the saved file holds the target with its
@@ -18,6 +18,7 @@ import sys
 
 import bpy
 
+from ..core.authoring.named import load_landmark_file
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
 from .outputs import check_outputs, same_file
@@ -28,6 +29,10 @@ EPILOG = """\
 file holds only the target's new keys); a bare OBJECT names a mesh of the opened file.
 Landmarks: 'auto' (default) uses the pairs stored on the target when it has at least 5 for this source,
 else proposes them (from shared shapes, else from the heads' geometry) and stores them on the target.
+--landmarks FILE.json: named landmarks of both heads, {"version": 1, "source": {"eye_inner_L": 123, ...},
+"target": {"eye_inner_L": 456, ...}} (vertex indices; names: eye_inner/eye_outer/lid_upper/lid_lower/brow_inner/
+brow_mid/brow_outer/mouth_corner/nostril/jaw_angle + _L/_R, lip_upper_outer, lip_lower_outer, lip_upper_inner,
+lip_lower_inner, nose_tip, chin); the names on both sides are used (at least 5).
 Existing keys of the same names are refused unless --existing skip|overwrite says otherwise.
 Saving: --out never overwrites an input (the opened .blend, the source .blend); --overwrite allows saving into
 the opened .blend (Blender keeps the old one as .blend1) or replacing a file of another kind."""
@@ -43,8 +48,11 @@ def add_parser(sub) -> None:
                     help="naming convention of the new keys (default: the source's names)")
     tr.add_argument("--existing", choices=("refuse", "skip", "overwrite"), default="refuse",
                     help="target keys that already have a new name: refuse (default), keep them, or replace them")
-    tr.add_argument("--landmarks", choices=("auto", "stored", "shapes", "geometry"), default="auto",
-                    help="landmark pairs: stored on the target, proposed from shared shapes or geometry, or auto")
+    tr.add_argument("--landmarks", type=_landmark_choice, default="auto",
+                    metavar="auto|stored|shapes|geometry|named|FILE.json",
+                    help="landmark pairs: stored on the target, proposed from shared shapes or geometry, auto, the "
+                         "named landmarks proposed (unsure ones left out), or a file of named source and target "
+                         "vertices")
     tr.add_argument("--unmatched-parts", choices=("move", "keep", "refuse"), default="move",
                     help="target parts the source does not move (eyes, teeth, lashes): move them as rigged "
                          "(default), keep them still, or refuse")
@@ -57,6 +65,14 @@ def add_parser(sub) -> None:
     tr.add_argument("--report", help="write the JSON report here instead of stdout")
     tr.add_argument("--overwrite", action="store_true",
                     help="allow --out onto the opened .blend, and replacing a file of another kind")
+
+
+def _landmark_choice(value: str) -> str:
+    import argparse
+    if value in ("auto", "stored", "shapes", "geometry", "named") or value.lower().endswith(".json"):
+        return value
+    raise argparse.ArgumentTypeError(f"{value!r}: auto, stored, shapes, geometry, named or a FILE.json of named "
+                                     f"landmarks")
 
 
 def _say(text: str) -> None:
@@ -119,7 +135,21 @@ def _parts(target, name) -> list:
     return part_objects.meshes_of(coll, target)
 
 
+def _landmark_file(bridge, source, target, path: str) -> str:
+    """Named landmarks from a file (validated against both meshes' vertex counts) stored as the target's pairs."""
+    if not os.path.isfile(path):
+        raise ShapeSpaceError(f"--landmarks {path}: file not found", ErrorCode.MISSING_FILE)
+    src, dst, ignored = load_landmark_file(path, len(source.data.vertices), len(target.data.vertices))
+    if ignored:
+        _say(f"warning: landmarks named on one side only (not used): {', '.join(ignored)}")
+    bridge.set_landmarks(target, source, list(src.values()), list(dst.values()))
+    _say(f"{len(src)} named landmark pairs from {path}")
+    return "file"
+
+
 def _landmarks(bridge, source, target, how: str) -> str:
+    if how.lower().endswith(".json"):
+        return _landmark_file(bridge, source, target, how)
     if how == "stored":
         return "stored"                      # the transfer refuses fewer than 5, stale or damaged pairs
     if how == "auto" and bridge.landmark_count(target)[0] >= bridge.MIN_LANDMARKS:
@@ -144,7 +174,8 @@ def transfer(args, inputs: list) -> tuple:
                               if not args.out else "transfer: --out and --dry-run exclude each other", ErrorCode.USAGE)
     src_file, src_name = _split_source(args.source_rig)
     opened = args.target or bpy.data.filepath or (inputs[0] if inputs else "")
-    read = [p for p in (bpy.data.filepath, args.target, *inputs, src_file) if p]
+    lm_file = args.landmarks if args.landmarks.lower().endswith(".json") else ""
+    read = [p for p in (bpy.data.filepath, args.target, *inputs, src_file, lm_file) if p]
     out, report_out = check_outputs([("--out", args.out, "blend"), ("--report", args.report, "json")], read,
                                     args.overwrite, opened)
     if src_file and not os.path.isfile(src_file):

@@ -5,12 +5,14 @@ from .authoring import SHAPESPACE_PT_transfer_shapes
 from .export import SHAPESPACE_PT_export
 from .facespace import SHAPESPACE_PT_face_space, SHAPESPACE_UL_flagged_frames
 from .live import SHAPESPACE_PT_live, SHAPESPACE_UL_live_takes
+from .named_landmarks import SHAPESPACE_PT_named_landmarks
 from .manipulation import SHAPESPACE_PT_direct, SHAPESPACE_UL_pins
 from .posespace import SHAPESPACE_PT_correctives, SHAPESPACE_UL_examples, SHAPESPACE_UL_readers
 from .retarget import SHAPESPACE_PT_retarget
 from .rig import SHAPESPACE_PT_rig
 
-classes = (SHAPESPACE_PT_rig, SHAPESPACE_PT_transfer_shapes, SHAPESPACE_UL_pins, SHAPESPACE_PT_direct,
+classes = (SHAPESPACE_PT_rig, SHAPESPACE_PT_transfer_shapes, SHAPESPACE_PT_named_landmarks, SHAPESPACE_UL_pins,
+           SHAPESPACE_PT_direct,
            SHAPESPACE_UL_examples,
            SHAPESPACE_UL_readers, SHAPESPACE_PT_correctives, SHAPESPACE_PT_retarget,
            SHAPESPACE_UL_flagged_frames, SHAPESPACE_PT_face_space, SHAPESPACE_UL_live_takes, SHAPESPACE_PT_live,

@@ -41,6 +41,10 @@ class LandmarkPairs:
     source_index, target_index : ndarray of int, shape (m,)
         Vertex index of each point, −1 for a free surface point.
     names : tuple of str, length m
+    confidence : ndarray of float, shape (m,)
+        How sure a proposal is of each pair, 0…1 (1 for pairs placed by hand).
+    flagged : ndarray of bool, shape (m,)
+        Pairs a proposal is unsure of: shown to the artist to check, left out by :meth:`unflagged`.
     """
 
     source: np.ndarray
@@ -48,6 +52,8 @@ class LandmarkPairs:
     source_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     target_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
     names: tuple = ()
+    confidence: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    flagged: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     def __post_init__(self):
         m = np.asarray(self.source).shape[0] if np.ndim(self.source) == 2 else 0
@@ -57,6 +63,18 @@ class LandmarkPairs:
             self.target_index = np.full(m, -1, dtype=int)
         if not self.names:
             self.names = tuple(f"L{i}" for i in range(m))
+        if len(self.confidence) == 0:
+            self.confidence = np.ones(m)
+        if len(self.flagged) == 0:
+            self.flagged = np.zeros(m, dtype=bool)
+
+    def unflagged(self) -> LandmarkPairs:
+        """The pairs not flagged as unsure (all of them when none is flagged)."""
+        keep = ~np.asarray(self.flagged, dtype=bool)
+        return LandmarkPairs(np.asarray(self.source)[keep], np.asarray(self.target)[keep],
+                             np.asarray(self.source_index)[keep], np.asarray(self.target_index)[keep],
+                             tuple(n for n, k in zip(self.names, keep) if k), np.asarray(self.confidence)[keep],
+                             np.zeros(int(keep.sum()), dtype=bool))
 
     def __len__(self) -> int:
         return int(np.asarray(self.source).shape[0])
@@ -65,7 +83,8 @@ class LandmarkPairs:
         """Plain lists (for stored data)."""
         return {"source": np.asarray(self.source).tolist(), "target": np.asarray(self.target).tolist(),
                 "source_index": [int(i) for i in self.source_index],
-                "target_index": [int(i) for i in self.target_index], "names": list(self.names)}
+                "target_index": [int(i) for i in self.target_index], "names": list(self.names),
+                "confidence": [float(c) for c in self.confidence], "flagged": [bool(f) for f in self.flagged]}
 
     @classmethod
     def from_json(cls, data: dict) -> LandmarkPairs:
@@ -74,7 +93,8 @@ class LandmarkPairs:
             return cls(np.asarray(data["source"], dtype=np.float64).reshape(-1, 3),
                        np.asarray(data["target"], dtype=np.float64).reshape(-1, 3),
                        np.asarray(data["source_index"], dtype=int), np.asarray(data["target_index"], dtype=int),
-                       tuple(data["names"]))
+                       tuple(data["names"]), np.asarray(data.get("confidence", []), dtype=np.float64),
+                       np.asarray(data.get("flagged", []), dtype=bool))
         except (KeyError, TypeError, ValueError) as exc:
             raise ShapeSpaceError(f"stored landmarks are damaged: {exc}", ErrorCode.CORRUPT_METADATA) from None
 

@@ -2,6 +2,12 @@
 from .add_landmark_pair import SHAPESPACE_OT_add_landmark_pair
 from .clear_landmark_pairs import SHAPESPACE_OT_clear_landmark_pairs
 from .clear_registration_preview import SHAPESPACE_OT_clear_registration_preview
+from .named_landmarks import (
+    SHAPESPACE_OT_clear_named_landmarks,
+    SHAPESPACE_OT_mirror_named_landmarks,
+    SHAPESPACE_OT_place_named_landmark,
+    SHAPESPACE_OT_use_named_landmarks,
+)
 from .preview_registration import SHAPESPACE_OT_preview_registration
 from .propose_landmarks import SHAPESPACE_OT_propose_landmarks
 from .remove_landmark_pair import SHAPESPACE_OT_remove_landmark_pair
@@ -15,4 +21,8 @@ classes = (
     SHAPESPACE_OT_propose_landmarks,
     SHAPESPACE_OT_remove_landmark_pair,
     SHAPESPACE_OT_transfer_shapes,
+    SHAPESPACE_OT_place_named_landmark,
+    SHAPESPACE_OT_mirror_named_landmarks,
+    SHAPESPACE_OT_clear_named_landmarks,
+    SHAPESPACE_OT_use_named_landmarks,
 )

@@ -7,7 +7,10 @@ from ._polls import transfer_target
 METHODS = [("auto", "Automatic", "From the shapes both meshes share when the target has shapes, else from the "
             "heads' geometric features"),
            ("shapes", "From Shared Shapes", "Each shape both rigs share gives the vertex it moves most"),
-           ("geometry", "From Geometry", "Nose tip, chin, eye and mouth corners, … found on both heads")]
+           ("geometry", "From Geometry", "Nose tip, chin, eye and mouth corners, … found on both heads"),
+           ("named", "Named Landmarks", "The named landmarks (eye and mouth corners, lids, lips, nose tip, chin …) "
+            "found on the source from its shapes and re-found on the target's eye and mouth openings; the ones "
+            "it is unsure of are named in the message and not used")]
 
 
 class SHAPESPACE_OT_propose_landmarks(bpy.types.Operator):
