@@ -24,6 +24,8 @@ import bpy
 import numpy as np
 
 from ..core import authoring as core
+from ..core.authoring import contacts as core_contacts
+from ..core.authoring import named as core_named
 from ..core.authoring import parts as core_parts
 from ..core.authoring import quality as core_quality
 from ..core.errors import ErrorCode
@@ -32,9 +34,9 @@ from ..core.progress import notify, scaled
 from ..core.result import Result, ShapeSpaceError, Status, to_jsonable
 from ..core.schema import Schema
 from ..core.validate import ABSURD_COORDINATE, coordinates
-from . import driven, part_objects, shapekeys, storage
+from . import driven, named_landmarks, part_objects, shapekeys, storage
 from .arrays import read_float, write_float
-from .meshes import vertex_groups
+from .meshes import triangles, vertex_groups
 
 __all__ = ["MIN_LANDMARKS", "PREVIEW_PROP", "LANDMARKS_PROP", "NAMINGS", "EXISTING", "SourceRig", "TargetMesh",
            "TransferReport", "read_source_rig", "read_target", "landmark_pairs", "landmark_count", "landmark_list",
@@ -102,14 +104,6 @@ def _mesh_object(obj, role: str):
     if len(obj.data.vertices) == 0:
         raise ShapeSpaceError(f"the {role} {obj.name!r} has no vertices", ErrorCode.EMPTY)
     return obj
-
-
-def triangles(mesh) -> np.ndarray:
-    """The mesh's triangles from Blender's own tessellation (``loop_triangles``), int (f, 3)."""
-    mesh.calc_loop_triangles()
-    tris = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int32)
-    mesh.loop_triangles.foreach_get("vertices", tris)
-    return tris.reshape(-1, 3).astype(np.int64)
 
 
 def _neutral(obj) -> np.ndarray:
@@ -306,6 +300,27 @@ def set_landmarks(target, source, src_index, dst_index) -> int:
             pairs.append((a, b))
     _store_pairs(target, source, pairs)
     return len(pairs)
+
+
+def use_named_landmarks(target, source) -> int:
+    """Set the target's transfer landmark pairs from the names placed on both the source rig and the target
+    (:mod:`bridge.named_landmarks`); returns the number of pairs (refused below the minimum, naming how many)."""
+    src, dst = named_landmarks.named_landmarks(source), named_landmarks.named_landmarks(target)
+    both = core_named.shared_names(src, dst)
+    if len(both) < MIN_LANDMARKS:
+        raise ShapeSpaceError(f"{len(both)} named landmarks are placed on both {source.name!r} and {target.name!r}; "
+                              f"at least {MIN_LANDMARKS} are needed", ErrorCode.TOO_FEW_LANDMARKS)
+    return set_landmarks(target, source, [src[n] for n in both], [dst[n] for n in both])
+
+
+def _openings(source, target, rig, tgt) -> list:
+    """Eye and mouth openings from the lid and inner-lip contours between the named landmarks placed on both
+    the source rig and the target (``core.authoring.contacts``); [] where they are not placed.  Stale or
+    damaged named landmarks are refused by name (they would silently change the transfer)."""
+    src, dst = named_landmarks.named_landmarks(source), named_landmarks.named_landmarks(target)
+    if not src or not dst:
+        return []
+    return core_contacts.openings_from_named(rig.neutral, rig.triangles, src, tgt.neutral, tgt.triangles, dst)
 
 
 def _snap(points: np.ndarray, index: np.ndarray, verts: np.ndarray) -> np.ndarray:
@@ -532,6 +547,7 @@ class TransferReport:
     keys: list = field(default_factory=list)             # per-key checks (core.authoring.quality.check_keys)
     parts: list = field(default_factory=list)            # per-part kind, size, confidence, reason
     part_objects: list = field(default_factory=list)     # per part object: keys created / overwritten / skipped
+    openings: list = field(default_factory=list)         # eye / mouth openings whose closure was carried
 
     def to_json(self) -> dict:
         return to_jsonable(self)
@@ -739,6 +755,7 @@ class TransferPlan:
     signature: tuple                     # the target as read (see _target_signature)
     started: float
     part_plans: list = field(default_factory=list)   # (PartObject, write, replace, skipped) per part object
+    openings: list = field(default_factory=list)     # core.authoring.contacts.Opening (named lid/lip contours)
 
 
 @dataclass
@@ -802,6 +819,7 @@ def read_transfer(source, target, naming: str = "source", existing: str = "refus
     names = _new_names(rig, naming)
     write, replace, skipped, groups_clash = _plan(rig, tgt, names, existing, target)
     part_plans = _part_plans(rig, tgt, names, existing)
+    openings = _openings(source, target, rig, tgt)
     if not write:
         raise ShapeSpaceError(f"{target.name!r} already has every shape of {source.name!r}: nothing to transfer",
                               ErrorCode.NO_TARGETS)
@@ -809,7 +827,7 @@ def read_transfer(source, target, naming: str = "source", existing: str = "refus
     return TransferPlan(source=source.name, target=target.name, rig=rig, tgt=tgt, pairs=pairs, names=names,
                         write=write, replace=replace, skipped=skipped, groups_clash=groups_clash, existing=existing,
                         unmatched_parts=unmatched_parts, signature=_target_signature(target, parts), started=start,
-                        part_plans=part_plans)
+                        part_plans=part_plans, openings=openings)
 
 
 def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
@@ -835,7 +853,7 @@ def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
         report.warnings.append(f"registration: {result.message}")
     moving = plan.unmatched_parts == "move"
     transfer = core.Transfer(rig.neutral, rig.triangles, tgt.neutral, tgt.triangles, corr,
-                             unmatched_parts="keep" if moving else plan.unmatched_parts)
+                             unmatched_parts="keep" if moving else plan.unmatched_parts, openings=plan.openings)
     if not moving:
         report.warnings.extend(issue.message for issue in transfer.issues)
     notify(progress, 0.7)
@@ -850,7 +868,7 @@ def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
         bad = write[int(np.argwhere(~np.isfinite(solved))[0][0])]
         raise ShapeSpaceError(f"the transfer of {bad!r} produced non-finite positions: nothing was written",
                               ErrorCode.NON_FINITE)
-    _check_and_move_parts(rig, tgt, write, sculpts, solved, corr, moving, report)
+    _check_and_move_parts(rig, tgt, write, sculpts, solved, corr, moving, report, plan.openings)
     full = np.zeros((len(rig.names),) + tgt.neutral.shape)
     full[rows] = solved
     scale = float(np.linalg.norm(np.ptp(rig.neutral, axis=0))) or 1.0
@@ -864,7 +882,7 @@ def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
     return TransferOutcome(plan=plan, full=full, masks=masks, report=report)
 
 
-def _check_and_move_parts(rig, tgt, write, sculpts, solved, corr, moving, report) -> None:
+def _check_and_move_parts(rig, tgt, write, sculpts, solved, corr, moving, report, openings) -> None:
     """Move the target's parts (policy ``move``, in place) and run the per-key checks into ``report``."""
     plan, moved = None, None
     if moving:
@@ -873,7 +891,9 @@ def _check_and_move_parts(rig, tgt, write, sculpts, solved, corr, moving, report
         solved, moved = core_parts.move_parts(plan, tgt.neutral, tgt.triangles, solved, write)
         report.parts = plan.summary()
     keys, issues, status = core_quality.check_keys(rig.neutral, sculpts, write, tgt.neutral, solved, plan=plan,
-                                                   moved=moved, src_tris=rig.triangles, dst_tris=tgt.triangles)
+                                                   moved=moved, src_tris=rig.triangles, dst_tris=tgt.triangles,
+                                                   openings=openings)
+    report.openings = [o.name for o in openings]
     report.keys = keys
     report.warnings.extend(issue.message for issue in issues)
     report.status = "warning" if status != Status.OK else "ok"

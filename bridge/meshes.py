@@ -85,3 +85,11 @@ def group_weight_vector(obj, group_name: str, cache=None) -> np.ndarray:
         return None
     idx = names.index(group_name)
     return np.where(gi == idx, gw, 0.0).sum(axis=1).astype(np.float64)
+
+
+def triangles(mesh) -> np.ndarray:
+    """The mesh's triangles from Blender's own tessellation (``loop_triangles``), int (f, 3)."""
+    mesh.calc_loop_triangles()
+    tris = np.empty(len(mesh.loop_triangles) * 3, dtype=np.int32)
+    mesh.loop_triangles.foreach_get("vertices", tris)
+    return tris.reshape(-1, 3).astype(np.int64)

@@ -12,11 +12,11 @@ from ..core.authoring import named as core_named
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
 from ..core.schema import Schema
-from . import authoring, storage
+from . import storage
 from . import symmetry as bsym
 
 __all__ = ["PROP", "SCHEMA", "named_landmarks", "next_name", "place", "remove", "clear_named", "mirror_complete",
-           "named_status", "use_for_transfer"]
+           "named_status"]
 
 PROP = "shapespace_named_landmarks"
 SCHEMA = Schema("named landmarks", 1, fields={"landmarks": "object", "vertices": "int"})
@@ -112,14 +112,3 @@ def mirror_complete(obj) -> list:
     if filled:
         _write(obj, {**marks, **filled})
     return [n for n in core_named.NAMES if n in filled]
-
-
-def use_for_transfer(target, source) -> int:
-    """Set the target's transfer landmark pairs from the names placed on both the source rig and the target;
-    returns the number of pairs (refused below the minimum, naming what is missing)."""
-    src, dst = _read(source), _read(target)
-    both = core_named.shared_names(src, dst)
-    if len(both) < authoring.MIN_LANDMARKS:
-        raise ShapeSpaceError(f"{len(both)} named landmarks are placed on both {source.name!r} and {target.name!r}; "
-                              f"at least {authoring.MIN_LANDMARKS} are needed", ErrorCode.TOO_FEW_LANDMARKS)
-    return authoring.set_landmarks(target, source, [src[n] for n in both], [dst[n] for n in both])

@@ -20,7 +20,7 @@ from ..core.schema import Schema
 from ..core.validate import coordinates, in_range
 from . import storage
 from .arrays import read_float, write_float
-from .authoring import triangles
+from .meshes import triangles
 from .meshes import group_weight_vector
 
 PROP = "shapespace_mirror_map"

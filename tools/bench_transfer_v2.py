@@ -73,23 +73,13 @@ def read_head(tag):
     return np.concatenate(verts), np.concatenate(tris), D, names
 
 
-OPENINGS = (("eye_L", "lid_upper_L", "lid_lower_L"), ("eye_R", "lid_upper_R", "lid_lower_R"),
-            ("mouth", "lip_upper_inner", "lip_lower_inner"))
-
-
-def named_contours(tag, V, T):
-    """Contour paths of the head's named landmarks (``tools/landmarks/<tag>.json``; indices of its first
-    object, which starts the joined mesh)."""
-    from shapespace.core.authoring import named
-    lm = named.load_head_file(os.path.join(LANDMARKS, f"{tag}.json"))
-    return named.contour_paths(V, T, lm)
-
-
 def _openings(src_tag, S, ST, dst_tag, T, TT):
-    from shapespace.core.authoring import contacts
-    cs, ct = named_contours(src_tag, S, ST), named_contours(dst_tag, T, TT)
-    return [contacts.opening(name, S, cs[up], cs[lo], T, ct[up], ct[lo]) for name, up, lo in OPENINGS
-            if all(c in cs and c in ct for c in (up, lo))]
+    """The eye and mouth openings between the heads' named landmarks (``tools/landmarks/<tag>.json``: indices of
+    the head's first object, which starts the joined mesh)."""
+    from shapespace.core.authoring import contacts, named
+    ls = named.load_head_file(os.path.join(LANDMARKS, f"{src_tag}.json"))
+    lt = named.load_head_file(os.path.join(LANDMARKS, f"{dst_tag}.json"))
+    return contacts.openings_from_named(S, ST, ls, T, TT, lt)
 
 
 def _scores(T, TD, TN, DT, SN, t_part, openings):

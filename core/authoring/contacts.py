@@ -33,9 +33,10 @@ from numpy.typing import ArrayLike
 
 from ..errors import ErrorCode
 from ..result import ShapeSpaceError
+from .named import contour_paths
 
-__all__ = ["Opening", "SHUT", "facing_pairs", "opening", "constraint_matrix", "closures", "gap_changes",
-           "gap_fractions", "gap_left"]
+__all__ = ["Opening", "SHUT", "OPENINGS", "facing_pairs", "opening", "openings_from_named", "constraint_matrix",
+           "closures", "gap_changes", "gap_fractions", "gap_left"]
 
 
 @dataclass
@@ -126,6 +127,21 @@ def opening(name: str, src_verts: ArrayLike, src_upper: Sequence[int], src_lower
     shut = any(np.median(np.linalg.norm(V[p[:, 0]] - V[p[:, 1]], axis=1)) < SHUT * length
                for V, p, length in ((S, sp_, ls), (T, tp, lt)))
     return Opening(name, sp_, st, tp, tt, "offset" if shut else "ratio", lt / ls if ls > 0 else 1.0)
+
+
+#: The openings made from named landmark contours: (name, upper contour, lower contour).
+OPENINGS = (("eye_L", "lid_upper_L", "lid_lower_L"), ("eye_R", "lid_upper_R", "lid_lower_R"),
+            ("mouth", "lip_upper_inner", "lip_lower_inner"))
+
+
+def openings_from_named(src_verts: ArrayLike, src_tris: ArrayLike, src_marks: dict, dst_verts: ArrayLike,
+                        dst_tris: ArrayLike, dst_marks: dict) -> list:
+    """Every :data:`OPENINGS` whose contours' landmarks are named on both heads
+    (:func:`core.authoring.named.contour_paths`), as :class:`Opening` objects."""
+    cs = contour_paths(src_verts, src_tris, src_marks)
+    ct = contour_paths(dst_verts, dst_tris, dst_marks)
+    return [opening(name, src_verts, cs[up], cs[lo], dst_verts, ct[up], ct[lo]) for name, up, lo in OPENINGS
+            if up in cs and lo in cs and up in ct and lo in ct]
 
 
 def constraint_matrix(openings: Sequence[Opening], n_t: int) -> sp.csr_matrix:

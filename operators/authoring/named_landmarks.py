@@ -3,6 +3,7 @@ Landmarks): place the next name at the selected vertex, mirror the placed ones, 
 transfer's landmark pairs."""
 import bpy
 
+from ...bridge import authoring
 from ...bridge import named_landmarks as named
 from ...core.authoring.named import NAMES
 from ...core.result import ShapeSpaceError
@@ -46,7 +47,7 @@ class SHAPESPACE_OT_place_named_landmark(bpy.types.Operator):
                 self.report({"ERROR"}, f"all {len(NAMES)} named landmarks of {ob.name!r} are placed: give a name "
                                        f"to move one")
                 return {"CANCELLED"}
-            v = self.vertex if self.vertex >= 0 else named.authoring.selected_vertex(ob)
+            v = self.vertex if self.vertex >= 0 else authoring.selected_vertex(ob)
             if v is None:
                 self.report({"ERROR"}, f"select exactly one vertex of {ob.name!r} for {name} (or give its index)")
                 return {"CANCELLED"}
@@ -119,7 +120,7 @@ class SHAPESPACE_OT_use_named_landmarks(bpy.types.Operator):
     def execute(self, context):
         ob = context.active_object
         try:
-            count = named.use_for_transfer(ob, ob.shapespace_authoring.source)
+            count = authoring.use_named_landmarks(ob, ob.shapespace_authoring.source)
         except ShapeSpaceError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
