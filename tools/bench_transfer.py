@@ -32,7 +32,9 @@ same ARKit name (shapes empty on either rig are skipped):
 - symmetry keys from ``bench_symmetry.run`` (helper E's suite) when that file is present;
 - the transfer v2 keys of issue #22 (``bench_transfer_v2``: whole heads with their parts, every ordered pair of
   Face Cap, FBHead, ICT FaceKit and Ready Player Me; ``transfer_s_<pair>`` there replaces the v1 time of the
-  same pair and includes registration and parts).
+  same pair and includes registration and parts);
+- ``landmark_auto_err_mm_<head>`` / ``landmark_auto_unflagged_err_mm_<head>`` (``bench_landmarks``): the named
+  landmarks proposed automatically against the placed ones.
 """
 from __future__ import annotations
 
@@ -42,6 +44,7 @@ import time
 
 import numpy as np
 
+import bench_landmarks
 import bench_transfer_v2
 from bench_support import ASSETS, shared_data
 
@@ -191,4 +194,5 @@ def run(quick: bool = False) -> dict:
     if bench_symmetry is not None:
         out.update(bench_symmetry.run(quick=quick))
     out.update(bench_transfer_v2.run(quick=quick))        # issue #22: whole heads, every ordered pair of four
+    out.update(bench_landmarks.run(quick=quick))          # issue #22 §3: named landmarks, automatic vs placed
     return out
