@@ -222,6 +222,24 @@ def _cross_validate(lap, X, E, xx, yx, scale, candidates):
     return err
 
 
+def _local_mask(lap, X, E, xx, yx, scale, lam, smooth, mirror):
+    """Where the left-out examples are predicted at least as well with the gain as without (1, else 0), per
+    vertex (mirror-pooled), smoothed by one step of ``(I + L)⁻¹``: (n,)."""
+    m, n = X.shape[0], X.shape[1]
+    with_gain, without = np.zeros(n), np.zeros(n)
+    for e in range(m):
+        rest = np.arange(m) != e
+        g = _gain(lap, xx[rest].sum(axis=0), yx[rest].sum(axis=0), lam, scale, smooth)
+        with_gain += np.sum((g[:, None] * X[e] - E[e]) ** 2, axis=1)
+        without += np.sum((X[e] - E[e]) ** 2, axis=1)
+    if mirror is not None:
+        has = mirror >= 0
+        with_gain[has] += with_gain[mirror[has]].copy()
+        without[has] += without[mirror[has]].copy()
+    keep = (with_gain <= without).astype(np.float64)
+    return splu((sp.eye(n) + lap).tocsc()).solve(keep)
+
+
 def _reproduce(D, E, W):
     """Rank-m update: spread each example's residual over its keys by their per-vertex activity."""
     R = E - np.einsum("ek,kvi->evi", W, D)
@@ -303,7 +321,10 @@ def refine_with_examples(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, e
     xx, yx = _stats(X, E, mir)
     cv = _cross_validate(lap, X, E, xx, yx, scale, cands)
     lam, smooth = min(cv, key=lambda c: (cv[c], -c[0], -c[1]))
-    g = np.ones(n) if np.isinf(lam) else _gain(lap, xx.sum(axis=0), yx.sum(axis=0), lam, scale, smooth)
+    g = np.ones(n)
+    if not np.isinf(lam):
+        mask = _local_mask(lap, X, E, xx, yx, scale, lam, smooth, mir)
+        g += mask * (_gain(lap, xx.sum(axis=0), yx.sum(axis=0), lam, scale, smooth) - 1.0)
     Dg = g[None, :, None] * D
     out = _reproduce(Dg, E, W)
     if mir is not None and part is not None:

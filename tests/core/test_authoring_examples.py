@@ -79,6 +79,27 @@ def test_examples_that_reveal_no_gain_leave_the_keys_no_example_uses_as_transfer
     assert (r.residual_after < 1e-9).all()
 
 
+def test_the_gain_is_kept_only_where_the_examples_agree_with_each_other():
+    rng = np.random.default_rng(7)
+    V, T = grid()
+    a = (V[:, 0] > 0.3)[None, :, None]
+    b = (V[:, 0] < -0.3)[None, :, None]
+    D = np.concatenate([smooth_fields(V, 3, rng) * a, smooth_fields(V, 3, rng) * b])  # keys 0-2 in A, 3-5 in B
+    A = D.copy()
+    A[:3] *= 0.5                                      # area A: the target moves half as far, in every key
+    A[3] *= 1.6                                       # area B: the examples disagree (1.6 and 0.4) ...
+    A[4] = 0.4 * D[4] * 0.2
+    D[4] *= 0.2
+    ex, held = [0, 1, 3, 4], [2, 5]                   # ... and the held-out key there is as transferred
+    r = refine_with_examples(V, T, D, A[ex], np.eye(6)[ex], mirror=None)
+    before, after = key_err(D[held], A[held]), key_err(r.deltas[held], A[held])
+    assert after[0] < 0.3 * before[0]
+    # one gain fitted over B would have moved key 5 by ~40 % (the examples there say 1.6 in the large one):
+    # the left-out examples disagree there, so B keeps (almost) the plain transfer
+    assert before[1] == 0.0 and after[1] < 0.06 * np.linalg.norm(D[5])
+    assert np.median(np.abs(r.gain[b[0, :, 0]] - 1.0)) < 0.05
+
+
 def test_a_left_example_teaches_the_right_side_through_the_mirror():
     rng = np.random.default_rng(3)
     V, T = grid()
