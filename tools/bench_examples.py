@@ -14,6 +14,12 @@ definition of ``bench_transfer_v2``):
 - ``transfer_rel_energy_examples5_combo_<pair>`` and ``transfer_examples_combo_heldout_worse_keys_<pair>``: the
   same with each example a combination of two of the five keys, ``A_i + 0.5 A_(i+1)`` (cyclic), given with
   those weights — the held-out keys are the same;
+- ``transfer_rel_energy_examples5_approx_<pair>`` and ``transfer_examples_approx_heldout_worse_keys_<pair>``: the
+  combinations made with ``A_i + 0.7 A_(i+1)`` but given as ``1`` and ``0.5`` (approximate weights);
+- ``transfer_rel_energy_oracle_gain_heldout_<pair>``: the ceiling of a per-vertex gain: the best gain per vertex
+  fitted to the held-out keys themselves (least squares, in-sample) — what no refinement learnt from examples
+  through a gain field can beat;
+- ``transfer_examples_heldout_worst_ratio_<pair>``: the largest refined / plain error ratio of a held-out key;
 - ``transfer_examples_residual_<pair>``: the largest relative residual of an example after refinement;
 - ``transfer_examples_s_<pair>``: seconds of the refinement (one-hot examples).
 
@@ -32,6 +38,7 @@ import bench_transfer_v2 as v2
 EXAMPLES = ("jawOpen", "mouthSmileLeft", "eyeBlinkLeft", "browInnerUp", "mouthFunnel", "mouthPucker", "jawLeft",
             "eyeLookOutLeft")
 COMBO_WEIGHT = 0.5
+APPROX_TRUE_WEIGHT = 0.7          # the "approximate weights" variant: made with this, given as COMBO_WEIGHT
 
 
 def authored_keys(TD, TN, SN):
@@ -42,34 +49,47 @@ def authored_keys(TD, TN, SN):
 
 def example_set(keys, combo):
     """(example names, weights as {source name: weight} per example) of the first five :data:`EXAMPLES` in
-    ``keys``; ``combo``: example ``i`` is key ``i`` + :data:`COMBO_WEIGHT` × key ``i + 1`` (cyclic)."""
+    ``keys``; ``combo`` (a weight): example ``i`` is key ``i`` + ``combo`` × key ``i + 1`` (cyclic); 0: one key."""
     chosen = [n for n in EXAMPLES if n in keys][:5]
     if not combo:
         return chosen, [{n: 1.0} for n in chosen]
     m = len(chosen)
-    return chosen, [{chosen[i]: 1.0, chosen[(i + 1) % m]: COMBO_WEIGHT} for i in range(m)]
+    return chosen, [{chosen[i]: 1.0, chosen[(i + 1) % m]: combo} for i in range(m)]
 
 
 def held_out_scores(DT, DR, TD, TN, SN, held):
-    """(relative error of the plain keys, of the refined keys, number of keys made worse) over ``held``."""
+    """(relative error of the plain keys, of the refined keys, number of keys made worse, the largest ratio of
+    a key's refined error to its plain error) over ``held``."""
     A = np.stack([TD[TN.index(n)] for n in held])
     X0 = np.stack([DT[SN.index(n)] for n in held])
     X1 = np.stack([DR[SN.index(n)] for n in held])
     e0 = np.linalg.norm((X0 - A).reshape(len(held), -1), axis=1)
     e1 = np.linalg.norm((X1 - A).reshape(len(held), -1), axis=1)
     norm = np.linalg.norm(A)
-    return float(np.linalg.norm(e0) / norm), float(np.linalg.norm(e1) / norm), int((e1 > e0).sum())
+    ratio = float(np.max(e1 / np.where(e0 > 0, e0, 1.0)))
+    return float(np.linalg.norm(e0) / norm), float(np.linalg.norm(e1) / norm), int((e1 > e0).sum()), ratio
 
 
-def refine(T, TT, TD, TN, SN, DT, keys, combo):
-    """Refine ``DT`` with the example set; (refinement, example names)."""
+def oracle_gain(DT, TD, TN, SN, held):
+    """Relative error over ``held`` of the best per-vertex gain fitted to the held-out keys themselves."""
+    A = np.stack([TD[TN.index(n)] for n in held])
+    X = np.stack([DT[SN.index(n)] for n in held])
+    xx = np.einsum("kvi,kvi->v", X, X)
+    g = np.einsum("kvi,kvi->v", A, X) / np.where(xx > 0, xx, 1.0)
+    return float(np.linalg.norm(g[None, :, None] * X - A) / np.linalg.norm(A))
+
+
+def refine(T, TT, TD, TN, SN, DT, keys, combo, given=None):
+    """Refine ``DT`` with the example set made with weight ``combo`` (:func:`example_set`) and given to the
+    refinement with ``given`` (default: the same); (refinement, example names)."""
     from shapespace.core.authoring.examples import mirror_partners, refine_with_examples
     chosen, rows = example_set(keys, combo)
+    _, told = example_set(keys, combo if given is None else given)
     W = np.zeros((len(rows), len(SN)))
     E = np.zeros((len(rows), T.shape[0], 3))
-    for e, row in enumerate(rows):
+    for e, (row, said) in enumerate(zip(rows, told)):
         for name, w in row.items():
-            W[e, SN.index(name)] = w
+            W[e, SN.index(name)] = said[name]
             E[e] += w * TD[TN.index(name)]
     names = [" + ".join(row) for row in rows]
     return refine_with_examples(T, TT, DT, E, W, names=names, partners=mirror_partners(SN)), chosen
@@ -82,19 +102,22 @@ def pair_metrics(src, dst):
     DT = v2.transferred(src, dst)[0]
     keys = authored_keys(TD, TN, SN)
     out = {}
-    for combo, tag in ((False, ""), (True, "_combo")):
+    for combo, given, tag in ((0.0, None, ""), (COMBO_WEIGHT, None, "_combo"),
+                              (APPROX_TRUE_WEIGHT, COMBO_WEIGHT, "_approx")):
         t0 = time.perf_counter()
-        ref, chosen = refine(T, TT, TD, TN, SN, DT, keys, combo)
+        ref, chosen = refine(T, TT, TD, TN, SN, DT, keys, combo, given)
         seconds = time.perf_counter() - t0
         held = [n for n in keys if n not in chosen]
-        plain, refined, worse = held_out_scores(DT, ref.deltas, TD, TN, SN, held)
+        plain, refined, worse, ratio = held_out_scores(DT, ref.deltas, TD, TN, SN, held)
         out[f"transfer_rel_energy_examples5{tag}"] = refined
         out[f"transfer_examples{tag}_heldout_worse_keys"] = worse
-        if not combo:
+        if not tag:
             out["transfer_rel_energy_plain_heldout"] = plain
+            out["transfer_rel_energy_oracle_gain_heldout"] = oracle_gain(DT, TD, TN, SN, held)
             out["transfer_examples_residual"] = float(ref.residual_after.max())
             out["transfer_examples_s"] = seconds
             out["transfer_examples_heldout_keys"] = len(held)
+            out["transfer_examples_heldout_worst_ratio"] = ratio
     return out
 
 
@@ -112,5 +135,7 @@ def run(quick: bool = False) -> dict:
                   f"refined {m['transfer_rel_energy_examples5']:.3f} (worse "
                   f"{m['transfer_examples_heldout_worse_keys']}/{m['transfer_examples_heldout_keys']}), combo "
                   f"{m['transfer_rel_energy_examples5_combo']:.3f} (worse "
-                  f"{m['transfer_examples_combo_heldout_worse_keys']})", file=sys.stderr)
+                  f"{m['transfer_examples_combo_heldout_worse_keys']}), approximate weights "
+                  f"{m['transfer_rel_energy_examples5_approx']:.3f} (worse "
+                  f"{m['transfer_examples_approx_heldout_worse_keys']})", file=sys.stderr)
     return out
