@@ -88,6 +88,7 @@ from scipy.spatial import cKDTree
 from .. import validate
 from ..errors import ErrorCode
 from ..names import canonical_name
+from ..progress import ProgressFn, notify
 from ..result import ShapeSpaceError
 from ..symmetry import counterpart_name
 from .mesh import bbox_diagonal, check_mesh, symmetry_plane
@@ -242,7 +243,7 @@ def _gain(lap, xx, yx, lam, scale, smooth):
     return splu(A).solve(yx + lam * scale)
 
 
-def _cross_validate(lap, X, E, xx, yx, scale, candidates):
+def _cross_validate(lap, X, E, xx, yx, scale, candidates, progress):
     """Leave-one-example-out relative error of each ``(λ, μ)``; ``(inf, 0)`` (no gain) is the plain transfer's."""
     m = X.shape[0]
     total = float(np.sum(E ** 2))
@@ -256,6 +257,7 @@ def _cross_validate(lap, X, E, xx, yx, scale, candidates):
             g = _gain(lap, xx[rest].sum(axis=0), yx[rest].sum(axis=0), lam, scale, smooth)
             s += float(np.sum((g[:, None] * X[e] - E[e]) ** 2))
         err[(lam, smooth)] = s / total
+        notify(progress, 0.9 * len(err) / (len(candidates) + 1))
     return err
 
 
@@ -301,8 +303,8 @@ def _residual(D, E, W):
 def refine_with_examples(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, examples: ArrayLike,
                          weights: ArrayLike, *, names: Sequence[str] | None = None, mirror: str | None = "auto",
                          partners: ArrayLike | None = None,
-                         strengths: Sequence[float] = STRENGTHS, smooths: Sequence[float] = SMOOTHS
-                         ) -> ExampleRefinement:
+                         strengths: Sequence[float] = STRENGTHS, smooths: Sequence[float] = SMOOTHS,
+                         progress: ProgressFn | None = None) -> ExampleRefinement:
     """Refine transferred keys so the examples are reproduced and what they reveal carries to the other keys.
 
     Parameters
@@ -329,6 +331,9 @@ def refine_with_examples(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, e
         ``λ`` candidates of the cross-validation (see the module docstring); ``inf`` (no gain) is always one.
     smooths : sequence of float
         ``μ`` candidates (the gain's smoothness), each tried with every ``λ``.
+    progress : callable (fraction) -> None, optional
+        :mod:`core.progress` protocol, called after each cross-validated candidate; raising
+        :class:`~core.progress.Cancelled` from it stops the refinement.
 
     Returns
     -------
@@ -356,7 +361,8 @@ def refine_with_examples(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, e
     scale = max(float(np.mean(np.max(np.sum(X ** 2, axis=2), axis=1))), 1e-300)
     lap = _laplacian(n, TT)
     xx, yx = _stats(X, E, mir)
-    cv = _cross_validate(lap, X, E, xx, yx, scale, cands)
+    notify(progress, 0.0)
+    cv = _cross_validate(lap, X, E, xx, yx, scale, cands, progress)
     lam, smooth = min(cv, key=lambda c: (cv[c], -c[0], -c[1]))
     g = np.ones(n)
     if not np.isinf(lam):
@@ -368,5 +374,6 @@ def refine_with_examples(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, e
         out = _mirror_to_partners(out, Dg, W, part, mir, refl)
     base = np.linalg.norm(D.reshape(len(D), -1), axis=1)
     change = np.linalg.norm((out - D).reshape(len(D), -1), axis=1) / np.where(base > 0, base, 1.0)
+    notify(progress, 1.0)
     return ExampleRefinement(out, g, float(lam), float(smooth), cv, _residual(D, E, W), _residual(Dg, E, W),
                              _residual(out, E, W), change)

@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from core.authoring.examples import mirror_partners, mirror_vertices, refine_with_examples
+from core.authoring.examples import STRENGTHS, SMOOTHS, mirror_partners, mirror_vertices, refine_with_examples
+from core.progress import Cancelled
 from core.result import ShapeSpaceError
 
 
@@ -170,3 +171,20 @@ def test_bad_input_is_refused_naming_the_example(case, words):
     with pytest.raises(ShapeSpaceError) as err:
         refine_with_examples(V, T, D, E, W, names=names, mirror=None)
     assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_progress_reports_each_candidate_and_cancelling_stops_the_refinement():
+    rng = np.random.default_rng(8)
+    V, T = grid(9)
+    D = smooth_fields(V, 4, rng)
+    seen = []
+    r = refine_with_examples(V, T, D, 0.5 * D[:3], np.eye(4)[:3], mirror=None, progress=seen.append)
+    assert len(seen) == len(STRENGTHS) * len(SMOOTHS) + 2 and seen[0] == 0.0 and seen[-1] == 1.0
+    assert seen == sorted(seen) and r.residual_after.max() < 1e-9
+
+    def stop(fraction):
+        if fraction > 0.2:
+            raise Cancelled()
+
+    with pytest.raises(Cancelled):
+        refine_with_examples(V, T, D, 0.5 * D[:3], np.eye(4)[:3], mirror=None, progress=stop)
