@@ -34,7 +34,9 @@ same ARKit name (shapes empty on either rig are skipped):
   Face Cap, FBHead, ICT FaceKit and Ready Player Me; ``transfer_s_<pair>`` there replaces the v1 time of the
   same pair and includes registration and parts);
 - ``landmark_auto_err_mm_<head>`` / ``landmark_auto_unflagged_err_mm_<head>`` (``bench_landmarks``): the named
-  landmarks proposed automatically against the placed ones.
+  landmarks proposed automatically against the placed ones;
+- ``transfer_rel_energy_examples5_<pair>`` and the other ``bench_examples`` keys: five target keys given as
+  examples, the other keys refined (``core.authoring.examples``).
 """
 from __future__ import annotations
 
@@ -44,6 +46,7 @@ import time
 
 import numpy as np
 
+import bench_examples
 import bench_landmarks
 import bench_transfer_v2
 from bench_support import ASSETS, shared_data
@@ -195,4 +198,5 @@ def run(quick: bool = False) -> dict:
         out.update(bench_symmetry.run(quick=quick))
     out.update(bench_transfer_v2.run(quick=quick))        # issue #22: whole heads, every ordered pair of four
     out.update(bench_landmarks.run(quick=quick))          # issue #22 §3: named landmarks, automatic vs placed
+    out.update(bench_examples.run(quick=quick))           # issue #22 §5: example-guided refinement
     return out

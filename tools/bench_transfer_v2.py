@@ -106,13 +106,13 @@ def _scores(T, TD, TN, DT, SN, t_part, openings):
     return out, (max(gaps_a) if gaps_a else None)
 
 
-def pair(src, dst, src_tag, dst_tag):
-    """Metrics of one ordered pair (keys without the pair suffix) and the target's authored blink gap."""
+def transferred(src, dst, src_tag, dst_tag):
+    """Landmarks → register → Transfer (with the named openings) → parts of one ordered pair: (deltas
+    (k, n_t, 3) in the source's shape order, target part labels, openings, part plan, moved parts)."""
     from shapespace.core import authoring
-    from shapespace.core.authoring import parts, quality
+    from shapespace.core.authoring import parts
     S, ST, SD, SN = src
     T, TT, TD, TN = dst
-    t0 = time.perf_counter()
     s_part, _ = authoring.triangle_parts(S.shape[0], ST)
     t_part, _ = authoring.triangle_parts(T.shape[0], TT)
     lm = authoring.landmarks_from_shared_shapes(S, SD, SN, T, TD, TN, src_mask=s_part == 0, dst_mask=t_part == 0)
@@ -122,6 +122,16 @@ def pair(src, dst, src_tag, dst_tag):
     DT = tr.solve(SD)
     plan = parts.plan_for_transfer(S, ST, SD, SN, T, TT, DT, reg.value.part_map)
     DT, moved = parts.move_parts(plan, T, TT, DT, SN)
+    return DT, t_part, openings, plan, moved
+
+
+def pair(src, dst, src_tag, dst_tag):
+    """Metrics of one ordered pair (keys without the pair suffix) and the target's authored blink gap."""
+    from shapespace.core.authoring import quality
+    S, ST, SD, SN = src
+    T, TT, TD, TN = dst
+    t0 = time.perf_counter()
+    DT, t_part, openings, plan, moved = transferred(src, dst, src_tag, dst_tag)
     seconds = time.perf_counter() - t0
     _, _, status = quality.check_keys(S, SD, SN, T, DT, openings=openings, plan=plan, moved=moved, src_tris=ST,
                                       dst_tris=TT)

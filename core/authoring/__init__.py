@@ -9,6 +9,7 @@
 - :mod:`.parts` — the target's facial parts (eyes, teeth, tongue, lashes, brows, cavity) and how each moves;
 - :mod:`.contacts` — eye and mouth openings: the source's lid/lip closure carried onto the target's gap;
 - :mod:`.quality` — the per-key checks of a transfer (gap left, crossings, symmetry, size, parts);
+- :mod:`.examples` — example-guided refinement of transferred keys (Li, Weise & Pauly 2010);
 - :mod:`.mesh` — triangle-mesh helpers.
 
 Imports only foundation modules (``core.rbf``, ``core.names``, ``core.result``, ``core.validate``).

@@ -1,0 +1,379 @@
+"""Example-guided transfer (issue #22 §5; thesis 3.4.1; Li, Weise & Pauly 2010, "Example-based facial rigging").
+
+The user gives a few target expressions ``E_e`` (existing keys, sculpts, scans; deltas from the target
+neutral) with approximate weights ``W_ek`` of the source's shapes.  Every transferred key ``D_k`` is refined:
+
+1. **What the examples reveal about the target** (generalises to the keys no example uses): a smooth
+   per-vertex gain ``g`` between transferred and authored motion.  With ``X_e = Σ_k W_ek D_k`` (the plain
+   transfer's prediction of example ``e``) it solves
+
+       min_g  Σ_v Σ_e ‖g_v X_e(v) − E_e(v)‖² + λ s Σ_v (g_v − 1)² + μ s Σ_(u,v) edge (g_u − g_v)²
+
+   (``s`` the mean squared peak of the ``X_e``; the ``λ`` term is the deformation-transfer regulariser: where
+   no example moves, ``g = 1`` and the key stays the plain transfer), i.e. the sparse system
+   ``(μ s L + diag(Σ_e ‖X_e‖² + λ s)) g = Σ_e E_e·X_e + λ s`` with ``L`` the mesh's graph Laplacian.  The
+   statistics of each vertex and its mirror image are pooled (an example on the left side teaches the right).
+   ``(λ, μ)`` is chosen by leave-one-example-out cross-validation from :data:`STRENGTHS` × :data:`SMOOTHS`,
+   ``λ = inf`` (no gain) included: a gain that does not predict left-out examples better than the plain
+   transfer is not applied.  The gain is then kept only where the left-out examples were predicted at least as
+   well with it as without (per vertex, mirror-pooled; the 0/1 mask smoothed by ``(I + L)⁻¹``):
+   ``g ← 1 + mask ⊙ (g − 1)``, and ``D_k ← g ⊙ D_k``.
+2. **The examples reproduced exactly** (rank-m update in the span of the weights): the residual
+   ``R_e = E_e − Σ_k W_ek D_k`` is spread per vertex over the keys the example uses in proportion to how much
+   each moves there (Li et al.'s per-shape activity weighting): with ``κ_k(v) = ‖D_k(v)‖² + δ``,
+   ``ΔD_k(v) = κ_k(v) Σ_e W_ek μ_e(v)`` where ``(W diag κ(v) Wᵀ) μ(v) = R(v)`` (least squares when the
+   examples contradict each other).  Keys no example uses are not touched by this step.
+3. **Other-side keys**: a key no example uses whose other-side key (``eyeBlinkRight`` for ``eyeBlinkLeft``)
+   an example uses takes that key's step-2 change, mirrored: ``ΔD_p(v) = S ΔD_k(m(v))`` (``S`` the reflection,
+   ``m`` the mirror vertex).
+
+Measured (``tools/bench_examples.py``: every ordered pair of the four shared heads, the 5 examples jawOpen,
+mouthSmileLeft, eyeBlinkLeft, browInnerUp, mouthFunnel, each weight 1 on the source key of its name; relative
+error ‖ΔT − ΔA‖/‖ΔA‖ jointly over the 42–47 other authored keys, skin and parts; "worse": held-out keys whose
+error grew; "oracle": the best per-vertex gain fitted to the held-out keys themselves, the ceiling of any gain
+field)::
+
+    pair            plain   refined (worse)   oracle gain
+    facecap_fbhead  0.365   0.236 (4/44)      0.219
+    facecap_ict     1.030   0.885 (1/44)      0.678
+    facecap_rpm     0.777   0.660 (11/47)     0.567
+    fbhead_facecap  0.738   0.705 (10/46)     0.477
+    fbhead_ict      0.994   0.977 (0/44)      0.702
+    fbhead_rpm      0.641   0.633 (1/46)      0.496
+    ict_facecap     1.299   1.067 (0/44)      0.658
+    ict_fbhead      0.693   0.682 (8/42)      0.576
+    ict_rpm         0.842   0.832 (0/44)      0.662
+    rpm_facecap     0.839   0.824 (9/46)      0.611
+    rpm_fbhead      0.471   0.458 (21/44)     0.432
+    rpm_ict         0.967   0.951 (0/44)      0.698
+
+The joint held-out error drops at every pair; the goal 0.5 holds at facecap → FBHead and RPM → FBHead only,
+and the oracle column shows it is out of reach of any per-vertex gain at 8 of the 12 pairs: what remains is
+key-specific (e.g. Face Cap's eyeLook keys barely move its eyes, its jawForward is 2.3× the transfer's).
+
+Tried and dropped (development runs on the six pairs without ICT, same examples):
+
+- a full per-vertex 3×3 linear map ``L_v`` (ridge towards ``I``, same smoothing) instead of the scalar gain
+  (best settings of each): worse than the gain at every pair and often worse than plain (facecap → FBHead
+  0.365 → 0.304 vs 0.250 with the gain; facecap → RPM 0.764 → 0.707 vs 0.661; FBHead → Face Cap 0.738 → 0.739
+  vs 0.737) with 10–34 keys worse: five examples do not determine a 3×3 map per vertex (its oracle is only
+  0.01–0.11 below the gain's);
+- the gain only along the examples' principal motion directions (``L_v = I + (g_v − 1) C_v / tr C_v``, ``C_v``
+  the examples' motion covariance): facecap → FBHead 0.320, facecap → RPM 0.724 (gain: 0.247, 0.678);
+- the gain learned and applied in the gradient domain (per-triangle gain of the deformation gradients,
+  cross-validated likewise, re-solved with the transfer's factorised normal matrix, parts moved again):
+  facecap → FBHead 0.377 (24 keys worse), RPM → FBHead 0.599 (28 worse), FBHead → Face Cap 0.744: the
+  authored keys' gradients are far from the transferred ones (cross-validated relative error of the plain
+  gradients 0.8–6.9), so a gradient gain learns noise; the vertex gain is kept;
+- no mirror pooling: facecap → FBHead 0.250, FBHead → Face Cap 0.737, RPM → Face Cap 0.833 (pooled: 0.247,
+  0.726, 0.827; with an eyeLookOutLeft example in place of browInnerUp the pooled gain reaches 0.487 and 0.637
+  on the Face Cap targets: their eyes barely move in eyeLook);
+- a fixed ``(λ, μ)`` without cross-validation: RPM → FBHead 0.469–0.480 with 19–23 of 44 keys worse, FBHead →
+  RPM 0.603–0.621 with 18–26 worse; the cross-validation picks no gain at FBHead → RPM (0.641 → 0.633 there,
+  from step 3 alone);
+- without the local mask: facecap → RPM 0.668 (14 worse), RPM → FBHead 0.469 (23 worse) (with: 0.656 (10),
+  0.458 (21)).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import ArrayLike
+from scipy.sparse.linalg import splu
+from scipy.spatial import cKDTree
+
+from .. import validate
+from ..errors import ErrorCode
+from ..names import canonical_name
+from ..progress import ProgressFn, notify
+from ..result import ShapeSpaceError
+from ..symmetry import counterpart_name
+from .mesh import bbox_diagonal, check_mesh, symmetry_plane
+
+__all__ = ["STRENGTHS", "SMOOTHS", "ExampleRefinement", "mirror_vertices", "mirror_partners", "refine_with_examples"]
+
+STRENGTHS = (0.003, 0.03, 0.3)                  # λ candidates of the cross-validation (inf = no gain)
+SMOOTHS = (0.1, 1.0, 10.0)                        # μ candidates of the cross-validation (gain smoothness)
+MIRROR_TOL = 0.01                                 # × diagonal: a vertex farther than this from any mirror image
+ACTIVITY_FLOOR = 1e-3                             # δ = this × the mean ‖D_k(v)‖² over active vertices
+
+
+@dataclass
+class ExampleRefinement:
+    """Refined keys and what the examples did.
+
+    Attributes
+    ----------
+    deltas : ndarray (k, n, 3)
+        Refined target deltas of every key.
+    gain : ndarray (n,)
+        The per-vertex gain of step 1 (all ones when cross-validation chose none).
+    strength : float
+        The chosen ``λ`` (``inf``: no gain).
+    smooth : float
+        The chosen ``μ``.
+    cv_error : dict
+        ``(λ, μ)`` → leave-one-example-out relative squared error of the examples (``(inf, 0)``: the plain
+        transfer's).
+    residual_before, residual_gain, residual_after : ndarray (m,)
+        ``‖E_e − Σ_k W_ek D_k‖ / ‖E_e‖`` of each example with the plain keys, after the gain, after refinement.
+    key_change : ndarray (k,)
+        ``‖D'_k − D_k‖ / ‖D_k‖`` per key (0 for an empty key left empty).
+    """
+
+    deltas: np.ndarray
+    gain: np.ndarray
+    strength: float
+    smooth: float
+    cv_error: dict = field(default_factory=dict)
+    residual_before: np.ndarray = None
+    residual_gain: np.ndarray = None
+    residual_after: np.ndarray = None
+    key_change: np.ndarray = None
+
+
+def mirror_vertices(verts: ArrayLike, tol: float = MIRROR_TOL) -> tuple:
+    """Each vertex's mirror image across the head's symmetry plane (nearest vertex to its reflection).
+
+    Parameters
+    ----------
+    verts : array_like (n, 3)
+    tol : float
+        Relative to the bounding-box diagonal: farther than this from any vertex → no mirror.
+
+    Returns
+    -------
+    mirror : ndarray of int (n,)
+        Mirror vertex, ``-1`` where none.
+    reflection : ndarray (3, 3)
+        ``I − 2 n nᵀ`` of the plane's normal ``n`` (turns a displacement into its mirror image).
+    """
+    V = validate.array(verts, "verts", shape=(None, 3))
+    normal, offset, _ = symmetry_plane(V)
+    R = V - 2.0 * (V @ normal - offset)[:, None] * normal[None]
+    dist, j = cKDTree(V).query(R)
+    return np.where(dist <= tol * max(bbox_diagonal(V), 1e-300), j, -1), np.eye(3) - 2.0 * np.outer(normal, normal)
+
+
+def mirror_partners(names: Sequence[str]) -> np.ndarray:
+    """Index of each key's other-side key (``eyeBlinkLeft`` ↔ ``eyeBlinkRight``), ``-1`` where none.
+
+    Parameters
+    ----------
+    names : sequence of str (k,)
+
+    Returns
+    -------
+    ndarray of int (k,)
+    """
+    where = {canonical_name(str(n)): i for i, n in enumerate(names)}
+    out = np.full(len(names), -1, dtype=np.int64)
+    for i, n in enumerate(names):
+        other = counterpart_name(canonical_name(str(n)))
+        if other is not None and other in where and where[other] != i:
+            out[i] = where[other]
+    return out
+
+
+def _mirror_to_partners(out, base, W, partners, mirror, reflection):
+    """Keys no example uses whose other-side key an example uses take that key's refinement, mirrored."""
+    used = np.any(W != 0, axis=0)
+    has = mirror >= 0
+    for k in np.flatnonzero(used):
+        p = partners[k]
+        if p < 0 or used[p]:
+            continue
+        change = np.zeros_like(out[k])
+        change[has] = (out[k] - base[k])[mirror[has]] @ reflection.T
+        out[p] = base[p] + change
+    return out
+
+
+def _check(deltas, examples, weights, names, n):
+    D = validate.array(deltas, "transferred deltas", shape=(None, n, 3))
+    k = D.shape[0]
+    E = validate.array(examples, "examples", shape=(None, n, 3), finite=False)
+    m = E.shape[0]
+    if m == 0:
+        raise ShapeSpaceError("at least one example is needed", ErrorCode.TOO_FEW)
+    names = [f"example {i}" for i in range(m)] if names is None else [str(s) for s in names]
+    if len(names) != m:
+        raise ShapeSpaceError(f"{len(names)} example names for {m} examples", ErrorCode.SHAPE)
+    W = validate.array(weights, "example weights", ndim=2, finite=False)
+    if W.shape != (m, k):
+        raise ShapeSpaceError(f"example weights must be (m, k) = ({m}, {k}), got {W.shape}", ErrorCode.SHAPE)
+    for e in range(m):
+        if not np.isfinite(E[e]).all():
+            v = int(np.flatnonzero(~np.isfinite(E[e]).all(axis=1))[0])
+            raise ShapeSpaceError(f"{names[e]}: non-finite coordinate at vertex {v}", ErrorCode.NON_FINITE)
+        if not np.isfinite(W[e]).all():
+            k_bad = int(np.flatnonzero(~np.isfinite(W[e]))[0])
+            raise ShapeSpaceError(f"{names[e]}: non-finite weight on source shape {k_bad}", ErrorCode.NON_FINITE)
+        if not np.any(W[e]):
+            raise ShapeSpaceError(f"{names[e]}: all its weights are zero (it names no source shape)",
+                                  ErrorCode.INVALID)
+    return D, E, W
+
+
+def _laplacian(n, tris):
+    r = tris.ravel()
+    c = np.roll(tris, 1, axis=1).ravel()
+    A = sp.coo_matrix((np.ones(r.size), (r, c)), shape=(n, n)).tocsr()
+    A = ((A + A.T) > 0).astype(np.float64)
+    return sp.diags(np.asarray(A.sum(axis=1)).ravel()) - A
+
+
+def _stats(X, E, mirror):
+    """Per example and vertex ``‖X_e‖²`` and ``E_e·X_e`` (m, n), each pooled with its mirror vertex."""
+    xx = np.einsum("evi,evi->ev", X, X)
+    yx = np.einsum("evi,evi->ev", E, X)
+    if mirror is not None:
+        has = mirror >= 0
+        xx[:, has] += xx[:, mirror[has]]
+        yx[:, has] += yx[:, mirror[has]]
+    return xx, yx
+
+
+def _gain(lap, xx, yx, lam, scale, smooth):
+    """Solve ``(μ s L + diag(xx + λ s)) g = yx + λ s`` (xx, yx summed over the examples used)."""
+    A = (smooth * scale * lap + sp.diags(xx + lam * scale)).tocsc()
+    return splu(A).solve(yx + lam * scale)
+
+
+def _cross_validate(lap, X, E, xx, yx, scale, candidates, progress):
+    """Leave-one-example-out relative error of each ``(λ, μ)``; ``(inf, 0)`` (no gain) is the plain transfer's."""
+    m = X.shape[0]
+    total = float(np.sum(E ** 2))
+    err = {(np.inf, 0.0): float(np.sum((X - E) ** 2)) / total}
+    if m < 2:
+        return err
+    for lam, smooth in candidates:
+        s = 0.0
+        for e in range(m):
+            rest = np.arange(m) != e
+            g = _gain(lap, xx[rest].sum(axis=0), yx[rest].sum(axis=0), lam, scale, smooth)
+            s += float(np.sum((g[:, None] * X[e] - E[e]) ** 2))
+        err[(lam, smooth)] = s / total
+        notify(progress, 0.9 * len(err) / (len(candidates) + 1))
+    return err
+
+
+def _local_mask(lap, X, E, xx, yx, scale, lam, smooth, mirror):
+    """Where the left-out examples are predicted at least as well with the gain as without (1, else 0), per
+    vertex (mirror-pooled), smoothed by one step of ``(I + L)⁻¹``: (n,)."""
+    m, n = X.shape[0], X.shape[1]
+    with_gain, without = np.zeros(n), np.zeros(n)
+    for e in range(m):
+        rest = np.arange(m) != e
+        g = _gain(lap, xx[rest].sum(axis=0), yx[rest].sum(axis=0), lam, scale, smooth)
+        with_gain += np.sum((g[:, None] * X[e] - E[e]) ** 2, axis=1)
+        without += np.sum((X[e] - E[e]) ** 2, axis=1)
+    if mirror is not None:
+        has = mirror >= 0
+        with_gain[has] += with_gain[mirror[has]].copy()
+        without[has] += without[mirror[has]].copy()
+    keep = (with_gain <= without).astype(np.float64)
+    return splu((sp.eye(n) + lap).tocsc()).solve(keep)
+
+
+def _reproduce(D, E, W):
+    """Rank-m update: spread each example's residual over its keys by their per-vertex activity."""
+    R = E - np.einsum("ek,kvi->evi", W, D)
+    act = np.sum(D ** 2, axis=2)                                           # (k, n)
+    floor = ACTIVITY_FLOOR * max(float(act[act > 0].mean()) if (act > 0).any() else 1.0, 1e-300)
+    kappa = act + floor
+    used = np.flatnonzero(np.any(W != 0, axis=0))
+    Wu, ku = W[:, used], kappa[used]                                       # (m, u), (u, n)
+    Mv = np.einsum("eu,un,fu->nef", Wu, ku, Wu)                            # (n, m, m)
+    mu = np.linalg.pinv(Mv, hermitian=True) @ R.transpose(1, 0, 2)         # (n, m, 3)
+    out = D.copy()
+    out[used] += np.einsum("eu,un,nei->uni", Wu, ku, mu)
+    return out
+
+
+def _residual(D, E, W):
+    R = E - np.einsum("ek,kvi->evi", W, D)
+    return np.linalg.norm(R.reshape(len(E), -1), axis=1) / np.maximum(np.linalg.norm(E.reshape(len(E), -1), axis=1),
+                                                                       1e-300)
+
+
+def refine_with_examples(verts: ArrayLike, tris: ArrayLike, deltas: ArrayLike, examples: ArrayLike,
+                         weights: ArrayLike, *, names: Sequence[str] | None = None, mirror: str | None = "auto",
+                         partners: ArrayLike | None = None,
+                         strengths: Sequence[float] = STRENGTHS, smooths: Sequence[float] = SMOOTHS,
+                         progress: ProgressFn | None = None) -> ExampleRefinement:
+    """Refine transferred keys so the examples are reproduced and what they reveal carries to the other keys.
+
+    Parameters
+    ----------
+    verts : array_like (n, 3)
+        Target neutral.
+    tris : array_like of int (f, 3)
+        Target triangles (the gain's smoothness follows their edges).
+    deltas : array_like (k, n, 3)
+        Plain transferred deltas (deformation transfer, parts moved), one per source shape.
+    examples : array_like (m, n, 3)
+        Example target shapes, deltas from the target neutral.
+    weights : array_like (m, k)
+        Approximate weights of the source shapes in each example (a row may not be all zero).
+    names : sequence of str (m,), optional
+        Example names used in error messages.
+    mirror : "auto" or None
+        ``"auto"``: pool the gain statistics of mirror vertices (:func:`mirror_vertices`) and mirror example
+        refinements onto ``partners``; ``None``: neither.
+    partners : array_like of int (k,), optional
+        Each key's other-side key (``-1``: none; :func:`mirror_partners`).  A key no example uses whose partner
+        an example uses takes the partner's refinement (step 2), mirrored (step 3).
+    strengths : sequence of float
+        ``λ`` candidates of the cross-validation (see the module docstring); ``inf`` (no gain) is always one.
+    smooths : sequence of float
+        ``μ`` candidates (the gain's smoothness), each tried with every ``λ``.
+    progress : callable (fraction) -> None, optional
+        :mod:`core.progress` protocol, called after each cross-validated candidate; raising
+        :class:`~core.progress.Cancelled` from it stops the refinement.
+
+    Returns
+    -------
+    ExampleRefinement
+
+    Raises
+    ------
+    ShapeSpaceError
+        Shapes that do not match, NaN in an example or a weight, an example whose weights are all zero, no
+        example — the message names the example.
+    """
+    V, TT = check_mesh(verts, tris, "target")
+    n = V.shape[0]
+    D, E, W = _check(deltas, examples, weights, names, n)
+    cands = [(validate.positive(lam, "strength"), validate.non_negative(mu, "smooth"))
+             for lam in strengths for mu in smooths]
+    if mirror is not None:
+        validate.choice(mirror, "mirror", ("auto",))
+    mir, refl = mirror_vertices(V) if mirror is not None else (None, None)
+    part = None if partners is None else np.asarray(partners, dtype=np.int64)
+    if part is not None and (part.shape != (D.shape[0],) or part.max(initial=-1) >= D.shape[0]
+                             or part.min(initial=-1) < -1):
+        raise ShapeSpaceError(f"partners must be ({D.shape[0]},) key indices or -1", ErrorCode.SHAPE)
+    X = np.einsum("ek,kvi->evi", W, D)
+    scale = max(float(np.mean(np.max(np.sum(X ** 2, axis=2), axis=1))), 1e-300)
+    lap = _laplacian(n, TT)
+    xx, yx = _stats(X, E, mir)
+    notify(progress, 0.0)
+    cv = _cross_validate(lap, X, E, xx, yx, scale, cands, progress)
+    lam, smooth = min(cv, key=lambda c: (cv[c], -c[0], -c[1]))
+    g = np.ones(n)
+    if not np.isinf(lam):
+        mask = _local_mask(lap, X, E, xx, yx, scale, lam, smooth, mir)
+        g += mask * (_gain(lap, xx.sum(axis=0), yx.sum(axis=0), lam, scale, smooth) - 1.0)
+    Dg = g[None, :, None] * D
+    out = _reproduce(Dg, E, W)
+    if mir is not None and part is not None:
+        out = _mirror_to_partners(out, Dg, W, part, mir, refl)
+    base = np.linalg.norm(D.reshape(len(D), -1), axis=1)
+    change = np.linalg.norm((out - D).reshape(len(D), -1), axis=1) / np.where(base > 0, base, 1.0)
+    notify(progress, 1.0)
+    return ExampleRefinement(out, g, float(lam), float(smooth), cv, _residual(D, E, W), _residual(Dg, E, W),
+                             _residual(out, E, W), change)

@@ -1,0 +1,190 @@
+"""Example-guided transfer (issue #22 §5): core.authoring.examples."""
+import numpy as np
+import pytest
+
+from core.authoring.examples import STRENGTHS, SMOOTHS, mirror_partners, mirror_vertices, refine_with_examples
+from core.progress import Cancelled
+from core.result import ShapeSpaceError
+
+
+def grid(n=21):
+    """A symmetric (in x) bumped square, (n², 3) vertices and its triangles."""
+    u = np.linspace(-1.0, 1.0, n)
+    X, Y = np.meshgrid(u, u, indexing="ij")
+    V = np.c_[X.ravel(), Y.ravel(), 0.2 * np.cos(1.5 * X.ravel()) * (1.0 + 0.6 * Y.ravel() + 0.3 * Y.ravel() ** 2)]
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    T = np.r_[np.c_[a, b, c], np.c_[a, c, d]]
+    return V, T
+
+
+def smooth_fields(V, k, rng):
+    """``k`` random low-frequency displacement fields (k, n, 3)."""
+    out = np.zeros((k, V.shape[0], 3))
+    for s in range(k):
+        for _ in range(3):
+            f = rng.normal(size=(2,)) * 1.5
+            out[s] += rng.normal(size=3)[None] * np.sin(V[:, :2] @ f + rng.uniform(0, 6.3))[:, None]
+    return 0.05 * out
+
+
+def key_err(D, A):
+    return np.linalg.norm((D - A).reshape(len(D), -1), axis=1)
+
+
+def test_known_gain_field_is_recovered_from_few_examples_and_held_out_keys_improve():
+    rng = np.random.default_rng(1)
+    V, T = grid()
+    D = smooth_fields(V, 12, rng)                                     # the plain transfer
+    gain = 1.0 + 0.8 * np.exp(-((V[:, 0] - 0.3) ** 2 + V[:, 1] ** 2) / 0.3)   # the target's true gain
+    A = gain[None, :, None] * D                                       # the target's true shapes
+    ex = [0, 3, 5, 8]
+    W = np.eye(12)[ex]
+    r = refine_with_examples(V, T, D, A[ex], W, mirror=None)
+    held = [i for i in range(12) if i not in ex]
+    before, after = key_err(D[held], A[held]), key_err(r.deltas[held], A[held])
+    assert np.linalg.norm(after) < 0.3 * np.linalg.norm(before)
+    assert (after < before).all()
+    assert np.isfinite(r.strength)
+    # the gain found is the true one where the examples move
+    moved = np.linalg.norm(D[ex], axis=2).max(axis=0) > 0.02
+    assert np.abs(r.gain[moved] - gain[moved]).max() < 0.1 * np.ptp(gain)
+
+
+def test_examples_are_reproduced_and_only_their_keys_take_the_rank_m_update():
+    rng = np.random.default_rng(2)
+    V, T = grid(15)
+    D = smooth_fields(V, 8, rng)
+    E = smooth_fields(V, 3, rng)                                      # unrelated examples: nothing to learn
+    W = np.zeros((3, 8))
+    W[0, 1], W[1, [2, 4]], W[2, [4, 6]] = 1.0, (1.0, 0.5), (0.7, 1.0)
+    r = refine_with_examples(V, T, D, E, W, mirror=None, strengths=())     # the rank-m update alone
+    pred = np.einsum("ek,kvi->evi", W, r.deltas)
+    np.testing.assert_allclose(pred, E, atol=1e-9 * np.abs(E).max())
+    assert (r.residual_before > 0.5).all() and (r.residual_after < 1e-9).all()
+    untouched = [0, 3, 5, 7]
+    np.testing.assert_array_equal(r.deltas[untouched], D[untouched])
+    assert (r.key_change[untouched] == 0).all() and (r.key_change[[1, 2, 4, 6]] > 0).all()
+
+
+def test_examples_that_reveal_no_gain_leave_the_keys_no_example_uses_as_transferred():
+    rng = np.random.default_rng(6)
+    V, T = grid()
+    D = smooth_fields(V, 10, rng)
+    ex = [0, 2, 4, 6, 8]
+    noise = 0.3 * rng.normal(size=(5,) + D.shape[1:]) * np.abs(D[ex]).max()
+    r = refine_with_examples(V, T, D, D[ex] + noise, np.eye(10)[ex], mirror=None)
+    assert np.isinf(r.strength) and (r.gain == 1.0).all()
+    assert r.cv_error[(np.inf, 0.0)] == min(r.cv_error.values())
+    np.testing.assert_array_equal(r.deltas[[1, 3, 5, 7, 9]], D[[1, 3, 5, 7, 9]])
+    assert (r.residual_after < 1e-9).all()
+
+
+def test_the_gain_is_kept_only_where_the_examples_agree_with_each_other():
+    rng = np.random.default_rng(7)
+    V, T = grid()
+    a = (V[:, 0] > 0.3)[None, :, None]
+    b = (V[:, 0] < -0.3)[None, :, None]
+    D = np.concatenate([smooth_fields(V, 3, rng) * a, smooth_fields(V, 3, rng) * b])  # keys 0-2 in A, 3-5 in B
+    A = D.copy()
+    A[:3] *= 0.5                                      # area A: the target moves half as far, in every key
+    A[3] *= 1.6                                       # area B: the examples disagree (1.6 and 0.4) ...
+    A[4] = 0.4 * D[4] * 0.2
+    D[4] *= 0.2
+    ex, held = [0, 1, 3, 4], [2, 5]                   # ... and the held-out key there is as transferred
+    r = refine_with_examples(V, T, D, A[ex], np.eye(6)[ex], mirror=None)
+    before, after = key_err(D[held], A[held]), key_err(r.deltas[held], A[held])
+    assert after[0] < 0.3 * before[0]
+    # one gain fitted over B would have moved key 5 by ~40 % (the examples there say 1.6 in the large one):
+    # the left-out examples disagree there, so B keeps (almost) the plain transfer
+    assert before[1] == 0.0 and after[1] < 0.06 * np.linalg.norm(D[5])
+    assert np.median(np.abs(r.gain[b[0, :, 0]] - 1.0)) < 0.05
+
+
+def test_a_left_example_teaches_the_right_side_through_the_mirror():
+    rng = np.random.default_rng(3)
+    V, T = grid()
+    left, right = V[:, 0] > 0.2, V[:, 0] < -0.2
+    mir, refl = mirror_vertices(V)
+    np.testing.assert_allclose(V[mir[left], 0], -V[left, 0], atol=1e-12)
+    np.testing.assert_allclose(refl, np.diag([-1.0, 1.0, 1.0]), atol=1e-9)
+    base = smooth_fields(V, 4, rng)
+    D = np.concatenate([base * left[None, :, None], base * right[None, :, None]])   # keys 0-3 left, 4-7 right
+    A = 0.5 * D                                                       # the target moves half as far everywhere
+    ex = [0, 1, 2]
+    # a short-range gain (λ = 0.3, μ = 0.1: screening length ~0.6 edges) cannot reach the right side by smoothness
+    fixed = dict(strengths=(0.3,), smooths=(0.1,))
+    r_mirror = refine_with_examples(V, T, D, A[ex], np.eye(8)[ex], **fixed)
+    r_plain = refine_with_examples(V, T, D, A[ex], np.eye(8)[ex], mirror=None, **fixed)
+    held = [4, 5, 6, 7]
+    before = key_err(D[held], A[held])
+    assert (key_err(r_mirror.deltas[held], A[held]) < 0.3 * before).all()
+    assert (key_err(r_plain.deltas[held], A[held]) > 0.9 * before).all()
+
+
+def test_an_example_key_s_refinement_is_mirrored_onto_its_other_side_key():
+    rng = np.random.default_rng(5)
+    V, T = grid()
+    left = np.clip((V[:, 0] - 0.1) / 0.3, 0.0, 1.0)[:, None]
+    f = smooth_fields(V, 1, rng)[0]
+    mirrored = f[mirror_vertices(V)[0]] * np.array([-1.0, 1.0, 1.0])
+    D = np.stack([f * left, mirrored * left[mirror_vertices(V)[0]], f])          # smileLeft, smileRight, jawOpen
+    truth_left = D[0] + 0.3 * np.roll(D[0], 1, axis=1)                          # not a gain: a different motion
+    truth_right = truth_left[mirror_vertices(V)[0]] * np.array([-1.0, 1.0, 1.0])
+    names = ["mouthSmileLeft", "mouthSmileRight", "jawOpen"]
+    partners = mirror_partners(names)
+    np.testing.assert_array_equal(partners, [1, 0, -1])
+    r = refine_with_examples(V, T, D, truth_left[None], np.eye(3)[:1], partners=partners)
+    before = np.linalg.norm(D[1] - truth_right)
+    assert np.linalg.norm(r.deltas[1] - truth_right) < 1e-6 * before
+    r_none = refine_with_examples(V, T, D, truth_left[None], np.eye(3)[:1])
+    np.testing.assert_array_equal(r_none.deltas[1], D[1])
+
+
+@pytest.mark.parametrize("case, words", [
+    ("nan_example", "mouthSmile: non-finite coordinate at vertex 7"),
+    ("nan_weight", "jawOpen: non-finite weight on source shape 2"),
+    ("zero_weights", "mouthSmile: all its weights are zero"),
+    ("no_example", "at least one example"),
+    ("weights_shape", "example weights must be (m, k) = (2, 4)"),
+    ("example_shape", "examples"),
+])
+def test_bad_input_is_refused_naming_the_example(case, words):
+    rng = np.random.default_rng(4)
+    V, T = grid(7)
+    D = smooth_fields(V, 4, rng)
+    E = smooth_fields(V, 2, rng)
+    W = np.eye(4)[:2]
+    names = ["jawOpen", "mouthSmile"]
+    if case == "nan_example":
+        E[1, 7, 2] = np.nan
+    elif case == "nan_weight":
+        W[0, 2] = np.inf
+    elif case == "zero_weights":
+        W[1] = 0.0
+    elif case == "no_example":
+        E, W, names = E[:0], W[:0], []
+    elif case == "weights_shape":
+        W = np.eye(4)[:2, :3]
+    else:
+        E = E[:, :-1]
+    with pytest.raises(ShapeSpaceError) as err:
+        refine_with_examples(V, T, D, E, W, names=names, mirror=None)
+    assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_progress_reports_each_candidate_and_cancelling_stops_the_refinement():
+    rng = np.random.default_rng(8)
+    V, T = grid(9)
+    D = smooth_fields(V, 4, rng)
+    seen = []
+    r = refine_with_examples(V, T, D, 0.5 * D[:3], np.eye(4)[:3], mirror=None, progress=seen.append)
+    assert len(seen) == len(STRENGTHS) * len(SMOOTHS) + 2 and seen[0] == 0.0 and seen[-1] == 1.0
+    assert seen == sorted(seen) and r.residual_after.max() < 1e-9
+
+    def stop(fraction):
+        if fraction > 0.2:
+            raise Cancelled()
+
+    with pytest.raises(Cancelled):
+        refine_with_examples(V, T, D, 0.5 * D[:3], np.eye(4)[:3], mirror=None, progress=stop)
