@@ -41,7 +41,7 @@ from ..errors import ErrorCode
 from ..names import canonical_name
 from ..progress import ProgressFn, notify
 from ..result import Issue, Result, ShapeSpaceError, Status
-from .contacts import Opening, constraint_matrix, gap_changes
+from .contacts import Opening, carried, constraint_matrix, gap_changes
 from .mesh import check_mesh, face_normals, inv3
 from .registration import Correspondence
 
@@ -107,7 +107,8 @@ class Transfer:
         Source triangles whose registration gradient is folded or has a singular-value ratio above this give
         no constraint (:attr:`folded` counts them).
     openings : sequence of Opening
-        Eye and mouth openings whose closure is carried from source to target (:mod:`.contacts`).
+        Eye and mouth openings; the closure of those open at rest is carried from source to target
+        (:func:`~core.authoring.contacts.carried`).
     contact_weight : float
         Weight of the contact rows relative to the mean diagonal of the Laplacian term.
     """
@@ -159,7 +160,7 @@ class Transfer:
         mass[loose] = mass[~loose].mean() if (~loose).any() else 1.0
         self._eps = anchor * K.diagonal().sum() / mass.sum()
         self._M = self._eps * mass
-        self.openings = list(openings)
+        self.openings = carried(openings)
         self._C = constraint_matrix(self.openings, self.n_t)
         self._wc = contact_weight * K.diagonal().mean()
         K = K + self._wc * (self._C.T @ self._C)
@@ -223,7 +224,7 @@ class Transfer:
             rhs = self._G.T @ (self._a[:, None] * rhs_g)
             rhs += self._M[:, None] * anchors[sl].transpose(1, 0, 2).reshape(self.n_t, 3 * kk)
             if self.openings:
-                z = gap_changes(self.openings, self.S, D[sl], self.T, self.corr.similarity[1])   # (kk, m, 3)
+                z = gap_changes(self.openings, self.S, D[sl], self.T)                # (kk, m, 3)
                 rhs += self._wc * (self._C.T @ z.transpose(1, 0, 2).reshape(-1, 3 * kk))
             x = np.empty_like(rhs)
             for col in range(rhs.shape[1]):      # SuperLU is several times faster column by column

@@ -204,22 +204,16 @@ def test_each_check_fails_on_its_defect_and_passes_without():
     assert "size" in keys[0]["failed"] and "10.00×" in issues[0].message
 
 
-def test_shut_lips_carry_the_sources_gap_change_turned_and_scaled():
-    """Source lips touch at rest (no gap to take a fraction of): the opening is 'offset' and each target pair
-    must change its gap by scale · R (Δu − Δl) of the source, scale the contours' length ratio."""
+def test_shut_lips_are_classified_and_not_carried():
+    """Lips that touch at rest on either head make an 'offset' opening (no gap to take a fraction of), with the
+    contours' length ratio as its scale; the transfer carries only the openings open at rest."""
     x = np.linspace(0.0, 1.0, 5)
     S = np.r_[np.c_[x, np.zeros(5), np.zeros(5)], np.c_[x, np.zeros(5), np.zeros(5)]]       # shut: rows coincide
     T = np.r_[np.c_[2 * x, np.full(5, 0.3), np.zeros(5)], np.c_[2 * x, np.zeros(5), np.zeros(5)]]
-    o = contacts.opening("mouth", S, range(5), range(5, 10), T, range(5), range(5, 10))
-    assert o.mode == "offset" and abs(o.scale - 2.0) < 1e-12
-    D = np.zeros((1, 10, 3))
-    D[0, 5:, 1] = -0.1 * np.sin(np.pi * x)                                    # the lower lip drops (jaw open)
-    R = Rotation.from_euler("z", 30, degrees=True).as_matrix()
-    got = contacts.gap_changes([o], S, D, T, R)[0]
-    expect = 2.0 * (np.array([0.0, 0.1, 0.0]) @ R.T)[None] * np.sin(np.pi * o.target_t)[:, None]
-    assert np.abs(got - expect).max() < 1e-12
+    lips = contacts.opening("mouth", S, range(5), range(5, 10), T, range(5), range(5, 10))
     eyes = contacts.opening("eye_L", T, range(5), range(5, 10), T, range(5), range(5, 10))
-    assert eyes.mode == "ratio"
+    assert lips.mode == "offset" and abs(lips.scale - 2.0) < 1e-12 and eyes.mode == "ratio"
+    assert contacts.carried([lips, eyes]) == [eyes]
 
 
 def test_lips_check_fails_when_the_target_opens_lips_the_source_keeps_shut():
