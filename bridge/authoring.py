@@ -912,6 +912,39 @@ def _write_part_objects(outcome: TransferOutcome, report: TransferReport) -> Non
                                     "skipped": [plan.names[n] for n in skipped]})
 
 
+#: Shape-key custom property of a transfer target: the last transfer's verdict for the panel.
+LAST_PROP = "shapespace_last_transfer"
+LAST_SCHEMA = Schema("last transfer checks", 1,
+                     fields={"source": "string", "status": "string", "failed": "list", "parts": "list",
+                             "openings": "list"})
+
+
+def _store_verdict(target, report: TransferReport) -> None:
+    """Keep the last transfer's verdict on the target's keys (what the panel shows): status, the failed checks
+    per key, the parts' kinds, the openings carried."""
+    failed = [[k["name"], list(k["failed"])] for k in report.keys if k["failed"]]
+    parts = [[p["part"], p["kind"], p["vertices"], bool(p["unsure"])] for p in report.parts]
+    storage.write_id_blob(target.data.shape_keys, LAST_PROP, LAST_SCHEMA,
+                          {"source": report.source, "status": report.status, "failed": failed, "parts": parts,
+                           "openings": list(report.openings)})
+
+
+def last_verdict(target) -> dict | None:
+    """The last transfer's stored verdict on ``target`` (see :func:`_store_verdict`), or None."""
+    key = target.data.shape_keys if target is not None and target.type == "MESH" else None
+    if key is None or LAST_PROP not in key:
+        return None
+    return storage.read_id_blob(key, LAST_PROP, LAST_SCHEMA)
+
+
+def verdict_status(target) -> tuple:
+    """``(verdict or None, problem)`` for panels: never raises (``problem`` is '' or one line)."""
+    try:
+        return last_verdict(target), ""
+    except ShapeSpaceError as exc:
+        return None, str(exc)
+
+
 def write_transfer(outcome: TransferOutcome) -> TransferReport:
     """Step 3 (main thread): write the new keys (and mask groups) in one step; returns the report.
 
@@ -929,6 +962,7 @@ def write_transfer(outcome: TransferOutcome) -> TransferReport:
     _write(target, plan.rig, plan.names, plan.write, plan.replace, outcome.full[:, :own], plan.tgt.neutral[:own],
            {g: w[:own] for g, w in outcome.masks.items()}, plan.existing == "overwrite", report)
     _write_part_objects(outcome, report)
+    _store_verdict(target, report)
     clear_preview(target)                       # it served its purpose; the result file does not keep it
     report.skipped = [plan.names[n] for n in plan.skipped] + (
         [f"vertex group {g} (kept)" for g in plan.groups_clash] if plan.existing == "skip" else [])

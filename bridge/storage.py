@@ -42,9 +42,10 @@ def write_string_blob(owner, attr: str, schema: _schema.Schema, data: dict) -> N
 
 def _key_blob_schemas() -> dict:
     """Every JSON blob ShapeSpace keeps on a shape-key datablock: property name → schema."""
-    from . import driven, facespace, retarget
+    from . import authoring, driven, facespace, retarget
     return {driven.PROP: driven.SCHEMA, retarget.MAPPING_PROP: retarget.MAPPING_SCHEMA,
-            retarget.LAST_PROP: retarget.LAST_SCHEMA, **facespace.blob_schemas()}
+            retarget.LAST_PROP: retarget.LAST_SCHEMA, authoring.LAST_PROP: authoring.LAST_SCHEMA,
+            **facespace.blob_schemas()}
 
 
 def _example_blob_schemas() -> dict:

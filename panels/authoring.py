@@ -52,3 +52,32 @@ class SHAPESPACE_PT_transfer_shapes(ShapeSpaceSidebar, bpy.types.Panel):
         row.operator("shapespace.preview_registration", icon="HIDE_OFF")
         row.operator("shapespace.clear_registration_preview", text="", icon="X")
         layout.operator("shapespace.transfer_shapes", icon="SHAPEKEY_DATA")
+        _draw_verdict(layout, ob)
+
+
+def _draw_verdict(layout, ob) -> None:
+    """The last transfer's checks: status, the keys that failed a check, the parts and their kinds."""
+    verdict, problem = authoring.verdict_status(ob)
+    if problem:
+        layout.label(text=problem, icon="ERROR")
+    if verdict is None:
+        return
+    box = layout.box()
+    ok = verdict["status"] == "ok"
+    box.label(text=f"Last transfer from {verdict['source']}: " + ("every key passed its checks" if ok else
+              f"{len(verdict['failed'])} keys failed a check"), icon="CHECKMARK" if ok else "ERROR")
+    col = box.column(align=True)
+    for name, checks in verdict["failed"][:SHOWN]:
+        col.label(text=f"{name}: {', '.join(checks)}")
+    if len(verdict["failed"]) > SHOWN:
+        col.label(text=f"… and {len(verdict['failed']) - SHOWN} more")
+    kinds = {}
+    for _, kind, _, _ in verdict["parts"]:
+        kinds[kind] = kinds.get(kind, 0) + 1
+    if kinds:
+        box.label(text="Parts: " + ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())), icon="MESH_DATA")
+    unsure = [str(p) for p, _, _, flag in verdict["parts"] if flag]
+    if unsure:
+        box.label(text=f"Check the kind of part {', '.join(unsure[:8])}", icon="QUESTION")
+    if verdict["openings"]:
+        box.label(text="Openings: " + ", ".join(verdict["openings"]), icon="HIDE_OFF")

@@ -125,3 +125,30 @@ def test_command_line_parts_collection(registered, tmp_path):
     assert code == (0 if rep["status"] == "ok" and rep["registration_status"] != "not_converged" else 1)
     code, stdout, stderr = _cli(*common, "--parts-collection", "NoSuch")
     assert code == 1 and stdout == "" and "--parts-collection: no collection named 'NoSuch'" in stderr
+
+
+def test_the_panel_shows_the_last_transfers_checks_and_names_a_damaged_verdict(registered):
+    """After a transfer the Transfer Shapes panel shows its verdict (status, failed keys, parts); a damaged
+    stored verdict is one line in the panel (no exception) and Check Rig's damage list names it."""
+    from test_panels import Layout
+    from shapespace.bridge import storage
+    from shapespace.panels.authoring import SHAPESPACE_PT_transfer_shapes as Panel
+
+    def labels():
+        log = []
+        Panel.draw(type("PanelCall", (), {"layout": Layout(log)})(), bpy.context)
+        return [text for kind, text in log if kind == "label"]
+
+    src, tgt = _rpm_with_part_objects()
+    rep = authoring.transfer_shapes(src, tgt, unmatched_parts="move",
+                                    parts=part_objects.meshes_of(tgt.shapespace_authoring.parts_collection, tgt))
+    bpy.context.view_layer.objects.active = tgt
+    drawn = labels()
+    failed = [k["name"] for k in rep.keys if k["failed"]]
+    head = ("every key passed its checks" if rep.status == "ok" else f"{len(failed)} keys failed a check")
+    assert f"Last transfer from Wolf3D_Head: {head}" in drawn
+    assert any(text.startswith("Parts: ") and "eye" in text for text in drawn)
+    assert all(any(text.startswith(f"{name}: ") for text in drawn) for name in failed[:12])
+    tgt.data.shape_keys[authoring.LAST_PROP] = "{not json"
+    assert any(text.startswith("damaged ShapeSpace data") and authoring.LAST_PROP in text for text in labels())
+    assert any(authoring.LAST_PROP in issue.message for issue in storage.damaged_blobs(tgt))
