@@ -32,12 +32,14 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import ErrorCode
+from ..headpose import eye_ypr_from_degrees, ypr_from_degrees
 from ..names import canonical_name
 from ..result import ShapeSpaceError
 from .frames import FACECAP_52, LLF_BLENDSHAPES, LLF_CURVES, LiveFrame
 
 __all__ = ["LLF_PORT", "LLF_VERSION", "IFM_PORT", "FACECAP_PORT", "MAX_DATAGRAM", "encode_llf", "decode_llf",
-           "encode_ifacialmocap", "decode_ifacialmocap", "FaceCapAssembler", "quaternion_to_yaw_pitch_roll"]
+           "encode_ifacialmocap", "decode_ifacialmocap", "FaceCapAssembler", "quaternion_to_yaw_pitch_roll",
+           "ypr_from_degrees", "eye_ypr_from_degrees"]
 
 LLF_PORT = 11111
 LLF_VERSION = 6
@@ -149,11 +151,6 @@ def _numbers(text: str, count: int, what: str) -> np.ndarray:
     return vals
 
 
-def _ypr_degrees(rx_ry_rz: np.ndarray) -> np.ndarray:
-    """iFacialMocap / Face Cap Euler degrees ``(x: pitch, y: yaw, z: roll)`` → ``(yaw, pitch, roll)`` radians."""
-    return np.radians([rx_ry_rz[1], rx_ry_rz[0], rx_ry_rz[2]])
-
-
 def encode_ifacialmocap(weights: Sequence[float], head_degrees: Sequence[float] = (0, 0, 0),
                         position: Sequence[float] = (0, 0, 0), right_eye: Sequence[float] = (0, 0, 0),
                         left_eye: Sequence[float] = (0, 0, 0), separator: str = "&") -> bytes:
@@ -215,9 +212,9 @@ def decode_ifacialmocap(data: bytes, arrival: float = 0.0) -> LiveFrame:
         raise _bad("iFacialMocap packet has no blendshapes")
     head = poses["=head#"]
     zero = np.zeros(3)
-    return LiveFrame(FACECAP_52, weights, head=_ypr_degrees(head[:3]), time=arrival, arrival=arrival,
-                     eye_left=_ypr_degrees(poses.get("leftEye#", zero)),
-                     eye_right=_ypr_degrees(poses.get("rightEye#", zero)), head_position=head[3:].copy())
+    return LiveFrame(FACECAP_52, weights, head=ypr_from_degrees(head[:3]), time=arrival, arrival=arrival,
+                     eye_left=ypr_from_degrees(poses.get("leftEye#", zero)),
+                     eye_right=ypr_from_degrees(poses.get("rightEye#", zero)), head_position=head[3:].copy())
 
 
 # ------------------------------------------------------------------ Face Cap (messages already parsed)
@@ -269,14 +266,13 @@ class FaceCapAssembler:
             self.weights[int(vals[0])] = vals[1]
             self.sweep_done = int(vals[0]) == len(FACECAP_52) - 1
         elif address == "/HR":
-            self.head = _ypr_degrees(self._count(address, vals, 3))
+            self.head = ypr_from_degrees(self._count(address, vals, 3))
         elif address == "/HRQ":
             self.head = quaternion_to_yaw_pitch_roll(self._count(address, vals, 4))
         elif address == "/HT":
             self.position = self._count(address, vals, 3)
         elif address in ("/ELR", "/ERR"):
-            xy = self._count(address, vals, 2)
-            eye = np.radians([xy[1], xy[0], 0.0])
+            eye = eye_ypr_from_degrees(self._count(address, vals, 2))
             if address == "/ELR":
                 self.eye_left = eye
             else:
