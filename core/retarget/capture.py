@@ -27,7 +27,9 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
 import stat
+import warnings
 from array import array as array_of
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -42,6 +44,7 @@ from ..result import Issue, ShapeSpaceError
 from ..validate import array
 
 __all__ = ["WeightStream", "parse_timecode", "read_live_link_csv", "resample", "finish_stream", "read_capture_text",
+           "plain_rows",
            "ROTATION_CHANNELS", "MAX_FILE_BYTES", "MAX_TAKE_SECONDS", "MAX_GAP_SECONDS", "MAX_ABS_WEIGHT",
            "MAX_RESAMPLE_BYTES"]
 
@@ -192,13 +195,78 @@ def _parse(text: str, required: Sequence[str], fps: float, rotations: bool = Fal
     rot_cols = [header.index(c) for c in ROTATION_CHANNELS] if rotations and set(ROTATION_CHANNELS) <= set(header) \
         else []
     cols, names, issues = _channel_columns(header, t_col, required, rot_cols)
-    t, w, lines, stamps = _read_rows(numbered, header, t_col, cols + rot_cols, fps)
+    fast = _plain_llf_rows(text, header, t_col, cols + rot_cols, fps)
+    t, w, lines, stamps = fast or _read_rows(numbered, header, t_col, cols + rot_cols, fps)
     t = _unwrap_midnight(t, lines, issues)
     rot = w[:, len(cols):] if rot_cols else None
     stream = finish_stream(t, w[:, :len(cols)], names, lines, issues, rot)
     stream.start_timecode = stamps[int(np.argmin(t))].strip()
     stream.rate = fps
     return stream
+
+
+_PLAIN = re.compile(r"[0-9eE.+\-,\n naifNAIF]*")
+
+
+def plain_rows(body: str, width: int) -> np.ndarray | None:
+    """The numbers of ``body`` as (rows, width), read in one C pass, when it is lines (each ending in ``\n``,
+    none blank) of exactly ``width`` comma-separated plain numbers; ``None`` otherwise (an empty or damaged
+    cell, a ragged line, other syntax): the caller's per-cell reader then reads it and names the culprit."""
+    if not body.endswith("\n") or "\n\n" in body or not _PLAIN.fullmatch(body):
+        return None
+    raw = np.frombuffer(body.encode("ascii"), dtype=np.uint8)
+    ends = np.flatnonzero(raw == 10)
+    commas = np.bincount(np.searchsorted(ends, np.flatnonzero(raw == 44)), minlength=ends.size)
+    del raw
+    if np.any(commas != width - 1) or np.max(np.diff(ends, prepend=-1)) > csv.field_size_limit():
+        return None                                       # ragged, or a cell the csv module refuses
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            values = np.fromstring(body.replace("\n", ","), sep=",")
+        except (DeprecationWarning, ValueError):
+            return None
+    if values.size != ends.size * width or not np.isfinite(values).all():
+        return None                                       # NaN / infinite cells: read (and filled) per cell
+    return values.reshape(ends.size, width)
+
+
+class _FirstFields:
+    """The first cell of each line of a body of text, looked up on demand (a long take's timecodes are never
+    held as strings)."""
+
+    def __init__(self, body: str) -> None:
+        self.body = body
+
+    def __getitem__(self, k: int) -> str:
+        return self.body.split("\n", k + 1)[k].split(",", 1)[0]
+
+
+def _plain_llf_rows(text: str, header: list, t_col: int, cols: list, fps: float) -> tuple | None:
+    """:func:`_read_rows`'s result from a take of plain rows (no quotes, timecode first, every cell a number,
+    every timecode in range) in one pass (:func:`plain_rows`); ``None`` for anything else (the per-row
+    reader then reads it and names what is wrong)."""
+    if t_col != 0 or '"' in text:
+        return None
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    first, _, body = text.partition("\n")
+    if [h.strip() for h in first.split(",")] != header:
+        return None
+    body = body.rstrip("\n") + "\n"
+    a = plain_rows(body.replace(":", ","), len(header) + 3)
+    if a is None or a.shape[0] == 0:
+        return None
+    h, m, s, ff = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+    whole = np.all((h == np.floor(h)) & (m == np.floor(m)) & (s == np.floor(s)))
+    if not (whole and np.all((h >= 0) & (h < 24) & (m >= 0) & (m < 60) & (s >= 0) & (s < 60) & (ff >= 0)
+                             & (ff < fps))):
+        return None
+    w = a[:, [j + 3 for j in cols]]
+    if np.any(np.isfinite(w) & (np.abs(w) > MAX_ABS_WEIGHT)):
+        return None
+    t = h * 3600.0 + m * 60.0 + s + ff / fps
+    return t, np.ascontiguousarray(w), np.arange(2, t.size + 2, dtype=np.int64), _FirstFields(body)
 
 
 def finish_stream(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray, issues: list,

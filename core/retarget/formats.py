@@ -48,6 +48,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from array import array as array_of
 from collections.abc import Sequence
 
@@ -58,7 +59,7 @@ from ..headpose import eye_ypr_from_degrees, ypr_from_degrees
 from ..names import ARKIT_52, FACECAP_52
 from ..result import Issue, ShapeSpaceError
 from .capture import (MAX_ABS_WEIGHT, ROTATION_CHANNELS, WeightStream, _channel_columns, _csv_rows, _parse,
-                      finish_stream, read_capture_text)
+                      finish_stream, plain_rows, read_capture_text)
 
 __all__ = ["KINDS", "detect_kind", "read_capture", "parse_capture", "describe_stream", "IFACIALMOCAP_FPS",
            "MAX_ABS_DEGREES", "MAX_JSON_BYTES"]
@@ -143,9 +144,9 @@ def parse_capture(text: str, required: Sequence[str] = ARKIT_52, kind: str | Non
     elif kind == "ifacialmocap":
         stream = _ifacialmocap(text, required)
     elif kind == "audio2face_json":
-        stream = _audio2face(_json(text), required)
+        stream = _audio2face_text(text, required)
     elif kind == "mediapipe_json":
-        stream = _mediapipe_json(_json(text), required)
+        stream = _mediapipe_json(text, required)
     elif kind == "mediapipe_csv":
         stream = _mediapipe_csv(text, required)
     else:
@@ -201,6 +202,46 @@ def _frames(values: array_of, count: int, width: int) -> np.ndarray:
 
 # ------------------------------------------------------------------ Face Cap TXT
 def _facecap(text: str, required: Sequence[str]) -> WeightStream:
+    names, t, w, pose, lines = _facecap_plain(text) or _facecap_cells(text)
+    cols, kept, issues = _columns(names, required)
+    rot = np.concatenate([ypr_from_degrees(pose[:, 3:6]), eye_ypr_from_degrees(pose[:, 6:8]),
+                          eye_ypr_from_degrees(pose[:, 8:10])], axis=1)
+    _check_time(t)
+    return finish_stream(t, w[:, cols], kept, lines, issues, rot, "facecap_txt")
+
+
+#: Face Cap's value limits per key field after ``k``: time (ms), head position, head and eye angles (degrees).
+_FACECAP_LIMITS = np.array([1e12] + [MAX_ABS_POSITION] * 3 + [MAX_ABS_DEGREES] * 7)
+
+
+def _facecap_plain(text: str) -> tuple | None:
+    """:func:`_facecap_cells`'s result in one pass for a recording of plain keys (:func:`~.capture.plain_rows`:
+    every cell a number, every key line ``k,…``), else ``None``."""
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    at = 0 if text.startswith("k,") else text.find("\nk,") + 1
+    if at < 0 or (at == 0 and not text.startswith("k,")):
+        return None
+    names = list(FACECAP_52)
+    for line in text[:at].split("\n"):
+        line = line.strip()
+        if line.startswith("bs,"):
+            names = [n.strip() for n in line.split(",")[1:]]
+        elif line and not line.startswith("info,"):
+            return None
+    body = text[at:].rstrip() + "\n"
+    if body.count("\nk,") != body.count("\n") - 1:
+        return None                                            # a line that is not a key
+    a = plain_rows(("\n" + body).replace("\nk,", "\n")[1:], 11 + len(names))
+    if a is None or np.any(np.abs(a[:, :11]) > _FACECAP_LIMITS) or np.any(np.abs(a[:, 11:]) > MAX_ABS_WEIGHT):
+        return None
+    first = text[:at].count("\n") + 1
+    return names, a[:, 0] / 1000.0, a[:, 11:], a[:, 1:11], np.arange(first, first + a.shape[0])
+
+
+def _facecap_cells(text: str) -> tuple:
+    """``(names, times (f,), weights (f, n), head / eye fields (f, 10), lines)`` read cell by cell, naming the
+    line and field of anything wrong."""
     names, width = list(FACECAP_52), None
     times, values, poses, lines = array_of("d"), array_of("d"), array_of("d"), array_of("q")
     for i, line in _numbered_lines(text):
@@ -229,13 +270,8 @@ def _facecap(text: str, required: Sequence[str]) -> WeightStream:
     if not lines:
         raise ShapeSpaceError("the Face Cap recording has no keys (k,… lines)", ErrorCode.TOO_SHORT)
     t = np.frombuffer(times, dtype=np.float64).copy()
-    cols, kept, issues = _columns(names, required)
-    w = _frames(values, t.size, len(names))[:, cols]
-    pose = _frames(poses, t.size, 10)
-    rot = np.concatenate([ypr_from_degrees(pose[:, 3:6]), eye_ypr_from_degrees(pose[:, 6:8]),
-                          eye_ypr_from_degrees(pose[:, 8:10])], axis=1)
-    _check_time(t)
-    return finish_stream(t, w, kept, np.frombuffer(lines, dtype=np.int64).copy(), issues, rot, "facecap_txt")
+    return (names, t, _frames(values, t.size, len(names)), _frames(poses, t.size, 10),
+            np.frombuffer(lines, dtype=np.int64).copy())
 
 
 def _numbered_lines(text: str):
@@ -354,7 +390,30 @@ def _weight_row(row, width: int, where: str) -> list:
     return out
 
 
-def _audio2face(data, required: Sequence[str]) -> WeightStream:
+_A2F_MATRIX = re.compile(r'"weightMat"\s*:\s*(\[[\[\]0-9eE.+\-,\s]*\])')
+_ROW_BREAK = re.compile(r"\],\[")
+_SPACE = re.compile(r"\s+")
+
+
+def _audio2face_text(text: str, required: Sequence[str]) -> WeightStream:
+    """An Audio2Face export: a ``weightMat`` of plain numbers read in one pass (:func:`~.capture.plain_rows`),
+    the other fields by the json module; anything else parsed whole and checked cell by cell."""
+    found = _A2F_MATRIX.search(text)
+    if found is not None and found.group(1).count("[") == found.group(1).count("]"):
+        try:
+            data = _json(text[:found.start(1)] + "[]" + text[found.end(1):])
+        except ShapeSpaceError:                  # not the whole matrix: the whole text names what is wrong
+            return _audio2face(_json(text), required)
+        names = data.get("facsNames") if isinstance(data, dict) else None
+        matrix = _SPACE.sub("", found.group(1))
+        if isinstance(names, list) and matrix.startswith("[[") and matrix.endswith("]]"):
+            rows = plain_rows(_ROW_BREAK.sub("\n", matrix[2:-2]) + "\n", len(names))
+            if rows is not None and not np.any(np.abs(rows) > MAX_ABS_WEIGHT):
+                return _audio2face(data, required, rows)
+    return _audio2face(_json(text), required)
+
+
+def _audio2face(data, required: Sequence[str], rows: np.ndarray | None = None) -> WeightStream:
     what = "Audio2Face export"
     names = _field(data, "facsNames", list, what)
     if not all(isinstance(n, str) for n in names):
@@ -363,19 +422,21 @@ def _audio2face(data, required: Sequence[str]) -> WeightStream:
     if not (math.isfinite(fps) and 0 < fps <= 1000):
         raise ShapeSpaceError(f"the Audio2Face export's exportFps is {fps:g}; it must lie in (0, 1000]",
                               ErrorCode.FPS)
-    mat = _field(data, "weightMat", list, what)
+    mat = _field(data, "weightMat", list, what) if rows is None else rows
     for key, expected in (("numPoses", len(names)), ("numFrames", len(mat))):
         stated = data.get(key, expected)
         if stated != expected:
             raise ShapeSpaceError(f"the Audio2Face export's {key} is {stated!r} but it holds {expected}",
                                   ErrorCode.RAGGED)
     cols, kept, issues = _columns(names, required)
-    values = array_of("d")
-    for f, row in enumerate(mat):
-        values.extend(_weight_row(row, len(names), f"weightMat frame {f + 1}"))
-    if not mat:
+    if not len(mat):
         raise ShapeSpaceError("the Audio2Face export has no frames", ErrorCode.TOO_SHORT)
-    w = _frames(values, len(mat), len(names))[:, cols]
+    if rows is None:
+        values = array_of("d")
+        for f, row in enumerate(mat):
+            values.extend(_weight_row(row, len(names), f"weightMat frame {f + 1}"))
+        rows = _frames(values, len(mat), len(names))
+    w = np.ascontiguousarray(rows[:, cols])
     t = np.arange(len(mat)) / fps
     stream = finish_stream(t, w, kept, np.arange(1, len(mat) + 1), issues, None, "audio2face_json")
     stream.rate = fps
@@ -407,29 +468,79 @@ def _mediapipe_frame(frame, k: int) -> tuple:
     return float(t), scores
 
 
-def _mediapipe_json(data, required: Sequence[str]) -> WeightStream:
-    frames = data.get("frames") if isinstance(data, dict) else data
-    if not isinstance(frames, list):
-        raise ShapeSpaceError("the MediaPipe JSON is neither a list of frames nor {\"frames\": [...]}",
-                              ErrorCode.CORRUPT_FILE)
-    parsed = [_mediapipe_frame(f, k) for k, f in enumerate(frames)]
-    names = []
-    seen = set()
-    for _, scores in parsed:
-        for n in scores:
-            if n not in seen:
-                seen.add(n)
-                names.append(n)
+def _mediapipe_json(text: str, required: Sequence[str]) -> WeightStream:
+    """A MediaPipe JSON recording, one frame at a time (a list of frames is never held as Python objects)."""
+    column, names, times, rows = {}, [], array_of("d"), []
+    lost = 0
+    for k, frame in enumerate(_json_frames(text)):
+        ms, scores = _mediapipe_frame(frame, k)
+        row = array_of("d", [math.nan]) * len(names)
+        for name, score in scores.items():
+            if name not in column:
+                if len(column) >= MAX_CHANNELS:
+                    raise ShapeSpaceError(f"frame {k + 1}: more than {MAX_CHANNELS} category names",
+                                          ErrorCode.TOO_LARGE)
+                column[name] = len(names)
+                names.append(name)
+                row.append(math.nan)
+            row[column[name]] = score
+        lost += not scores
+        times.append(ms / 1000.0)
+        rows.append(row)
     if not names:
         raise ShapeSpaceError("the MediaPipe JSON has no blendshape scores", ErrorCode.NO_CHANNELS)
     cols, kept, issues = _columns(names, required)
-    w = np.array([[scores.get(names[j], math.nan) for j in cols] for _, scores in parsed], dtype=np.float64)
-    t = np.array([ms for ms, _ in parsed], dtype=np.float64) / 1000.0
+    w = np.full((len(rows), len(names)), np.nan)
+    for f, row in enumerate(rows):
+        w[f, :len(row)] = row
+    rows.clear()
+    t = np.frombuffer(times, dtype=np.float64).copy()
     _check_time(t)
-    lost = sum(not scores for _, scores in parsed)
     if lost:
         issues.append(Issue("warning", "no_face", f"{lost} frames found no face; filled from the neighbours"))
-    return finish_stream(t, w, kept, np.arange(1, len(parsed) + 1), issues, None, "mediapipe_json")
+    return finish_stream(t, w[:, cols], kept, np.arange(1, t.size + 1), issues, None, "mediapipe_json")
+
+
+_WS = re.compile(r"[ \t\n\r]*")
+
+
+def _json_frames(text: str):
+    """The frames of a MediaPipe JSON recording one by one: a top-level list streamed element by element
+    (``json.JSONDecoder.raw_decode``), or ``{"frames": [...]}`` parsed whole (within :data:`MAX_JSON_BYTES`)."""
+    at = _WS.match(text, text.startswith("\ufeff")).end()
+    if text[at:at + 1] != "[":
+        data = _json(text)
+        frames = data.get("frames") if isinstance(data, dict) else None
+        if not isinstance(frames, list):
+            raise ShapeSpaceError("the MediaPipe JSON is neither a list of frames nor {\"frames\": [...]}",
+                                  ErrorCode.CORRUPT_FILE)
+        yield from frames
+        return
+    decoder = json.JSONDecoder(parse_constant=lambda c: math.nan)
+    at = _WS.match(text, at + 1).end()
+    if text[at:at + 1] == "]":
+        at += 1
+    else:
+        while True:
+            try:
+                frame, at = decoder.raw_decode(text, at)
+            except json.JSONDecodeError as exc:
+                raise ShapeSpaceError(f"line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})",
+                                      ErrorCode.CORRUPT_FILE) from None
+            except (RecursionError, ValueError) as exc:
+                raise ShapeSpaceError(f"not readable JSON ({type(exc).__name__})", ErrorCode.CORRUPT_FILE) from None
+            yield frame
+            at = _WS.match(text, at).end()
+            sep = text[at:at + 1]
+            at = _WS.match(text, at + 1).end()
+            if sep == "]":
+                break
+            if sep != ",":
+                raise ShapeSpaceError(f"line {text.count(chr(10), 0, at) + 1}: the list of frames is not valid JSON "
+                                      "(expected ',' or ']')", ErrorCode.CORRUPT_FILE)
+    if _WS.match(text, at).end() != len(text):
+        raise ShapeSpaceError(f"line {text.count(chr(10), 0, at) + 1}: text after the list of frames",
+                              ErrorCode.CORRUPT_FILE)
 
 
 def _mediapipe_csv(text: str, required: Sequence[str]) -> WeightStream:
@@ -445,6 +556,12 @@ def _mediapipe_csv(text: str, required: Sequence[str]) -> WeightStream:
     names = [h for j, h in enumerate(header) if j != t_col]
     cols, kept, issues = _columns(names, required)
     cols = [c + (c >= t_col) for c in cols]                 # back to header columns
+    plain = None if '"' in text else plain_rows(text.replace("\r\n", "\n").replace("\r", "\n")
+                                                .split("\n", 1)[-1].rstrip() + "\n", len(header))
+    if plain is not None and not np.any(np.abs(plain[:, cols]) > MAX_ABS_WEIGHT) and plain[0].size:
+        t = plain[:, t_col] / 1000.0
+        return finish_stream(t, np.ascontiguousarray(plain[:, cols]), kept, np.arange(2, t.size + 2), issues, None,
+                             "mediapipe_csv")
     times, values, lines = array_of("d"), array_of("d"), array_of("q")
     for i, r in rows:
         if len(r) != len(header):

@@ -7,7 +7,10 @@ armature (the posed bones' armature-space rotations equal the face rotation ``R_
 R_z(roll)`` carried onto Blender's axes, built here with mathutils), and against the live session's path
 (the same rows sent as Live Link Face packets through the live pipeline and scene resampler).
 """
+import json
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -19,7 +22,7 @@ from shapespace.bridge import actions, retarget
 from shapespace.bridge.live.rig import Pipeline
 from shapespace.core.live import CopySolver, SceneResampler, decode_llf, encode_llf
 from shapespace.core.result import ShapeSpaceError
-from support import ASSETS
+from support import ASSETS, ROOT
 
 BLEND = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")
 CSV = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
@@ -165,3 +168,33 @@ def test_bone_keys_reduced_like_the_weights(scene_with_take):
         head_dense = delta(arm, "head")
         actions.assign_action(arm, bpy.data.actions[reduced["bones_action"]])
         assert max(abs(a - b) for ra, rb in zip(head_reduced, head_dense) for a, b in zip(ra, rb)) < 0.05
+
+
+def test_operator_keys_the_bones(registered, scene_with_take):
+    ob, arm, path, _ = scene_with_take
+    bpy.context.view_layer.objects.active = ob
+    assert bpy.ops.shapespace.retarget(filepath=path, method="copy", armature="Rig", head_bone="head",
+                                       eye_left_bone="eye.L", eye_right_bone="eye.R") == {"FINISHED"}
+    keyed = {fc.data_path for fc in actions.fcurves(actions.active_action(arm), arm)}
+    paths = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle"}
+    assert keyed == {actions.bone_path(b, paths.get(arm.pose.bones[b].rotation_mode, "rotation_euler"))
+                     for b in ("head", "eye.L", "eye.R")}
+    with pytest.raises(RuntimeError, match="has no bone 'nope'"):
+        bpy.ops.shapespace.retarget(filepath=path, method="copy", armature="Rig", head_bone="nope")
+
+
+def test_cli_head_neck_eye_options(scene_with_take, tmp_path):
+    ob, arm, path, _ = scene_with_take
+    blend = tmp_path / "rig.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    run_cli = os.path.join(ROOT, "tools", "run_cli.py")
+    common = [sys.executable, run_cli, str(blend), "--", "retarget", "--source", path, "--method", "copy",
+              "--object", "FBHead", "--dry-run"]
+    proc = subprocess.run(common + ["--head-bone", "head", "--neck-bone", "neck", "--eye-bones", "eye.L", "eye.R"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    rep = json.loads(proc.stdout[proc.stdout.index("{"):])["results"][0]
+    assert rep["bones"] == ["head", "neck", "eye.L", "eye.R"] and rep["bones_action"]
+    proc = subprocess.run(common, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "HeadYaw, HeadPitch, HeadRoll, LeftEyeYaw" in proc.stderr and "not used" in proc.stderr

@@ -199,3 +199,29 @@ def test_binary_file_refused_in_one_line():
     with pytest.raises(ShapeSpaceError) as exc:
         read_capture(glb)
     assert str(exc.value).startswith(str(glb)) and "\n" not in str(exc.value)
+
+
+# --------------------------------------------------------------------------- one-pass readers = cell readers
+def test_plain_fast_paths_engage_and_equal_the_cell_readers(take):
+    """Plain recordings are read in one pass; the result is the per-cell reader's, value for value."""
+    from core.retarget import capture, formats
+    text = write_facecap(take)
+    fast, slow = formats._facecap_plain(text), formats._facecap_cells(text)
+    assert fast is not None
+    assert fast[0] == slow[0]
+    for a, b in zip(fast[1:], slow[1:]):
+        np.testing.assert_array_equal(a, b)
+    text = LLF_CSV.read_text(encoding="utf-8")
+    header = [h.strip() for h in text.split("\n", 1)[0].split(",")]
+    fast = capture._plain_llf_rows(text, header, 0, list(range(2, 63)), 60.0)
+    slow = capture._read_rows(capture._csv_rows(text.split("\n", 1)[1]), header, 0, list(range(2, 63)), 60.0)
+    assert fast is not None
+    np.testing.assert_array_equal(fast[0], slow[0])
+    np.testing.assert_array_equal(fast[1], slow[1])
+    np.testing.assert_array_equal(fast[2], slow[2] + 1)          # the header is line 1 of the file
+    assert fast[3][0] == slow[3][0]
+    text = write_mediapipe_csv(take)
+    fast = parse_capture(text)
+    slow = parse_capture(text.replace("timestamp_ms", '"timestamp_ms"', 1))     # a quote: read cell by cell
+    np.testing.assert_array_equal(fast.weights, slow.weights)
+    np.testing.assert_array_equal(fast.times, slow.times)
