@@ -297,6 +297,72 @@ _IFM_SIZES = {0: 6, 6: 3, 9: 3}
 
 def _ifacialmocap(text: str, required: Sequence[str]) -> WeightStream:
     frames = text.replace(_IFM_END, "\n") if _IFM_END in text else text
+    names, w, pose, lines = _ifm_plain(frames) or _ifm_cells(frames)
+    cols, kept, issues = _columns(names, required)
+    # iFacialMocap sends head and eyes as Euler degrees (x pitch, y yaw, z roll), like its live packets
+    rot = np.concatenate([ypr_from_degrees(pose[:, 0:3]), ypr_from_degrees(pose[:, 9:12]),
+                          ypr_from_degrees(pose[:, 6:9])], axis=1)
+    t = np.arange(w.shape[0]) / IFACIALMOCAP_FPS
+    stream = finish_stream(t, np.ascontiguousarray(w[:, cols]), kept, lines, issues, rot, "ifacialmocap")
+    stream.rate = IFACIALMOCAP_FPS
+    return stream
+
+
+_POSE_LIMITS = np.array([MAX_ABS_DEGREES] * 3 + [MAX_ABS_POSITION] * 3 + [MAX_ABS_DEGREES] * 6)
+
+
+def _ifm_plain(frames: str) -> tuple | None:
+    """:func:`_ifm_cells`'s result for a recording whose frames all repeat the first one's fields (names,
+    separators and poses, in order) with plain numbers, read by slicing the values out of every field and one
+    numeric pass (:func:`~.capture.plain_rows`); ``None`` otherwise."""
+    if "\r" in frames:
+        frames = frames.replace("\r\n", "\n").replace("\r", "\n")
+    lead = len(frames) - len(frames.lstrip("\n"))
+    body = frames.strip("\n")
+    if not body or "\n\n" in body:
+        return None
+    first = body.split("\n", 1)[0]
+    try:
+        names, _, _, _ = _ifm_cells(first)
+    except ShapeSpaceError:
+        return None
+    prefixes, targets = [], []                       # each field's text before its values; where they go
+    for field in first.rstrip("|").split("|"):
+        tag = next((t for t in _IFM_POSES if field.startswith(t)), None)
+        if tag is not None:
+            prefixes.append(tag)
+            targets += [("pose", _IFM_POSES[tag] + k) for k in range(_IFM_SIZES[_IFM_POSES[tag]])]
+        else:
+            name, sep, _ = field.partition("&") if "&" in field else field.partition("-")
+            prefixes.append(name + sep)
+            targets.append(("w", names.index(name)))
+    if len(set(prefixes)) != len(prefixes) or sorted(k for kind, k in targets if kind == "pose") != list(range(12)):
+        return None
+    cuts = [len(p) for p in prefixes]
+    out = []
+    for line in body.split("\n"):
+        parts = line.rstrip("|").split("|")
+        if len(parts) != len(prefixes):
+            return None
+        values = [p[c:] for p, c, pre in zip(parts, cuts, prefixes) if p[:c] == pre]
+        if len(values) != len(prefixes):
+            return None
+        out.append(",".join(values))
+    a = plain_rows("\n".join(out) + "\n", len(targets))
+    del out
+    if a is None:
+        return None
+    w_cols = [j for j, (kind, _) in enumerate(targets) if kind == "w"]
+    p_cols = [j for _, j in sorted((k, j) for j, (kind, k) in enumerate(targets) if kind == "pose")]
+    w, pose = a[:, w_cols], a[:, p_cols]
+    if np.any(np.abs(w) > 100.0 * MAX_ABS_WEIGHT) or np.any(np.abs(pose) > _POSE_LIMITS):
+        return None
+    return names, w / 100.0, pose, np.arange(lead + 1, lead + 1 + a.shape[0])
+
+
+def _ifm_cells(frames: str) -> tuple:
+    """``(names, weights (f, n), poses (f, 12): head 6, right eye 3, left eye 3, lines)`` read field by field,
+    naming the line and field of anything wrong."""
     column = {}                       # canonical name → column (first frame's order, then new names appended)
     names, rows, poses, lines = [], [], array_of("d"), array_of("q")
     for i, line in _numbered_lines(frames):
@@ -337,16 +403,7 @@ def _ifacialmocap(text: str, required: Sequence[str]) -> WeightStream:
     w = np.full((len(rows), len(names)), np.nan)
     for f, row in enumerate(rows):
         w[f, list(row)] = list(row.values())
-    cols, kept, issues = _columns(names, required)
-    pose = _frames(poses, len(rows), 12)
-    # iFacialMocap sends head and eyes as Euler degrees (x pitch, y yaw, z roll), like its live packets
-    rot = np.concatenate([ypr_from_degrees(pose[:, 0:3]), ypr_from_degrees(pose[:, 9:12]),
-                          ypr_from_degrees(pose[:, 6:9])], axis=1)
-    t = np.arange(len(rows)) / IFACIALMOCAP_FPS
-    stream = finish_stream(t, w[:, cols], kept, np.frombuffer(lines, dtype=np.int64).copy(), issues, rot,
-                           "ifacialmocap")
-    stream.rate = IFACIALMOCAP_FPS
-    return stream
+    return names, w, _frames(poses, len(rows), 12), np.frombuffer(lines, dtype=np.int64).copy()
 
 
 # ------------------------------------------------------------------ JSON (Audio2Face, MediaPipe)

@@ -220,6 +220,12 @@ def test_plain_fast_paths_engage_and_equal_the_cell_readers(take):
     np.testing.assert_array_equal(fast[1], slow[1])
     np.testing.assert_array_equal(fast[2], slow[2] + 1)          # the header is line 1 of the file
     assert fast[3][0] == slow[3][0]
+    text = write_ifacialmocap(take)
+    fast, slow = formats._ifm_plain(text), formats._ifm_cells(text)
+    assert fast is not None and fast[0] == slow[0]
+    for a, b in zip(fast[1:], slow[1:]):
+        np.testing.assert_array_equal(a, b)
+    assert formats._ifm_plain(text.replace("jawOpen&", "jawOpenX&", 1)) is None    # another field: cell by cell
     text = write_mediapipe_csv(take)
     fast = parse_capture(text)
     slow = parse_capture(text.replace("timestamp_ms", '"timestamp_ms"', 1))     # a quote: read cell by cell
