@@ -198,3 +198,21 @@ def test_cli_head_neck_eye_options(scene_with_take, tmp_path):
     proc = subprocess.run(common, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "HeadYaw, HeadPitch, HeadRoll, LeftEyeYaw" in proc.stderr and "not used" in proc.stderr
+
+
+def test_calibration_rest_frame_becomes_the_rest_pose(scene_with_take):
+    """As live *Calibrate*: the chosen frame's head and eye pose is the rest (R' = R₀ᵀ R)."""
+    ob, arm, path, take = scene_with_take
+    scene = bpy.context.scene
+    rest = scene.frame_start + 40
+    retarget.retarget(ob, path, "copy", bones=bones_setting(rest_frame=rest))
+    _, t, _, rot = take
+    rate = scene.render.fps / scene.render.fps_base
+    ypr = lambda frame: [np.interp((frame - scene.frame_start) / rate, t, rot[:, k]) for k in range(3)]  # noqa: E731
+    scene.frame_set(rest)
+    assert delta(arm, "head").to_quaternion().angle < 1e-5
+    frame = scene.frame_start + 90
+    scene.frame_set(frame)
+    expected = face_rotation(ypr(rest)).transposed() @ face_rotation(ypr(frame))    # C R₀ᵀ R Cᵀ
+    got = delta(arm, "head")
+    assert max(abs(a - b) for ra, rb in zip(got, expected) for a, b in zip(ra, rb)) < 1e-4
