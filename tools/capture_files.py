@@ -90,7 +90,7 @@ def write_ifacialmocap(take, tcp=False):
     deg = np.degrees(rot)
     frames = []
     for f in range(t.size):
-        parts = [f"{facecap_name(n)}&{100 * w[f, j]!r}" for j, n in enumerate(names)]
+        parts = [f"{facecap_name(n)}&{float(100 * w[f, j])!r}" for j, n in enumerate(names)]
         parts.append("=head#" + ",".join(repr(float(v)) for v in (deg[f, 1], deg[f, 0], deg[f, 2], 0, 0, 0)))
         parts.append("rightEye#" + ",".join(repr(float(v)) for v in (deg[f, 7], deg[f, 6], deg[f, 8])))
         parts.append("leftEye#" + ",".join(repr(float(v)) for v in (deg[f, 4], deg[f, 3], deg[f, 5])))
