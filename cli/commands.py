@@ -77,7 +77,7 @@ def _target_object(name, where: str):
     return meshes[0]
 
 
-def _one_source(obj, src: str, args) -> dict:
+def _one_source(obj, src: str, args, bones=None) -> dict:
     """Retarget one source; its report as JSON (``ok`` true), or its one-line error (``ok`` false)."""
     from ..bridge import retarget as bridge
     try:
@@ -88,8 +88,7 @@ def _one_source(obj, src: str, args) -> dict:
         if source_obj is not None and source_obj.type == "MESH":   # a mesh performance
             rep = bridge.retarget_dense(obj, source_obj, args.method, **settings)
         else:
-            rep = bridge.retarget(obj, src, args.method, key_pose_action=args.key_poses, bones=_head_eye_bones(args),
-                                  **settings)
+            rep = bridge.retarget(obj, src, args.method, key_pose_action=args.key_poses, bones=bones, **settings)
         for issue in rep.issues:
             _say(f"warning: {src}: {issue}")
         return {**rep.to_json(), "ok": True}
@@ -163,11 +162,12 @@ def retarget(args, inputs: list) -> tuple:
     if args.target:
         assets.load(args.target)
     obj = _target_object(args.object, opened)
+    bones = _head_eye_bones(args)
     results = []
     for k, src in enumerate(args.source, start=1):
         _say(f"[{k}/{len(args.source)}] {src} → {obj.name} ({args.method})")
         start = time.perf_counter()
-        results.append(_one_source(obj, src, args))
+        results.append(_one_source(obj, src, args, bones))
         if results[-1]["ok"]:
             _say(_progress_line(src, results[-1].get("frames"), time.perf_counter() - start))
     done = sum(r["ok"] for r in results)

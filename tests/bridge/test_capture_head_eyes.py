@@ -198,6 +198,10 @@ def test_cli_head_neck_eye_options(scene_with_take, tmp_path):
     proc = subprocess.run(common, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "HeadYaw, HeadPitch, HeadRoll, LeftEyeYaw" in proc.stderr and "not used" in proc.stderr
+    proc = subprocess.run(common + ["--head-bone", "head", "--neck-share", "2"], capture_output=True, text=True,
+                          timeout=300)
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("shapespace: error:")]
+    assert proc.returncode == 2 and errors == ["shapespace: error: --neck-share must lie in [0, 1], got 2"]
 
 
 def test_calibration_rest_frame_becomes_the_rest_pose(scene_with_take):
