@@ -317,11 +317,13 @@ def _ifm_plain(frames: str) -> tuple | None:
     numeric pass (:func:`~.capture.plain_rows`); ``None`` otherwise."""
     if "\r" in frames:
         frames = frames.replace("\r\n", "\n").replace("\r", "\n")
-    lead = len(frames) - len(frames.lstrip("\n"))
-    body = frames.strip("\n")
-    if not body or "\n\n" in body:
+    lines = frames.split("\n")
+    lead = next((k for k, line in enumerate(lines) if line), len(lines))
+    while lines and not lines[-1]:
+        lines.pop()
+    if lead == len(lines) or not all(lines[lead:]):
         return None
-    first = body.split("\n", 1)[0]
+    first = lines[lead]
     try:
         names, _, _, _ = _ifm_cells(first)
     except ShapeSpaceError:
@@ -340,7 +342,7 @@ def _ifm_plain(frames: str) -> tuple | None:
         return None
     cuts = [len(p) for p in prefixes]
     out = []
-    for line in body.split("\n"):
+    for line in lines[lead:]:
         parts = line.rstrip("|").split("|")
         if len(parts) != len(prefixes):
             return None
@@ -348,6 +350,7 @@ def _ifm_plain(frames: str) -> tuple | None:
         if len(values) != len(prefixes):
             return None
         out.append(",".join(values))
+    del lines
     a = plain_rows("\n".join(out) + "\n", len(targets))
     del out
     if a is None:
@@ -448,7 +451,7 @@ def _weight_row(row, width: int, where: str) -> list:
 
 
 _A2F_MATRIX = re.compile(r'"weightMat"\s*:\s*(\[[\[\]0-9eE.+\-,\s]*\])')
-_ROW_BREAK = re.compile(r"\],\[")
+_ROW_BREAK = re.compile(r"\]\s*,\s*\[")
 _SPACE = re.compile(r"\s+")
 
 
@@ -462,7 +465,8 @@ def _audio2face_text(text: str, required: Sequence[str]) -> WeightStream:
         except ShapeSpaceError:                  # not the whole matrix: the whole text names what is wrong
             return _audio2face(_json(text), required)
         names = data.get("facsNames") if isinstance(data, dict) else None
-        matrix = _SPACE.sub("", found.group(1))
+        matrix = found.group(1)
+        matrix = _SPACE.sub("", matrix) if "\n" in matrix else matrix.strip()     # pretty-printed rows: one line
         if isinstance(names, list) and matrix.startswith("[[") and matrix.endswith("]]"):
             rows = plain_rows(_ROW_BREAK.sub("\n", matrix[2:-2]) + "\n", len(names))
             if rows is not None and not np.any(np.abs(rows) > MAX_ABS_WEIGHT):
