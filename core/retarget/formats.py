@@ -318,10 +318,10 @@ def _ifm_plain(frames: str) -> tuple | None:
     if "\r" in frames:
         frames = frames.replace("\r\n", "\n").replace("\r", "\n")
     lines = frames.split("\n")
-    lead = next((k for k, line in enumerate(lines) if line), len(lines))
     while lines and not lines[-1]:
         lines.pop()
-    if lead == len(lines) or not all(lines[lead:]):
+    lead = next((k for k, line in enumerate(lines) if line), len(lines))
+    if lead >= len(lines) or not all(lines[lead:]):
         return None
     first = lines[lead]
     try:
@@ -336,6 +336,8 @@ def _ifm_plain(frames: str) -> tuple | None:
             targets += [("pose", _IFM_POSES[tag] + k) for k in range(_IFM_SIZES[_IFM_POSES[tag]])]
         else:
             name, sep, _ = field.partition("&") if "&" in field else field.partition("-")
+            if field != field.strip() or name not in names:
+                return None                              # an empty or padded field: read cell by cell
             prefixes.append(name + sep)
             targets.append(("w", names.index(name)))
     if len(set(prefixes)) != len(prefixes) or sorted(k for kind, k in targets if kind == "pose") != list(range(12)):
