@@ -28,12 +28,14 @@ import numpy as np
 from ..core.animation import reduce_keys, reduce_keys_bezier_curves
 from ..core.blendshape import BlendshapeModel
 from ..core.errors import ErrorCode
+from ..core.headpose import BoneSpec, bone_curves, unused_rotation_channels
+from ..core.live import Neutral, calibrate
 from ..core.jobs import BackgroundJob
 from ..core.names import match_channels
 from ..core.progress import notify, scaled
 from ..core.result import ShapeSpaceError
 from ..core.retarget import (GEOMETRIC_METHODS, METHODS, LearnedCloning, RetargetReport, copy_weights,
-                             key_frames_in_span, learned_cloning, peak_landmarks, read_live_link_csv, resample,
+                             key_frames_in_span, learned_cloning, peak_landmarks, read_capture, resample,
                              retarget_positions, retarget_weights, split_mapping, stabilise, suggest_key_frames,
                              transfer_motion)
 from ..core.retarget.performance import check_dense_budget, check_finite_weights
@@ -41,7 +43,8 @@ from ..core.schema import Schema
 from ..core.validate import choice, non_negative, positive
 from . import actions, shapekeys, storage
 
-__all__ = ["METHODS", "KEY_SHAPES", "read_source", "channel_mapping", "resolve_mapping", "suggest_key_poses",
+__all__ = ["METHODS", "KEY_SHAPES", "read_source", "read_capture_source", "is_capture_file",
+           "channel_mapping", "resolve_mapping", "suggest_key_poses",
            "retarget", "retarget_dense", "RetargetPlan", "RetargetOutcome", "read_retarget", "read_retarget_dense",
            "compute_retarget", "write_retarget", "start_retarget_job", "finish_retarget_job",
            "reduce_action_keys", "last_report", "has_result", "discard_last",
@@ -49,6 +52,8 @@ __all__ = ["METHODS", "KEY_SHAPES", "read_source", "channel_mapping", "resolve_m
            "dense_source_positions", "add_landmark", "landmarks_from_shapes", "selected_vertex"]
 
 KEY_POSE_MARKER = "key pose"
+#: File extensions taken for capture recordings (the kind itself is read from the content).
+CAPTURE_EXTENSIONS = (".csv", ".txt", ".json")
 KEY_SHAPES = ("BEZIER", "LINEAR")
 NONLINEAR_MESSAGE = ("the target has in-between or combination shapes, so its face is not linear in the sliders: "
                      "fit methods cannot use it; retarget with copy or learned (the driven shapes follow)")
@@ -81,15 +86,26 @@ STABLE_GROUP = "stable"
 
 
 # ------------------------------------------------------------------ sources
-def read_source(path_or_action, scene) -> tuple:
-    """A source as ``(names, scene frames, weights, issues)``: a Live Link Face CSV path or an action (name).
+def is_capture_file(source) -> bool:
+    """Whether ``source`` names a capture recording (a file path) rather than an action."""
+    if not isinstance(source, (str, os.PathLike)):
+        return False
+    text = os.fspath(source)
+    return text.lower().endswith(CAPTURE_EXTENSIONS) or (bpy.data.actions.get(text) is None
+                                                         and os.path.lexists(text))
 
-    CSV timecode (60 fps) is resampled to the scene's frame rate starting at the scene's start frame; a take
-    (or action) of fewer than 3 scene frames, and NaN or infinite samples, are refused.  Errors about a CSV
+
+def read_source(path_or_action, scene) -> tuple:
+    """A source as ``(names, scene frames, weights, issues)``: a capture recording's path (Live Link Face CSV,
+    Face Cap TXT, iFacialMocap, Audio2Face JSON, MediaPipe JSON/CSV: :func:`core.retarget.read_capture`, the
+    kind read from the content) or an action (name).
+
+    A recording's times are resampled to the scene's frame rate starting at the scene's start frame; a take
+    (or action) of fewer than 3 scene frames, and NaN or infinite samples, are refused.  Errors about a file
     start with its path.
     """
-    if isinstance(path_or_action, str) and path_or_action.lower().endswith(".csv"):
-        return _read_csv_source(path_or_action, scene)
+    if is_capture_file(path_or_action):
+        return read_capture_source(path_or_action, scene)[:4]
     action = bpy.data.actions.get(path_or_action) if isinstance(path_or_action, str) else path_or_action
     if action is None:
         raise ShapeSpaceError(f"no CSV file or action named {path_or_action!r}", "missing_source")
@@ -115,21 +131,107 @@ def read_source(path_or_action, scene) -> tuple:
     return names, frames, w, []
 
 
-def _read_csv_source(path: str, scene) -> tuple:
-    """A Live Link Face CSV resampled to the scene's frames (errors name the file)."""
+def read_capture_source(path, scene) -> tuple:
+    """A capture recording resampled to the scene's frames (errors name the file):
+    ``(names, frames, weights, issues, rotations (g, 9) or None, kind)`` — the head and eye rotations
+    resampled like the weights, when the recording has them."""
+    path = os.fspath(path)
     if not os.path.lexists(path):
         raise ShapeSpaceError(f"file not found: {path}", ErrorCode.MISSING_FILE)
-    stream = read_live_link_csv(pathlib.Path(path))
+    stream = read_capture(pathlib.Path(path))
     rate = scene.render.fps / scene.render.fps_base
+    values = stream.weights if stream.rotations is None else np.concatenate([stream.weights, stream.rotations], 1)
     try:
-        frames, w = resample(stream.times, stream.weights, scene.render.fps, scene.frame_start,
-                             scene.render.fps_base)
+        frames, w = resample(stream.times, values, scene.render.fps, scene.frame_start, scene.render.fps_base)
     except ShapeSpaceError as exc:
         raise ShapeSpaceError(f"{path}: {exc}", exc.code) from None
     if frames.size < 3:
         raise ShapeSpaceError(f"{path}: the take lasts {stream.times[-1]:.3f} s, {frames.size} frame(s) at "
                               f"{rate:g} fps; at least 3 are needed", ErrorCode.TOO_SHORT)
-    return stream.names, frames, w, stream.issues
+    n = len(stream.names)
+    rot = None if stream.rotations is None else w[:, n:]
+    return stream.names, frames, w[:, :n], stream.issues, rot, stream.kind
+
+
+def bone_specs(arm, head: str = "", neck: str = "", eye_left: str = "", eye_right: str = "",
+               neck_share: float = 0.3) -> list:
+    """The chosen head / neck / eye bones of armature ``arm`` as :class:`core.headpose.BoneSpec` (rest
+    orientation, rotation mode); with a neck bone the neck takes ``neck_share`` of the head rotation.  The
+    live session and the offline retarget use the same.  A named bone the armature lacks is refused."""
+    if arm is None or arm.type != "ARMATURE":
+        raise ShapeSpaceError(f"{getattr(arm, 'name', arm)!r} is not an armature", ErrorCode.NOT_ARMATURE)
+    share = float(neck_share) if neck else 0.0
+    wanted = [(head, "head", 1.0 - share), (neck, "neck", share), (eye_left, "eye_left", 1.0),
+              (eye_right, "eye_right", 1.0)]
+    bones = []
+    for name, part, s in wanted:
+        if not name:
+            continue
+        bone, pb = arm.data.bones.get(name), arm.pose.bones.get(name)
+        if bone is None or pb is None:
+            raise ShapeSpaceError(f"armature {arm.name!r} has no bone {name!r}", ErrorCode.MISSING_BONE)
+        rest = np.array(bone.matrix_local.to_3x3().normalized(), dtype=np.float64)
+        bones.append(BoneSpec(name, part, s, rest, pb.rotation_mode))
+    return bones
+
+
+@dataclass
+class HeadEyeBones:
+    """Which bones a recording's head and eye channels drive offline (as the live session's settings).
+
+    Attributes
+    ----------
+    armature : str
+        The armature object's name ('' for none: the channels are reported unused).
+    head, neck, eye_left, eye_right : str
+        Bone names ('' for none).
+    neck_share : float
+        The neck's share of the head rotation (with a neck bone).
+    mirror : bool
+        A selfie-mirrored capture.
+    rest_frame : float or None
+        Calibration: the scene frame whose head and eye pose becomes the rest pose (``None``: the captured
+        rotations as they are, like live capture before *Calibrate*).
+    """
+
+    armature: str = ""
+    head: str = ""
+    neck: str = ""
+    eye_left: str = ""
+    eye_right: str = ""
+    neck_share: float = 0.3
+    mirror: bool = False
+    rest_frame: float | None = None
+
+
+def _head_eye_plan(settings: HeadEyeBones | None, frames, rotations, report) -> tuple:
+    """``(bone specs, calibrated rotations (g, 9) or None, armature name)``; the channels left unused are
+    reported by name."""
+    chosen = settings is not None and any((settings.head, settings.neck, settings.eye_left, settings.eye_right))
+    if chosen and not settings.armature:
+        raise ShapeSpaceError("head / neck / eye bones need their armature", ErrorCode.NO_ARMATURE)
+    if rotations is None:
+        if chosen:
+            report.issues.append("the source has no head or eye channels: no bone was keyed")
+        return [], None, ""
+    arm = bpy.data.objects.get(settings.armature) if chosen else None
+    if chosen and arm is None:
+        raise ShapeSpaceError(f"no armature named {settings.armature!r}", ErrorCode.NO_ARMATURE)
+    bones = bone_specs(arm, settings.head, settings.neck, settings.eye_left, settings.eye_right,
+                       settings.neck_share) if chosen else []
+    unused = unused_rotation_channels(bones, bool(settings and settings.mirror))
+    if unused:
+        report.issues.append(f"the source's {', '.join(unused)} channels were not used: "
+                             + ("choose head / neck / eye bones (--head-bone, --neck-bone, --eye-bones)"
+                                if not bones else "no bone takes them"))
+    if not bones:
+        return [], None, ""
+    rot = np.asarray(rotations, dtype=np.float64)
+    if settings.rest_frame is not None:
+        k = int(np.argmin(np.abs(np.asarray(frames) - settings.rest_frame)))
+        neutral = Neutral.from_vector(rot[k], 0)
+        rot = np.stack([calibrate(v, neutral) for v in rot])
+    return bones, rot, arm.name
 
 
 def channel_mapping(obj, source_names, target_names) -> list:
@@ -238,6 +340,10 @@ class RetargetPlan:
     gain: np.ndarray | None = None
     offset: np.ndarray | None = None
     dense: dict | None = None
+    bones: list | None = None
+    rotations: np.ndarray | None = None
+    armature: str = ""
+    mirror: bool = False
 
 
 @dataclass
@@ -248,6 +354,7 @@ class RetargetOutcome:
     weights: np.ndarray
     curves: list
     report: RetargetReport
+    bone_curves: list | None = None
 
 
 def _rig_signature(obj) -> tuple:
@@ -260,21 +367,29 @@ def _rig_signature(obj) -> tuple:
 
 def read_retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e-7,
                   key_tolerance: float = 0.0, action_name: str = None, key_shape: str = "BEZIER",
-                  key_pose_action=None, extend_scene_range: bool = True) -> RetargetPlan:
-    """Step 1 of :func:`retarget` (main thread): validate the settings and read the rig and ``source`` (CSV path
-    or action), the channel mapping or the learned map.  Changes nothing."""
+                  key_pose_action=None, extend_scene_range: bool = True,
+                  bones: HeadEyeBones | None = None) -> RetargetPlan:
+    """Step 1 of :func:`retarget` (main thread): validate the settings and read the rig and ``source`` (capture
+    recording or action), the channel mapping or the learned map, and the head / eye bones (``bones``).
+    Changes nothing."""
     choice(method, "method", METHODS)
     lam, key_tolerance = _settings(lam, key_tolerance, key_shape)
     scene = scene or bpy.context.scene
     model = shapekeys.read_blendshape_model(obj)
     if not model.is_linear and method in GEOMETRIC_METHODS:
         raise ShapeSpaceError(NONLINEAR_MESSAGE, "nonlinear")
-    names, frames, src, issues = read_source(source, scene)
+    rotations = None
+    if is_capture_file(source):
+        names, frames, src, issues, rotations, _ = read_capture_source(source, scene)
+    else:
+        names, frames, src, issues = read_source(source, scene)
     report = RetargetReport(source=str(source), method=method, frames=int(frames.size),
                             issues=[i.message for i in issues])
     plan = RetargetPlan(obj.name, method, lam, key_tolerance, key_shape, action_name or f"{obj.name}_{method}",
                         bool(extend_scene_range), model, [actions.shape_key_path(n) for n in model.names],
                         np.asarray(frames, dtype=np.float64), report, _rig_signature(obj))
+    plan.bones, plan.rotations, plan.armature = _head_eye_plan(bones, frames, rotations, report)
+    plan.mirror = bool(bones is not None and bones.mirror)
     if method == "learned":     # the artist's key poses define the map: no channel names needed
         learned = _learned(obj, model, frames, src, key_pose_action)
         plan.raw = learned.weights                                                # unbounded ideal
@@ -348,8 +463,27 @@ def compute_retarget(plan: RetargetPlan, progress=None) -> RetargetOutcome:
                                 plan.key_shape, scaled(progress, fit_end, 1.0))
     if plan.key_tolerance > 0:
         report.keys_kept_frac = kept
+    outcome = RetargetOutcome(plan, fit.weights, curves, report, _bone_plan(plan))
     notify(progress, 1.0)
-    return RetargetOutcome(plan, fit.weights, curves, report)
+    return outcome
+
+
+def _bone_plan(plan: RetargetPlan) -> list | None:
+    """The bones' curves, as the live session keys them (:func:`core.headpose.bone_curves`), with the weight
+    curves' key reduction: ``[(data path, index, bone, frames, values, slopes or None)]`` (no Blender data)."""
+    if not plan.bones:
+        return None
+    values = bone_curves(plan.rotations, plan.bones, plan.mirror)
+    columns, labels, paths = [], [], []
+    for b in plan.bones:
+        prop, count = b.channel
+        for i in range(count):
+            columns.append(values[b.name][:, i])
+            labels.append(f"{b.name} {prop}[{i}]")
+            paths.append((actions.bone_path(b.name, prop), i, b.name))
+    planned, _ = _plan_curves(labels, [p for p, _, _ in paths], plan.frames, np.stack(columns, axis=1),
+                              plan.key_tolerance, plan.key_shape)
+    return [(path, index, bone, x, y, slopes) for (path, index, bone), (_, x, y, slopes) in zip(paths, planned)]
 
 
 def write_retarget(outcome: RetargetOutcome, scene=None) -> RetargetReport:
@@ -363,8 +497,13 @@ def write_retarget(outcome: RetargetOutcome, scene=None) -> RetargetReport:
     if obj is None or obj.type != "MESH" or _rig_signature(obj) != plan.rig:
         raise ShapeSpaceError(f"{plan.obj_name!r} changed while the retarget computed (mode, mesh, shape keys or "
                               "slider ranges): nothing was written; retarget again", ErrorCode.RIG_CHANGED)
+    arm = bpy.data.objects.get(plan.armature) if outcome.bone_curves else None
+    if outcome.bone_curves and (arm is None or arm.type != "ARMATURE"
+                                or any(arm.pose.bones.get(b.name) is None for b in plan.bones)):
+        raise ShapeSpaceError(f"the armature {plan.armature!r} or its bones changed while the retarget computed: "
+                              "nothing was written; retarget again", ErrorCode.RIG_CHANGED)
     return _write_result(obj, outcome.curves, plan.action_name, outcome.report,
-                         scene or bpy.context.scene, plan.extend_scene_range)
+                         scene or bpy.context.scene, plan.extend_scene_range, (arm, outcome.bone_curves))
 
 
 def start_retarget_job(plan: RetargetPlan) -> BackgroundJob:
@@ -388,8 +527,9 @@ def finish_retarget_job(job: BackgroundJob, scene=None) -> RetargetReport:
 
 def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e-7, key_tolerance: float = 0.0,
              action_name: str = None, key_shape: str = "BEZIER", key_pose_action=None,
-             extend_scene_range: bool = True, progress=None) -> RetargetReport:
-    """Retarget ``source`` (CSV path or action) onto ``obj``'s sliders and write a new action.
+             extend_scene_range: bool = True, progress=None, bones: HeadEyeBones | None = None) -> RetargetReport:
+    """Retarget ``source`` (capture recording or action) onto ``obj``'s sliders and write a new action; with
+    ``bones``, the recording's head and eye channels key those bones in the same action set.
 
     Everything is validated and computed before the first write; on any failure (or
     :class:`~core.progress.Cancelled` from ``progress``) the file is as before.  The scene's frame range is
@@ -397,7 +537,7 @@ def retarget(obj, source, method: str = "spacetime", scene=None, lam: float = 1e
     """
     scene = scene or bpy.context.scene
     plan = read_retarget(obj, source, method, scene, lam, key_tolerance, action_name, key_shape, key_pose_action,
-                         extend_scene_range)
+                         extend_scene_range, bones)
     return write_retarget(compute_retarget(plan, progress), scene)
 
 
@@ -473,13 +613,15 @@ def _extend_scene(scene, first: float, last: float) -> bool:
     return changed
 
 
-def _write_result(obj, curves, action_name, report, scene, extend_scene_range: bool) -> RetargetReport:
+def _write_result(obj, curves, action_name, report, scene, extend_scene_range: bool,
+                  bones: tuple = (None, None)) -> RetargetReport:
     """Key the planned ``curves`` into a new action on ``obj``, widen the scene's frame range (when asked) and
-    remember the report and the action it replaces (for Discard Result).
+    remember the report and the action it replaces (for Discard Result); ``bones = (armature, bone curves)``
+    keys the head / eye bones in the same action set (:func:`_write_bones`).
 
-    A failure while writing removes the new action and gives the rig back the action (and slot) it played, so
-    the file is as before.  The new action gets a fake user; the displaced one too (the report remembers
-    whether it had one)."""
+    A failure while writing removes the new action(s) and gives the rig (and the armature) back the action
+    (and slot) it played, so the file is as before.  The new action gets a fake user; the displaced one too
+    (the report remembers whether it had one)."""
     key = obj.data.shape_keys
     ad = key.animation_data
     previous = ad.action if ad is not None else None
@@ -494,23 +636,53 @@ def _write_result(obj, curves, action_name, report, scene, extend_scene_range: b
     if report.scene_range_extended:
         report.scene_range_before = [scene.frame_start, scene.frame_end]
     action = None
+    arm, bone_plan = bones
+    arm_ad = arm.animation_data if arm is not None else None
+    arm_before = (getattr(arm_ad, "action", None), getattr(arm_ad, "action_slot", None), arm_ad is not None)
+    bones_action = None
     try:
         action = actions.new_action(key, action_name)
         _write_plan(key, curves)
+        if bone_plan:
+            bones_action = _write_bones(arm, action, bone_plan, report)
         report.action = action.name
         report.previous_action = previous.name if previous is not None else ""
         report.previous_fake_user = previous_fake
         data = {k: v for k, v in report.to_json().items() if k in REPORT_KEYS}
         storage.write_id_blob(key, LAST_PROP, LAST_SCHEMA, data)
     except BaseException:
+        if arm is not None:
+            _restore(arm, bones_action if bones_action is not action else None, *arm_before)
         _restore(key, action, previous, previous_slot, had_animation=ad is not None)
         raise
     action.use_fake_user = True               # every result survives saving (a batch keeps them all)
+    if bones_action is not None:
+        bones_action.use_fake_user = True
+        if arm_before[0] is not None:
+            arm_before[0].use_fake_user = True
     if previous is not None:
         previous.use_fake_user = True         # the displaced action too (Discard Result restores the flag)
     if widen:
         _extend_scene(scene, *written)
     return report
+
+
+def _write_bones(arm, action, bone_plan: list, report) -> object:
+    """Key the bones' planned curves on ``arm``: in the result ``action`` (a slot of its own, Blender 4.4+) or
+    in a second action ``<action> bones`` (4.2: an action animates one kind of ID), as live takes are
+    recorded; the armature plays it.  Returns the action the bones were keyed in."""
+    target = action if actions.LAYERED else bpy.data.actions.new(action.name + " bones")
+    if arm.animation_data is not None and actions.LAYERED:
+        arm.animation_data.action = None                    # a fresh slot for the armature in the result
+    actions.assign_action(arm, target)
+    for path, index, bone, x, y, slopes in bone_plan:
+        if slopes is None:
+            actions.write_curve(arm, path, x, y, index=index, group=bone)
+        else:
+            actions.write_bezier_curve(arm, path, x, y, slopes, index=index, group=bone)
+    report.bones = list(dict.fromkeys(b for _, _, b, *_ in bone_plan))
+    report.bones_action = target.name
+    return target
 
 
 def _restore(key, made, previous, previous_slot, had_animation: bool) -> None:

@@ -65,14 +65,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"ShapeSpace {version()}",
                         help="print ShapeSpace's version (from its blender_manifest.toml) and exit")
     sub = parser.add_subparsers(dest="command", required=True)
-    info = sub.add_parser("info", help="list the rigs (shape-key meshes, armatures, skins, actions) as JSON")
-    info.add_argument("files", nargs="*", help=".blend/.glb/.gltf/.fbx/.bvh files; default: the open file")
+    info = sub.add_parser("info", help="list the rigs (shape-key meshes, armatures, skins, actions) as JSON; "
+                          "describe capture recordings")
+    info.add_argument("files", nargs="*", help=".blend/.glb/.gltf/.fbx/.bvh files, or capture recordings "
+                      "(.csv/.txt/.json: kind, channels, rate, duration, head/eye channels); default: the open file")
     info.add_argument("--out", help="write the JSON here instead of stdout (never onto an input)")
     info.add_argument("--overwrite", action="store_true", help="replace an existing --out that is not JSON")
     rt = sub.add_parser("retarget", help="retarget capture files or actions onto a shape-key rig, one action each",
                         epilog=RETARGET_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     rt.add_argument("--source", action="append", required=True,
-                    help="Live Link Face CSV, action name, or an animated mesh object (repeat for a batch)")
+                    help="capture recording (Live Link Face CSV, Face Cap TXT, iFacialMocap, Audio2Face JSON, "
+                    "MediaPipe JSON/CSV), action name, or an animated mesh object (repeat for a batch)")
     rt.add_argument("--object", help="target mesh (default: the only mesh with shape keys)")
     rt.add_argument("--method", choices=("copy", "learned", "perframe", "spacetime"), default="spacetime")
     rt.add_argument("--key-poses", help="learned method: the action keying the target at its key poses")
@@ -82,6 +85,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="reduce keys to this max slider error ≥ 0 (0 keeps every frame)")
     rt.add_argument("--key-shape", choices=("BEZIER", "LINEAR"), default="BEZIER",
                     help="reduced keys: smooth Bezier (fewest keys) or linear")
+    rt.add_argument("--head-bone", help="bone keyed from the recording's head rotation (HeadYaw/Pitch/Roll)")
+    rt.add_argument("--neck-bone", help="bone taking --neck-share of the head rotation (the head bone the rest)")
+    rt.add_argument("--neck-share", type=_number(positive=False), default=0.3,
+                    help="the neck bone's share of the head rotation, 0…1 (as live capture)")
+    rt.add_argument("--eye-bones", nargs=2, metavar=("LEFT", "RIGHT"), help="the character's left and right eye bones")
+    rt.add_argument("--armature", help="the armature of those bones (default: the only armature in the file)")
     rt.add_argument("--target", help="target .blend to open first (default: the open file)")
     rt.add_argument("--out", help="save the result as this .blend (every result action is kept: fake user)")
     rt.add_argument("--dry-run", action="store_true", help="compute and report only; save nothing (instead of --out)")

@@ -23,13 +23,23 @@ def _say(text: str) -> None:
     print(f"shapespace: {text}", file=sys.stderr, flush=True)
 
 
+def _capture_info(path: str) -> dict:
+    """A capture recording described: kind, channels, rate, duration, head / eye channels present."""
+    from ..core.retarget import describe_stream, read_capture
+    return {"file": path, **describe_stream(read_capture(path))}
+
+
 def info(args, inputs: list) -> tuple:
-    """``info``: describe the rigs of the open file or of each file given."""
+    """``info``: describe the rigs of the open file or of each file given (capture recordings: their take)."""
     from ..bridge import assets, inventory
+    from ..bridge.retarget import CAPTURE_EXTENSIONS
     (out,) = check_outputs([("--out", args.out, "json")], [*args.files, *inputs, bpy.data.filepath], args.overwrite)
     reports = []
     if args.files:
         for path in args.files:
+            if path.lower().endswith(CAPTURE_EXTENSIONS):
+                reports.append(_capture_info(path))
+                continue
             assets.load(path)
             rep = inventory.describe_file()
             rep.file = path
@@ -37,8 +47,10 @@ def info(args, inputs: list) -> tuple:
     else:
         reports.append(inventory.describe_file())
     for rep in reports:
-        rep.require_rigs()
-    payload = reports[0].to_json() if len(reports) == 1 else [rep.to_json() for rep in reports]
+        if not isinstance(rep, dict):
+            rep.require_rigs()
+    payload = [rep if isinstance(rep, dict) else rep.to_json() for rep in reports]
+    payload = payload[0] if len(payload) == 1 else payload
     text = json.dumps(payload, indent=2)
     if out is None:
         return 0, text
@@ -65,7 +77,7 @@ def _target_object(name, where: str):
     return meshes[0]
 
 
-def _one_source(obj, src: str, args) -> dict:
+def _one_source(obj, src: str, args, bones=None) -> dict:
     """Retarget one source; its report as JSON (``ok`` true), or its one-line error (``ok`` false)."""
     from ..bridge import retarget as bridge
     try:
@@ -76,7 +88,7 @@ def _one_source(obj, src: str, args) -> dict:
         if source_obj is not None and source_obj.type == "MESH":   # a mesh performance
             rep = bridge.retarget_dense(obj, source_obj, args.method, **settings)
         else:
-            rep = bridge.retarget(obj, src, args.method, key_pose_action=args.key_poses, **settings)
+            rep = bridge.retarget(obj, src, args.method, key_pose_action=args.key_poses, bones=bones, **settings)
         for issue in rep.issues:
             _say(f"warning: {src}: {issue}")
         return {**rep.to_json(), "ok": True}
@@ -92,6 +104,22 @@ def _one_source(obj, src: str, args) -> dict:
         message = f"{src}: {message}"
     print(f"shapespace: error: {message}", file=sys.stderr, flush=True)
     return {"source": src, "ok": False, "error": message}
+
+
+def _head_eye_bones(args):
+    """The ``--head-bone/--neck-bone/--eye-bones/--armature`` choice (``None`` when no bone is named)."""
+    from ..bridge.retarget import HeadEyeBones
+    eyes = args.eye_bones or ("", "")
+    if not (args.head_bone or args.neck_bone or args.eye_bones):
+        return None
+    if args.neck_share > 1:
+        raise ShapeSpaceError(f"--neck-share must lie in [0, 1], got {args.neck_share:g}", ErrorCode.USAGE)
+    arms = [ob.name for ob in bpy.data.objects if ob.type == "ARMATURE"]
+    name = args.armature or (arms[0] if len(arms) == 1 else "")
+    if not name:
+        raise ShapeSpaceError(f"{len(arms)} armatures in the file: choose the bones' one with --armature",
+                              ErrorCode.NO_ARMATURE if not arms else ErrorCode.AMBIGUOUS_OBJECT)
+    return HeadEyeBones(name, args.head_bone or "", args.neck_bone or "", eyes[0], eyes[1], args.neck_share)
 
 
 class _ProgressLines:
@@ -132,11 +160,12 @@ def retarget(args, inputs: list) -> tuple:
     if args.target:
         assets.load(args.target)
     obj = _target_object(args.object, opened)
+    bones = _head_eye_bones(args)
     results = []
     for k, src in enumerate(args.source, start=1):
         _say(f"[{k}/{len(args.source)}] {src} → {obj.name} ({args.method})")
         start = time.perf_counter()
-        results.append(_one_source(obj, src, args))
+        results.append(_one_source(obj, src, args, bones))
         if results[-1]["ok"]:
             _say(_progress_line(src, results[-1].get("frames"), time.perf_counter() - start))
     done = sum(r["ok"] for r in results)

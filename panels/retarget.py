@@ -38,10 +38,31 @@ class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
         op.action = st.action.name if st.source_kind == "ACTION" and st.action else ""
         op.source_object = st.source_object.name if st.source_kind == "MESH" and st.source_object else ""
         op.key_pose_action = st.key_pose_action.name if st.key_pose_action else ""
+        if st.source_kind == "CSV":
+            _draw_bones(layout, st, op)
 
         _draw_result(layout, ob)
         _draw_mapping(layout, ob)
         _draw_landmarks(layout, ob, st)
+
+
+def _draw_bones(layout, st, op):
+    """The head, neck and eye bones a recording's head and eye channels key (as live capture drives them)."""
+    box = layout.box()
+    box.label(text="Head & Eyes (from the recording)", icon="BONE_DATA")
+    box.prop(st, "armature")
+    arm = st.armature if st.armature is not None and st.armature.type == "ARMATURE" else None
+    if arm is not None:
+        for name in ("head_bone", "neck_bone", "eye_left_bone", "eye_right_bone"):
+            box.prop_search(st, name, arm.data, "bones")
+        if st.neck_bone:
+            box.prop(st, "neck_share")
+        box.prop(st, "mirror")
+    if arm is None:
+        return
+    op.armature, op.neck_share, op.mirror = arm.name, st.neck_share, st.mirror
+    op.head_bone, op.neck_bone = st.head_bone, st.neck_bone
+    op.eye_left_bone, op.eye_right_bone = st.eye_left_bone, st.eye_right_bone
 
 
 def _draw_result(layout, ob):

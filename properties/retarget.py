@@ -15,11 +15,12 @@ class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
     """Retarget settings of a target rig (what the Retarget panel edits)."""
 
     source_kind: bpy.props.EnumProperty(
-        name="Source", items=[("CSV", "Capture File", "A Live Link Face CSV recording"),
+        name="Source", items=[("CSV", "Capture File", "A capture recording: Live Link Face CSV, Face Cap TXT, "
+                                                      "iFacialMocap, Audio2Face JSON, MediaPipe JSON/CSV"),
                               ("ACTION", "Action", "An action animating shape keys (any naming convention)"),
                               ("MESH", "Mesh Performance", "An animated mesh: shape keys, Mesh Cache, any modifier")],
         default="CSV")
-    csv_path: bpy.props.StringProperty(name="CSV File", subtype="FILE_PATH")
+    csv_path: bpy.props.StringProperty(name="Capture File", subtype="FILE_PATH")
     action: bpy.props.PointerProperty(name="Action", type=bpy.types.Action)
     source_object: bpy.props.PointerProperty(name="Mesh", type=bpy.types.Object)
     key_pose_action: bpy.props.PointerProperty(
@@ -32,3 +33,14 @@ class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
     extend_scene_range: bpy.props.BoolProperty(
         name="Extend Scene Range", default=True,
         description="Widen the scene's frame range to include every frame the result keys")
+    armature: bpy.props.PointerProperty(name="Armature", type=bpy.types.Object,
+                                        description="The armature whose head, neck and eye bones the recording's "
+                                                    "head and eye channels key (as live capture)")
+    head_bone: bpy.props.StringProperty(name="Head", description="Bone that takes the head rotation")
+    neck_bone: bpy.props.StringProperty(name="Neck", description="Bone that takes a share of the head rotation")
+    neck_share: bpy.props.FloatProperty(name="Neck Share", default=0.3, min=0.0, max=1.0, subtype="FACTOR",
+                                        description="Part of the head rotation the neck bone takes")
+    eye_left_bone: bpy.props.StringProperty(name="Left Eye", description="The character's left eye bone")
+    eye_right_bone: bpy.props.StringProperty(name="Right Eye", description="The character's right eye bone")
+    mirror: bpy.props.BoolProperty(name="Mirror", default=False,
+                                   description="Swap left and right (a mirrored, selfie-view capture)")

@@ -639,6 +639,92 @@ def cancel_latency(quick):
     return out
 
 
+def _head_eye_rig():
+    """An armature beside FBHead: neck → head → eyes, tilted rest orientations, one rotation mode each."""
+    import bpy
+    data = bpy.data.armatures.new("BenchRig")
+    arm = bpy.data.objects.new("BenchRig", data)
+    bpy.context.scene.collection.objects.link(arm)
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.mode_set(mode="EDIT")
+    for name, head, tail, roll, parent in (("neck", (0, 0, 1.4), (0, 0.02, 1.55), 0.1, None),
+                                           ("head", (0, 0.02, 1.55), (0, -0.01, 1.8), -0.2, "neck"),
+                                           ("eye.L", (0.03, -0.08, 1.65), (0.03, -0.1, 1.65), 0.3, "head"),
+                                           ("eye.R", (-0.03, -0.08, 1.65), (-0.04, -0.1, 1.66), 0.0, "head")):
+        eb = data.edit_bones.new(name)
+        eb.head, eb.tail, eb.roll = head, tail, roll
+        if parent:
+            eb.parent = data.edit_bones[parent]
+    bpy.ops.object.mode_set(mode="OBJECT")
+    for name, mode in (("neck", "XYZ"), ("head", "QUATERNION"), ("eye.L", "YXZ"), ("eye.R", "AXIS_ANGLE")):
+        arm.pose.bones[name].rotation_mode = mode
+    return arm
+
+
+def capture(quick):
+    """Issue #24.  ``capture_read_s_<format>_36000`` / ``capture_read_mb_<format>_36000``: reading 36,000
+    frames (10 minutes at 60 fps: the shipped Live Link Face take, synthetic head motion added, looped) of each
+    format written by ``tools/capture_files.py``, best wall time (of 1 in ``--quick``, else 3) and the peak of
+    traced allocations (numpy and Python objects) during one read.  ``capture_head_eye_vs_live_max_rad``: the
+    largest difference between the head / neck / eye bone curves the offline retarget computes from the take's
+    CSV and the ones the live path solves from the same rows sent as Live Link Face packets (decoded, resampled
+    to the scene's frames as a recorded take is, solved by the live pipeline) — radians (quaternion and
+    axis-angle components are unitless)."""
+    import tempfile
+    import bpy
+    from capture_files import WRITERS, load_llf_take, long_take, write_llf_csv
+    from shapespace.bridge import assets, retarget
+    from shapespace.bridge.live.rig import Pipeline
+    from shapespace.core.live import CopySolver, SceneResampler, decode_llf, encode_llf
+    from shapespace.core.retarget import read_capture
+    out = {}
+    folder = tempfile.mkdtemp(prefix="shapespace_capture_")
+    csv = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+    take = load_llf_take(csv)
+    big = long_take(take, 36000)
+    for kind, writer in WRITERS.items():
+        path = os.path.join(folder, f"take_{kind}.txt")
+        with open(path, "w", encoding="utf-8") as fh:
+            fh.write(writer(big))
+        out[f"capture_read_s_{kind}_36000"] = min(_timed(lambda: read_capture(path)) for _ in range(1 if quick else 3))
+        tracemalloc.start()
+        read_capture(path)
+        out[f"capture_read_mb_{kind}_36000"] = tracemalloc.get_traced_memory()[1] / 1e6
+        tracemalloc.stop()
+        out[f"capture_file_mb_{kind}_36000"] = os.path.getsize(path) / 1e6
+    # head and eyes: offline vs live on the same rows
+    assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
+    ob, arm = bpy.data.objects["FBHead"], _head_eye_rig()
+    path = os.path.join(folder, "take_head.csv")
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(write_llf_csv(take))
+    bones = retarget.HeadEyeBones(arm.name, "head", "neck", "eye.L", "eye.R", 0.3)
+    outcome = retarget.compute_retarget(retarget.read_retarget(ob, path, "copy", bones=bones))
+    offline = {(p, i): (x, y) for p, i, _, x, y, _ in outcome.bone_curves}
+    specs = retarget.bone_specs(arm, "head", "neck", "eye.L", "eye.R", 0.3)
+    solver = CopySolver([(0, 0)], np.ones(1), np.zeros(1), np.zeros(1), np.ones(1), 52)
+    live = Pipeline(ob.name, ["EyeBlinkLeft"], solver, 52, "COPY", arm.name, specs)
+    scene = bpy.context.scene
+    resampler = SceneResampler(scene.render.fps / scene.render.fps_base, scene.frame_start)
+    solved = {}
+    _, t, w, rot = take
+    for k in range(t.size):
+        milli = int(round(t[k] * 60000.0))
+        frame = decode_llf(encode_llf(np.concatenate([w[k], rot[k]]), milli // 1000, (milli % 1000) / 1000.0))
+        for scene_frame, v in resampler.push(frame.time, live.process(frame.vector(), frame.time)):
+            solved[scene_frame] = live.solve(v)[1]
+    worst = 0.0
+    from shapespace.bridge import actions
+    for b in specs:
+        prop, count = b.channel
+        for i in range(count):
+            x, y = offline[(actions.bone_path(b.name, prop), i)]
+            worst = max(worst, float(np.abs(y - np.array([solved[f][b.name][i] for f in x])).max()))
+    out["capture_head_eye_vs_live_max_rad"] = worst
+    out["capture_head_eye_frames"] = int(outcome.plan.frames.size)
+    return out
+
+
 def run(quick=False, plot_path=None) -> dict:
     import package
     package.load()
@@ -648,4 +734,5 @@ def run(quick=False, plot_path=None) -> dict:
     metrics.update(key_reduction(quick))
     metrics.update(longtake(quick))
     metrics.update(cancel_latency(quick))
+    metrics.update(capture(quick))
     return metrics

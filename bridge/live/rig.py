@@ -15,12 +15,11 @@ from dataclasses import dataclass, field
 
 import bpy
 import numpy as np
-from mathutils import Matrix
 
 from ...core.errors import ErrorCode
+from ...core.headpose import BoneSpec, bone_values
 from ...core.live import (FACECAP_52, LLF_BLENDSHAPES, CopySolver, GeometricSolver, LearnedSolver, Neutral,
-                          OneEuroFilter, bone_local, calibrate, euler_matrix, face_to_armature, matrix_quaternion,
-                          rotation_power)
+                          OneEuroFilter, calibrate)
 from ...core.names import match_channels
 from ...core.result import ShapeSpaceError
 from ...core.retarget import (key_frames_in_span, learned_cloning, moving_channels, normalised_basis, split_mapping,
@@ -32,47 +31,10 @@ __all__ = ["SOURCE_NAMES", "METHODS", "BoneTarget", "Pipeline", "build_pipeline"
 #: Channel names (in the solvers' input order) per source type.
 SOURCE_NAMES = {"LLF": LLF_BLENDSHAPES, "FACECAP": FACECAP_52, "IFACIALMOCAP": FACECAP_52}
 METHODS = ("COPY", "LEARNED", "SOLVE")
-_ROTATION_PATHS = {"QUATERNION": ("rotation_quaternion", 4), "AXIS_ANGLE": ("rotation_axis_angle", 4)}
 
 
-@dataclass
-class BoneTarget:
-    """A pose bone the head or an eye drives.
-
-    Attributes
-    ----------
-    name : str
-    part : str
-        ``head``, ``neck``, ``eye_left`` or ``eye_right``.
-    share : float
-        The power of the head rotation this bone takes (head / neck split; 1 for eyes).
-    rest : ndarray (3, 3)
-        The bone's rest orientation in armature space.
-    mode : str
-        Its rotation mode (the channel written and keyed).
-    """
-
-    name: str
-    part: str
-    share: float
-    rest: np.ndarray
-    mode: str
-
-    @property
-    def channel(self) -> tuple:
-        """``(property name, number of values)`` of the rotation this bone's mode uses."""
-        return _ROTATION_PATHS.get(self.mode, ("rotation_euler", 3))
-
-    def values(self, local: np.ndarray) -> tuple:
-        """The local rotation (3, 3) in this bone's rotation mode."""
-        if self.mode == "QUATERNION":
-            return tuple(matrix_quaternion(local))
-        if self.mode == "AXIS_ANGLE":
-            q = matrix_quaternion(local)
-            angle = 2.0 * np.arctan2(np.linalg.norm(q[1:]), q[0])
-            axis = q[1:] / np.linalg.norm(q[1:]) if angle > 1e-12 else np.array([0.0, 1.0, 0.0])
-            return (float(angle), *axis)
-        return tuple(Matrix(local.tolist()).to_euler(self.mode))
+#: A pose bone the head or an eye drives (the shared core definition: live and recorded takes alike).
+BoneTarget = BoneSpec
 
 
 @dataclass
@@ -122,18 +84,7 @@ class Pipeline:
     def solve(self, vector: np.ndarray) -> tuple:
         """Sliders (n_target,) and ``{bone: values in its rotation mode}`` for a processed vector."""
         n = self.n_source
-        sliders = self.solver.solve(vector[:n])
-        bones = {}
-        if self.bones:
-            head = face_to_armature(euler_matrix(vector[n:n + 3]), self.mirror)
-            eyes = {"eye_left": vector[n + 3:n + 6], "eye_right": vector[n + 6:n + 9]}
-            if self.mirror:      # mirrored capture: the actor's left eye drives the character's right
-                eyes = {"eye_left": eyes["eye_right"], "eye_right": eyes["eye_left"]}
-            for b in self.bones:
-                R = rotation_power(head, b.share) if b.part in ("head", "neck") else \
-                    face_to_armature(euler_matrix(eyes[b.part]), self.mirror)
-                bones[b.name] = b.values(bone_local(R, b.rest))
-        return sliders, bones
+        return self.solver.solve(vector[:n]), bone_values(vector[n:n + 9], self.bones, self.mirror)
 
     def write(self, sliders: np.ndarray, bones: dict) -> str:
         """Set the target's sliders and the bones; returns '' or why nothing could be written."""
@@ -215,21 +166,8 @@ def _bones(settings) -> tuple:
     arm = settings.armature
     if arm is None:
         return "", []
-    if arm.type != "ARMATURE":
-        raise ShapeSpaceError(f"{arm.name!r} is not an armature", ErrorCode.NOT_ARMATURE)
-    share = float(settings.neck_share) if settings.neck_bone else 0.0
-    wanted = [(settings.head_bone, "head", 1.0 - share), (settings.neck_bone, "neck", share),
-              (settings.eye_left_bone, "eye_left", 1.0), (settings.eye_right_bone, "eye_right", 1.0)]
-    bones = []
-    for name, part, s in wanted:
-        if not name:
-            continue
-        bone, pb = arm.data.bones.get(name), arm.pose.bones.get(name)
-        if bone is None or pb is None:
-            raise ShapeSpaceError(f"armature {arm.name!r} has no bone {name!r}", ErrorCode.MISSING_BONE)
-        rest = np.array(bone.matrix_local.to_3x3().normalized(), dtype=np.float64)
-        bones.append(BoneTarget(name, part, s, rest, pb.rotation_mode))
-    return arm.name, bones
+    return arm.name, retarget.bone_specs(arm, settings.head_bone, settings.neck_bone, settings.eye_left_bone,
+                                         settings.eye_right_bone, settings.neck_share)
 
 
 def build_pipeline(scene, settings, target) -> Pipeline:

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..blendshape import MAX_ABS_WEIGHT
+from ..names import FACECAP_52
 
 __all__ = ["LLF_CURVES", "LLF_BLENDSHAPES", "LLF_ROTATIONS", "FACECAP_52", "LiveFrame", "format_timecode",
            "MAX_ABS_ANGLE", "ROTATION_CHANNELS", "implausible_channel"]
@@ -42,19 +43,6 @@ LLF_CURVES = (
 )
 LLF_BLENDSHAPES = LLF_CURVES[:52]
 LLF_ROTATIONS = LLF_CURVES[52:]
-
-#: Face Cap's blendshape order (the index of its OSC ``/W`` messages); iFacialMocap uses the same names.
-FACECAP_52 = (
-    "browInnerUp", "browDown_L", "browDown_R", "browOuterUp_L", "browOuterUp_R", "eyeLookUp_L", "eyeLookUp_R",
-    "eyeLookDown_L", "eyeLookDown_R", "eyeLookIn_L", "eyeLookIn_R", "eyeLookOut_L", "eyeLookOut_R", "eyeBlink_L",
-    "eyeBlink_R", "eyeSquint_L", "eyeSquint_R", "eyeWide_L", "eyeWide_R", "cheekPuff", "cheekSquint_L",
-    "cheekSquint_R", "noseSneer_L", "noseSneer_R", "jawOpen", "jawForward", "jawLeft", "jawRight", "mouthFunnel",
-    "mouthPucker", "mouthLeft", "mouthRight", "mouthRollUpper", "mouthRollLower", "mouthShrugUpper",
-    "mouthShrugLower", "mouthClose", "mouthSmile_L", "mouthSmile_R", "mouthFrown_L", "mouthFrown_R",
-    "mouthDimple_L", "mouthDimple_R", "mouthUpperUp_L", "mouthUpperUp_R", "mouthLowerDown_L", "mouthLowerDown_R",
-    "mouthPress_L", "mouthPress_R", "mouthStretch_L", "mouthStretch_R", "tongueOut",
-)
-
 
 #: Largest head or eye angle magnitude accepted, in radians (two turns): beyond it a value is damaged, not a pose.
 MAX_ABS_ANGLE = 4.0 * math.pi

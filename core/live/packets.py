@@ -36,13 +36,15 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import ErrorCode
+from ..headpose import eye_ypr_from_degrees, ypr_from_degrees
 from ..names import canonical_name
 from ..result import ShapeSpaceError
 from .frames import FACECAP_52, LLF_BLENDSHAPES, LLF_CURVES, LiveFrame, implausible_channel
 
 __all__ = ["LLF_PORT", "LLF_VERSION", "IFM_PORT", "FACECAP_PORT", "MAX_DATAGRAM", "MAX_OSC_DEPTH", "encode_llf",
            "decode_llf", "encode_ifacialmocap", "decode_ifacialmocap", "FaceCapAssembler",
-           "quaternion_to_yaw_pitch_roll", "osc_bundle_messages", "check_osc_message"]
+           "quaternion_to_yaw_pitch_roll", "osc_bundle_messages", "check_osc_message", "ypr_from_degrees",
+           "eye_ypr_from_degrees"]
 
 LLF_PORT = 11111
 LLF_VERSION = 6
@@ -163,11 +165,6 @@ def _numbers(text: str, count: int, what: str) -> np.ndarray:
     return vals
 
 
-def _ypr_degrees(rx_ry_rz: np.ndarray) -> np.ndarray:
-    """iFacialMocap / Face Cap Euler degrees ``(x: pitch, y: yaw, z: roll)`` → ``(yaw, pitch, roll)`` radians."""
-    return np.radians([rx_ry_rz[1], rx_ry_rz[0], rx_ry_rz[2]])
-
-
 def encode_ifacialmocap(weights: Sequence[float], head_degrees: Sequence[float] = (0, 0, 0),
                         position: Sequence[float] = (0, 0, 0), right_eye: Sequence[float] = (0, 0, 0),
                         left_eye: Sequence[float] = (0, 0, 0), separator: str = "&") -> bytes:
@@ -229,9 +226,9 @@ def decode_ifacialmocap(data: bytes, arrival: float = 0.0) -> LiveFrame:
         raise _bad("iFacialMocap packet has no blendshapes")
     head = poses["=head#"]
     zero = np.zeros(3)
-    return _plausible(LiveFrame(FACECAP_52, weights, head=_ypr_degrees(head[:3]), time=arrival, arrival=arrival,
-                                eye_left=_ypr_degrees(poses.get("leftEye#", zero)),
-                                eye_right=_ypr_degrees(poses.get("rightEye#", zero)),
+    return _plausible(LiveFrame(FACECAP_52, weights, head=ypr_from_degrees(head[:3]), time=arrival, arrival=arrival,
+                                eye_left=ypr_from_degrees(poses.get("leftEye#", zero)),
+                                eye_right=ypr_from_degrees(poses.get("rightEye#", zero)),
                                 head_position=head[3:].copy()), "iFacialMocap")
 
 
@@ -422,14 +419,14 @@ class FaceCapAssembler:
                 raise _bad(f"Face Cap /W needs an index 0…{len(FACECAP_52) - 1} and a value, got {list(args)[:3]}")
             return "weights", int(vals[0]), float(vals[1])
         if address == "/HR":
-            return "head", None, _ypr_degrees(self._count(address, vals, 3))
+            return "head", None, ypr_from_degrees(self._count(address, vals, 3))
         if address == "/HRQ":
             return "head", None, quaternion_to_yaw_pitch_roll(self._count(address, vals, 4))
         if address == "/HT":
             return "position", None, self._count(address, vals, 3)
         if address in ("/ELR", "/ERR"):
             xy = self._count(address, vals, 2)
-            return "eye_left" if address == "/ELR" else "eye_right", None, np.radians([xy[1], xy[0], 0.0])
+            return "eye_left" if address == "/ELR" else "eye_right", None, eye_ypr_from_degrees(xy)
         return None
 
     def _commit(self, updates: list, what: str) -> None:

@@ -1,6 +1,7 @@
 """Retargeting: performances from captures, actions or meshes onto a shape-key rig (thesis 3.5, ch. 5).
 
 - :mod:`.capture` — Live Link Face CSV reading and resampling;
+- :mod:`.formats` — the other capture apps' recordings (Face Cap, iFacialMocap, Audio2Face, MediaPipe);
 - :mod:`.cloning` — copy with gain/offset, learned cloning matrix, key poses (3.5.3);
 - :mod:`.perframe` — per-frame bounded fits;
 - :mod:`.spacetime_solver` — space-time cloning with slider bounds (ch. 5);
@@ -12,9 +13,10 @@
 
 Key reduction (F-curve maths) lives in the foundation module :mod:`core.animation`.
 """
-from .capture import WeightStream, parse_timecode, read_live_link_csv, resample
+from .capture import ROTATION_CHANNELS, WeightStream, parse_timecode, read_live_link_csv, resample
 from .cloning import (LearnedCloning, cloning_matrix, copy_weights, key_frames_in_span, key_poses,
                       learned_cloning, moving_channels, split_mapping, suggest_key_frames)
+from .formats import KINDS, describe_stream, detect_kind, parse_capture, read_capture
 from .landmarks import check_landmarks, closest_points, landmark_layout, landmark_warp, peak_landmarks, procrustes
 from .metrics import clipping_frames, per_vertex_mm, position_error_rms, slider_scales, velocity_error_rms
 from .perframe import fit_frames
@@ -26,7 +28,8 @@ from .transfer import moving_vertices, stabilise, transfer_motion
 
 __all__ = [
     # capture
-    "WeightStream", "parse_timecode", "read_live_link_csv", "resample",
+    "WeightStream", "parse_timecode", "read_live_link_csv", "resample", "ROTATION_CHANNELS",
+    "KINDS", "detect_kind", "read_capture", "parse_capture", "describe_stream",
     # cloning (3.5.3)
     "copy_weights", "split_mapping", "cloning_matrix", "key_poses", "moving_channels", "suggest_key_frames",
     "key_frames_in_span", "LearnedCloning", "learned_cloning",

@@ -27,7 +27,9 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
 import stat
+import warnings
 from array import array as array_of
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -37,12 +39,19 @@ from numpy.typing import ArrayLike
 
 from ..blendshape import MAX_ABS_WEIGHT
 from ..errors import ErrorCode
+from ..headpose import ROTATION_CHANNELS as HEAD_EYE_CHANNELS
 from ..names import ARKIT_52, canonical_name
 from ..result import Issue, ShapeSpaceError
 from ..validate import array
 
-__all__ = ["WeightStream", "parse_timecode", "read_live_link_csv", "resample", "MAX_FILE_BYTES",
-           "MAX_TAKE_SECONDS", "MAX_GAP_SECONDS", "MAX_ABS_WEIGHT", "MAX_RESAMPLE_BYTES"]
+__all__ = ["WeightStream", "parse_timecode", "read_live_link_csv", "resample", "finish_stream", "read_capture_text",
+           "plain_rows",
+           "ROTATION_CHANNELS", "MAX_FILE_BYTES", "MAX_TAKE_SECONDS", "MAX_GAP_SECONDS", "MAX_ABS_WEIGHT",
+           "MAX_RESAMPLE_BYTES"]
+
+#: The head and eye rotation channels of a stream, in :attr:`WeightStream.rotations` column order (radians,
+#: the live frames' convention: :class:`core.live.LiveFrame`); the Live Link Face CSV's column names.
+ROTATION_CHANNELS = HEAD_EYE_CHANNELS
 
 #: Live Link Face's timecode rate.
 LLF_TIMECODE_FPS = 60.0
@@ -79,6 +88,15 @@ class WeightStream:
     weights : ndarray (f, n)
     issues : list of Issue
         What was repaired or noticed while reading (NaN filled, gaps, …).
+    start_timecode : str
+        The source's time of the first sample as it wrote it ('' when it has none).
+    rotations : ndarray (f, 9) or None
+        Head, left-eye and right-eye ``(yaw, pitch, roll)`` in radians (:data:`ROTATION_CHANNELS`, the live
+        frames' face-frame convention), when the source records them.
+    kind : str
+        The source format (``llf_csv``, ``facecap_txt``, …; :mod:`.formats`).
+    rate : float or None
+        The source's nominal sample rate in frames per second, when it states one.
     """
 
     names: list
@@ -86,6 +104,9 @@ class WeightStream:
     weights: np.ndarray
     issues: list = field(default_factory=list)
     start_timecode: str = ""
+    rotations: np.ndarray | None = None
+    kind: str = "llf_csv"
+    rate: float | None = None
 
 
 def parse_timecode(text: str, fps: float = LLF_TIMECODE_FPS) -> float:
@@ -106,7 +127,7 @@ def parse_timecode(text: str, fps: float = LLF_TIMECODE_FPS) -> float:
 
 
 def read_live_link_csv(source: str | os.PathLike, required: Sequence[str] = ARKIT_52,
-                       fps: float = LLF_TIMECODE_FPS) -> WeightStream:
+                       fps: float = LLF_TIMECODE_FPS, rotations: bool = False) -> WeightStream:
     """Read a Live Link Face CSV (path or text) into a :class:`WeightStream`.
 
     Validation (each a clear error naming the file and line, or a recorded issue):
@@ -135,6 +156,9 @@ def read_live_link_csv(source: str | os.PathLike, required: Sequence[str] = ARKI
         The channels wanted (matched by canonical name).
     fps : float
         Timecode frame rate.
+    rotations : bool
+        Also read the head and eye columns (:data:`ROTATION_CHANNELS`, all nine present) into
+        ``rotations``; they are then not listed as ignored columns.
 
     Returns
     -------
@@ -146,16 +170,16 @@ def read_live_link_csv(source: str | os.PathLike, required: Sequence[str] = ARKI
     ShapeSpaceError
         Every failure (never another exception); from a file, the message starts with its path.
     """
-    text, label = _read_text(source)
+    text, label = read_capture_text(source)
     try:
-        return _parse(text, required, fps)
+        return _parse(text, required, fps, rotations)
     except ShapeSpaceError as exc:
         if label is None:
             raise
         raise ShapeSpaceError(f"{label}: {exc}", exc.code) from None
 
 
-def _parse(text: str, required: Sequence[str], fps: float) -> WeightStream:
+def _parse(text: str, required: Sequence[str], fps: float, rotations: bool = False) -> WeightStream:
     """The stream of a CSV text (errors name the line, not the file)."""
     numbered = _csv_rows(text)                   # streamed: a long take is never held as rows of strings
     first = next(numbered, None)
@@ -166,24 +190,130 @@ def _parse(text: str, required: Sequence[str], fps: float) -> WeightStream:
         raise ShapeSpaceError("the CSV has no Timecode column: not a Live Link Face recording",
                               ErrorCode.NO_TIMECODE)
     t_col = header.index("Timecode")
-    cols, names, issues = _channel_columns(header, t_col, required)
-    t, w, lines, stamps = _read_rows(numbered, header, t_col, cols, fps)
+    rot_cols = [header.index(c) for c in ROTATION_CHANNELS] if rotations and set(ROTATION_CHANNELS) <= set(header) \
+        else []
+    cols, names, issues = _channel_columns(header, t_col, required, rot_cols)
+    fast = _plain_llf_rows(text, header, t_col, cols + rot_cols, fps)
+    t, w, lines, stamps = fast or _read_rows(numbered, header, t_col, cols + rot_cols, fps)
     t = _unwrap_midnight(t, lines, issues)
+    rot = w[:, len(cols):] if rot_cols else None
+    stream = finish_stream(t, w[:, :len(cols)], names, lines, issues, rot)
+    stream.start_timecode = stamps[int(np.argmin(t))].strip()
+    stream.rate = fps
+    return stream
+
+
+_PLAIN = re.compile(r"[0-9eE.+\-,\n naifNAIF]*")
+
+
+def plain_rows(body: str, width: int) -> np.ndarray | None:
+    """The numbers of ``body`` as (rows, width), read in one C pass, when it is lines (each ending in ``\n``,
+    none blank) of exactly ``width`` comma-separated plain numbers; ``None`` otherwise (an empty or damaged
+    cell, a ragged line, other syntax): the caller's per-cell reader then reads it and names the culprit."""
+    if not body.endswith("\n") or "\n\n" in body or not _PLAIN.fullmatch(body):
+        return None
+    raw = np.frombuffer(body.encode("ascii"), dtype=np.uint8)
+    ends = np.flatnonzero(raw == 10)
+    commas = np.bincount(np.searchsorted(ends, np.flatnonzero(raw == 44)), minlength=ends.size)
+    del raw
+    if np.any(commas != width - 1) or np.max(np.diff(ends, prepend=-1)) > csv.field_size_limit():
+        return None                                       # ragged, or a cell the csv module refuses
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            values = np.fromstring(body.replace("\n", ","), sep=",")
+        except (DeprecationWarning, ValueError):
+            return None
+    if values.size != ends.size * width or not np.isfinite(values).all():
+        return None                                       # NaN / infinite cells: read (and filled) per cell
+    return values.reshape(ends.size, width)
+
+
+class _FirstFields:
+    """The first cell of each line of a body of text, looked up on demand (a long take's timecodes are never
+    held as strings)."""
+
+    def __init__(self, body: str) -> None:
+        self.body = body
+
+    def __getitem__(self, k: int) -> str:
+        return self.body.split("\n", k + 1)[k].split(",", 1)[0]
+
+
+def _plain_llf_rows(text: str, header: list, t_col: int, cols: list, fps: float) -> tuple | None:
+    """:func:`_read_rows`'s result from a take of plain rows (no quotes, timecode first, every cell a number,
+    every timecode in range) in one pass (:func:`plain_rows`); ``None`` for anything else (the per-row
+    reader then reads it and names what is wrong)."""
+    if t_col != 0 or '"' in text:
+        return None
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    first, _, body = text.partition("\n")
+    if [h.strip() for h in first.split(",")] != header:
+        return None
+    body = body.rstrip("\n") + "\n"
+    a = plain_rows(body.replace(":", ","), len(header) + 3)
+    if a is None or a.shape[0] == 0:
+        return None
+    h, m, s, ff = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+    whole = np.all((h == np.floor(h)) & (m == np.floor(m)) & (s == np.floor(s)))
+    if not (whole and np.all((h >= 0) & (h < 24) & (m >= 0) & (m < 60) & (s >= 0) & (s < 60) & (ff >= 0)
+                             & (ff < fps))):
+        return None
+    w = a[:, [j + 3 for j in cols]]
+    if np.any(np.isfinite(w) & (np.abs(w) > MAX_ABS_WEIGHT)):
+        return None
+    t = h * 3600.0 + m * 60.0 + s + ff / fps
+    return t, np.ascontiguousarray(w), np.arange(2, t.size + 2, dtype=np.int64), _FirstFields(body)
+
+
+def finish_stream(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray, issues: list,
+                  rotations: np.ndarray | None = None, kind: str = "llf_csv") -> WeightStream:
+    """The checks every capture reader shares, on samples in file order: rows sorted by time (issue),
+    repeated times dropped (issue), at least 3 frames, no gap beyond :data:`MAX_GAP_SECONDS`, a take of
+    at most :data:`MAX_TAKE_SECONDS`, NaN cells filled from the neighbours (issue; a channel with no value
+    is refused), weights leaving ``[0, 1]`` and time gaps reported.
+
+    Parameters
+    ----------
+    t : ndarray (f,)
+        Sample times in seconds (any origin), file order.
+    w : ndarray (f, n)
+        Weights (NaN for a missing cell).
+    names : list of str
+        The n channel names.
+    lines : ndarray (f,)
+        Each sample's line (or record) number, for messages.
+    issues : list of Issue
+        What the reader noticed so far (extended in place).
+    rotations : ndarray (f, 9) or None
+        Head and eye ``(yaw, pitch, roll)`` radians (NaN for a missing cell).
+    kind : str
+        The source format.
+
+    Returns
+    -------
+    WeightStream
+        Times from 0, strictly increasing; every value finite.
+    """
+    both = w if rotations is None else np.concatenate([w, rotations], axis=1)
     order = np.argsort(t, kind="stable")
     if np.any(np.diff(t) < 0):
         issues.append(Issue("warning", "reversed_timecode", "timecodes were out of order; rows were sorted"))
-    t, w, lines = t[order], w[order], lines[order]
+    t, both, lines = t[order], both[order], lines[order]
     keep = np.concatenate([[True], np.diff(t) > 1e-9])
     if not keep.all():
         issues.append(Issue("warning", "repeated_timecode", f"dropped {int((~keep).sum())} rows with a repeated "
                             "timecode"))
-        t, w, lines = t[keep], w[keep], lines[keep]
+        t, both, lines = t[keep], both[keep], lines[keep]
     if t.size < 3:
         raise ShapeSpaceError(f"the recording has {t.size} frames; at least 3 are needed", ErrorCode.TOO_SHORT)
     _check_span(t, lines)
-    issues += _fill_and_check(t, w, names, lines)
-    start = stamps[int(order[0])].strip()
-    return WeightStream(names, t - t[0], w, issues, start)
+    n = w.shape[1]
+    all_names = list(names) + (list(ROTATION_CHANNELS) if rotations is not None else [])
+    issues += _fill_and_check(t, both, all_names, lines, n)
+    rot = None if rotations is None else np.ascontiguousarray(both[:, n:])
+    return WeightStream(list(names), t - t[0], np.ascontiguousarray(both[:, :n]), issues, "", rot, kind)
 
 
 def _csv_rows(text: str) -> Iterator[tuple]:
@@ -204,9 +334,9 @@ def _csv_rows(text: str) -> Iterator[tuple]:
             yield reader.line_num, row
 
 
-def _channel_columns(header: list, t_col: int, required: Sequence[str]) -> tuple:
+def _channel_columns(header: list, t_col: int, required: Sequence[str], used: Sequence[int] = ()) -> tuple:
     """Columns of the wanted channels (first match per canonical name), their names, and the issues of
-    missing and extra columns."""
+    missing and extra columns (``used``: other columns read, not extra)."""
     wanted = {canonical_name(n): n for n in required}
     cols, names, issues = [], [], []
     seen = set()
@@ -219,13 +349,14 @@ def _channel_columns(header: list, t_col: int, required: Sequence[str]) -> tuple
             names.append(h)
             seen.add(canon)
     if not cols:
-        raise ShapeSpaceError("the CSV has no ARKit blendshape columns", "no_channels")
+        raise ShapeSpaceError("the recording has no ARKit blendshape columns", "no_channels")
     missing = [n for c, n in wanted.items() if c not in {canonical_name(x) for x in names}]
     if missing:
         issues.append(Issue("warning", "missing_channels",
-                            f"{len(missing)} ARKit channels are missing from the CSV: {', '.join(missing[:6])}"
+                            f"{len(missing)} ARKit channels are missing from the recording: {', '.join(missing[:6])}"
                             + (" …" if len(missing) > 6 else ""), tuple(missing)))
-    extra = [h for j, h in enumerate(header) if j != t_col and h != "BlendShapeCount" and j not in cols]
+    extra = [h for j, h in enumerate(header) if j != t_col and h != "BlendShapeCount" and j not in cols
+             and j not in used]
     if extra:
         issues.append(Issue("info", "extra_columns", f"ignored {len(extra)} non-blendshape columns "
                             f"({', '.join(extra[:4])}{' …' if len(extra) > 4 else ''})", tuple(extra)))
@@ -307,9 +438,9 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds:.1f} s"
 
 
-def _fill_and_check(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray) -> list:
+def _fill_and_check(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray, n_weights: int = None) -> list:
     """Fill NaN cells in ``w`` (in place) from the neighbouring frames; issues for the fills, channels
-    leaving ``[0, 1]`` and timecode gaps."""
+    leaving ``[0, 1]`` (the first ``n_weights`` columns: the others are angles) and timecode gaps."""
     issues = []
     bad = ~np.isfinite(w)
     if bad.any():
@@ -327,7 +458,8 @@ def _fill_and_check(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray
             w[~ok, j] = np.interp(t[~ok], t[ok], w[ok, j])
         issues.append(Issue("warning", "filled_nan", f"filled {int(bad.sum())} missing or NaN values from "
                             "neighbouring frames"))
-    outside = np.flatnonzero(((w < -WEIGHT_SLACK) | (w > 1.0 + WEIGHT_SLACK)).any(axis=0))
+    ww = w[:, :n_weights]
+    outside = np.flatnonzero(((ww < -WEIGHT_SLACK) | (ww > 1.0 + WEIGHT_SLACK)).any(axis=0))
     if outside.size:
         listed = ", ".join(f"{names[j]} ({w[:, j].min():.3g} … {w[:, j].max():.3g})" for j in outside[:6])
         issues.append(Issue("warning", "weights_out_of_range",
@@ -343,8 +475,8 @@ def _fill_and_check(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray
     return issues
 
 
-def _read_text(source: str | os.PathLike) -> tuple:
-    """``(text, label)``: the CSV text, and the path it came from (``None`` when ``source`` is the text).
+def read_capture_text(source: str | os.PathLike) -> tuple:
+    """``(text, label)``: a capture file's text, and the path it came from (``None`` when ``source`` is the text).
 
     A path must be a regular file of at most :data:`MAX_FILE_BYTES`; it is opened without blocking (a FIFO
     never blocks the reader) and checked with ``fstat`` before a byte is read.

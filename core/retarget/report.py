@@ -130,6 +130,10 @@ class RetargetReport(Report):
         The action written.
     previous_action : str
         The action the rig played before ('' for none).
+    bones : list of str or None
+        Head / neck / eye bones keyed from the source's head and eye channels.
+    bones_action : str or None
+        The action holding the bone curves (the result action on Blender 4.4+, a second one on 4.2).
     previous_fake_user : bool or None
         Whether that action had a fake user before the retarget gave it one (``None``: no previous action,
         or a report written by ShapeSpace 0.1.0).
@@ -155,6 +159,8 @@ class RetargetReport(Report):
     scene_range_extended: bool | None = None
     scene_range_before: list | None = None
     keys_kept_frac: float | None = None
+    bones: list | None = None
+    bones_action: str | None = None
     action: str = ""
     previous_action: str = ""
     previous_fake_user: bool | None = None

@@ -21,16 +21,18 @@ READ_SHARE = 0.1
 
 
 class SHAPESPACE_OT_retarget(JobModal, bpy.types.Operator):
-    """Retarget a Live Link Face CSV, an action or a mesh performance onto the active mesh's shape keys, into a new
-action (Esc cancels a long retarget; nothing is written then)"""
+    """Retarget a capture recording, an action or a mesh performance onto the active mesh's shape keys, into a new
+action; a recording's head and eye channels can key head, neck and eye bones (Esc cancels a long retarget;
+nothing is written then)"""
 
     bl_idname = "shapespace.retarget"
     bl_label = "Retarget"
     bl_options = {"REGISTER", "UNDO"}
     job_title = "Retarget"
 
-    filepath: bpy.props.StringProperty(name="CSV File", subtype="FILE_PATH",
-                                       description="Live Link Face CSV (leave empty to use an action)")
+    filepath: bpy.props.StringProperty(name="Capture File", subtype="FILE_PATH",
+                                       description="Capture recording: Live Link Face CSV, Face Cap TXT, iFacialMocap, "
+                                                   "Audio2Face JSON, MediaPipe JSON/CSV (leave empty to use an action)")
     action: bpy.props.StringProperty(name="Action", description="Source action animating shape keys")
     source_object: bpy.props.StringProperty(
         name="Mesh Performance", description="An animated mesh to fit (same topology, or lm_* landmark groups)")
@@ -43,6 +45,15 @@ action (Esc cancels a long retarget; nothing is written then)"""
     extend_scene_range: bpy.props.BoolProperty(
         name="Extend Scene Range", default=True,
         description="Widen the scene's frame range to include every frame the result keys")
+    armature: bpy.props.StringProperty(name="Armature", description="The armature of the head, neck and eye bones")
+    head_bone: bpy.props.StringProperty(name="Head", description="Bone keyed from the head rotation")
+    neck_bone: bpy.props.StringProperty(name="Neck", description="Bone keyed with a share of the head rotation")
+    neck_share: bpy.props.FloatProperty(name="Neck Share", default=0.3, min=0.0, max=1.0, subtype="FACTOR",
+                                        description="Part of the head rotation the neck bone takes")
+    eye_left_bone: bpy.props.StringProperty(name="Left Eye", description="The character's left eye bone")
+    eye_right_bone: bpy.props.StringProperty(name="Right Eye", description="The character's right eye bone")
+    mirror: bpy.props.BoolProperty(name="Mirror", default=False,
+                                   description="Swap left and right (a mirrored, selfie-view capture)")
 
     @classmethod
     def poll(cls, context):
@@ -67,8 +78,10 @@ action (Esc cancels a long retarget; nothing is written then)"""
         if not source:
             self.report({"ERROR"}, "choose a CSV file, an action or a mesh performance")
             return FAILED
+        bones = retarget.HeadEyeBones(self.armature, self.head_bone, self.neck_bone, self.eye_left_bone,
+                                      self.eye_right_bone, self.neck_share, self.mirror)
         return attempt(self, retarget.read_retarget, context.active_object, source,
-                       key_pose_action=self.key_pose_action or None, **settings)
+                       key_pose_action=self.key_pose_action or None, bones=bones, **settings)
 
     def _done(self, rep):
         """Report a written result (or a failure) and give the operator's return value."""

@@ -24,8 +24,9 @@ const JOB_TYPE = {
         "merge the per-take reports",
     settings: [
         { key: "takes", type: "string", required: true, visible: "submission",
-          description: "Takes to retarget: Live Link Face CSV paths (or action names), separated by ';', or a " +
-              "JSON list of paths (for a path that holds ';')" },
+          description: "Takes to retarget: capture recordings (Live Link Face CSV, Face Cap TXT, iFacialMocap, " +
+              "Audio2Face or MediaPipe JSON/CSV) or action names, separated by ';', or a JSON list of paths " +
+              "(for a path that holds ';')" },
         { key: "chunk_size", type: "int32", default: 1, propargs: { min: 1 }, visible: "submission",
           description: "Takes per task" },
         { key: "output_dir", type: "string", subtype: "dir_path", required: true, visible: "submission",

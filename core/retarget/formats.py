@@ -1,0 +1,638 @@
+"""Recordings of the face-capture apps, each read into the Live Link Face reader's :class:`~.capture.WeightStream`.
+
+Every reader keeps the Live Link Face CSV reader's contract (:mod:`.capture`): a regular file of at most
+:data:`~.capture.MAX_FILE_BYTES` opened without blocking (a FIFO or device is refused), UTF-8 text, one-line
+:class:`~core.result.ShapeSpaceError` messages naming the line (or frame) and field, channels matched to
+ARKit by name (:func:`core.names.canonical_name`), NaN cells filled from the neighbouring frames, samples
+sorted and de-duplicated, gaps and takes checked (:func:`~.capture.finish_stream`).  Times are the source's
+own — a variable rate is resampled to the scene's by :func:`~.capture.resample` like a CSV take.  Head and
+eye rotations, where the format records them, become ``rotations`` (f, 9) in the live frames' convention
+(``(yaw, pitch, roll)`` radians: :class:`core.live.LiveFrame`), through the live decoders' own conversions.
+
+Formats (their public descriptions; no code was copied):
+
+- ``facecap_txt`` — Face Cap's TXT export (Bannaflak, https://www.bannaflak.com/face-cap/), as its public
+  importers document it (Thomas Larsson's DAZ importer ``import_facecap``; Faceit's ``FaceCapImporter``)::
+
+      info,…                                   metadata (ignored)
+      bs,browInnerUp,…,tongueOut               the blendshape names, in the column order of the keys
+      k,T,hx,hy,hz,hrx,hry,hrz,elx,ely,erx,ery,w1,…,wN
+
+  ``T`` milliseconds from the start, head position, head Euler degrees (x pitch, y yaw, z roll), left and
+  right eye Euler degrees (x pitch, y yaw) — the conventions of Face Cap's live OSC ``/HR``, ``/ELR``,
+  ``/ERR`` (:class:`core.live.FaceCapAssembler`).  Without a ``bs`` line the keys are in Face Cap's
+  order (:data:`core.names.FACECAP_52`).
+- ``ifacialmocap`` — iFacialMocap's frame text (https://www.ifacialmocap.com/for-developer/):
+  ``name-value|…|=head#rx,ry,rz,px,py,pz|rightEye#rx,ry,rz|leftEye#rx,ry,rz|`` (``name&value`` in its v2
+  mode), values 0–100, angles in degrees; its TCP stream ends each frame with ``___iFacialMocap``.  A
+  recording is those frames one per line (or the TCP stream as received).  The text carries no time: frames
+  are at the app's documented 60 fps.
+- ``audio2face_json`` — NVIDIA Audio2Face's blendshape-weight JSON export (Audio2Face manual, "Blendshape
+  Conversion", export format ``.json``): ``exportFps``, ``numPoses``, ``numFrames``, ``facsNames`` (the
+  poses' names) and ``weightMat`` (``numFrames`` rows of ``numPoses`` weights), frame ``k`` at
+  ``k / exportFps``.
+- ``mediapipe_json`` / ``mediapipe_csv`` — MediaPipe Face Landmarker blendshapes (its ``face_blendshapes``
+  result: categories with ``category_name`` and ``score``; the 52 categories are ``_neutral``, ignored, and
+  51 ARKit names).  MediaPipe writes no file: a recording is the per-video-frame results with the
+  ``timestamp_ms`` given to ``detect_for_video`` — JSON: a list of ``{"timestamp_ms": t,
+  "face_blendshapes": [[{"category_name": …, "score": …}, …]]}`` (the first face; ``[]`` when no face was
+  found: filled from the neighbours), or ``{"frames": [...]}``; CSV: a ``timestamp_ms`` column and one
+  column per category name.
+- ``llf_csv`` — the Live Link Face CSV (:func:`~.capture.read_live_link_csv`, with its head and eye
+  columns).
+
+The kind is detected from the content (:func:`detect_kind`), never from the file's extension alone.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from array import array as array_of
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..errors import ErrorCode
+from ..headpose import eye_ypr_from_degrees, ypr_from_degrees
+from ..names import ARKIT_52, FACECAP_52
+from ..result import Issue, ShapeSpaceError
+from .capture import (MAX_ABS_WEIGHT, ROTATION_CHANNELS, WeightStream, _channel_columns, _csv_rows, _parse,
+                      finish_stream, plain_rows, read_capture_text)
+
+__all__ = ["KINDS", "detect_kind", "read_capture", "parse_capture", "describe_stream", "IFACIALMOCAP_FPS",
+           "MAX_ABS_DEGREES", "MAX_JSON_BYTES"]
+
+#: Kinds of capture recording, with what users call them.
+KINDS = {"llf_csv": "Live Link Face CSV", "facecap_txt": "Face Cap TXT", "ifacialmocap": "iFacialMocap recording",
+         "audio2face_json": "Audio2Face blendshape JSON", "mediapipe_json": "MediaPipe blendshapes JSON",
+         "mediapipe_csv": "MediaPipe blendshapes CSV"}
+
+#: iFacialMocap's frame rate (its frames carry no time).
+IFACIALMOCAP_FPS = 60.0
+#: Largest angle magnitude read, in degrees: beyond it a cell is damaged.
+MAX_ABS_DEGREES = 3600.0
+#: Largest head position magnitude read (Face Cap, iFacialMocap): beyond it a cell is damaged.
+MAX_ABS_POSITION = 1e6
+#: Largest JSON text parsed (its numbers become Python objects: ~10× the text in memory).
+MAX_JSON_BYTES = 64 * 2 ** 20
+#: Largest number of blendshape columns a recording may have.
+MAX_CHANNELS = 1024
+
+_IFM_END = "___iFacialMocap"
+_SNIFF = 65536
+
+
+# ------------------------------------------------------------------ detection and dispatch
+def detect_kind(text: str) -> str:
+    """The kind of capture recording ``text`` is (a key of :data:`KINDS`), from its content.
+
+    Raises
+    ------
+    ShapeSpaceError
+        ``unsupported_file`` when it is none of them (the message lists the kinds read).
+    """
+    head = text[:_SNIFF].lstrip("\ufeff \t\r\n")
+    if not head:
+        raise ShapeSpaceError("the file is empty", ErrorCode.EMPTY)
+    if head[0] in "{[":
+        if '"weightMat"' in head or '"facsNames"' in head:
+            return "audio2face_json"
+        if "blendshapes" in head or "category_name" in head or '"frames"' in head:
+            return "mediapipe_json"
+    first = head.split("\n", 1)[0].strip()
+    if first.startswith(("info,", "bs,", "k,")):
+        return "facecap_txt"
+    if "=head#" in head or _IFM_END in head:
+        return "ifacialmocap"
+    cells = [c.strip().strip('"') for c in first.split(",")]
+    if "Timecode" in cells:
+        return "llf_csv"
+    if "timestamp_ms" in cells:
+        return "mediapipe_csv"
+    if len(cells) > 1:
+        raise ShapeSpaceError("the CSV has no Timecode column (Live Link Face) nor timestamp_ms (MediaPipe): not a "
+                              "capture recording ShapeSpace reads", ErrorCode.NO_TIMECODE)
+    raise ShapeSpaceError("not a capture recording ShapeSpace reads (" + ", ".join(KINDS.values()) + ")",
+                          ErrorCode.UNSUPPORTED_FILE)
+
+
+def read_capture(source: str | os.PathLike, required: Sequence[str] = ARKIT_52) -> WeightStream:
+    """Read any supported capture recording (path or text) into a :class:`~.capture.WeightStream`.
+
+    The kind is detected from the content (:func:`detect_kind`); the Live Link Face CSV is read with its head
+    and eye columns.  Every failure is a one-line :class:`ShapeSpaceError`; from a file its message starts
+    with the path.
+    """
+    text, label = read_capture_text(source)
+    try:
+        return parse_capture(text, required)
+    except ShapeSpaceError as exc:
+        if label is None:
+            raise
+        raise ShapeSpaceError(f"{label}: {exc}", exc.code) from None
+
+
+def parse_capture(text: str, required: Sequence[str] = ARKIT_52, kind: str | None = None) -> WeightStream:
+    """The stream of a recording's text (``kind``: detected when None); errors name the line, not the file."""
+    kind = kind or detect_kind(text)
+    if kind == "llf_csv":
+        stream = _parse(text, required, 60.0, True)
+    elif kind == "facecap_txt":
+        stream = _facecap(text, required)
+    elif kind == "ifacialmocap":
+        stream = _ifacialmocap(text, required)
+    elif kind == "audio2face_json":
+        stream = _audio2face_text(text, required)
+    elif kind == "mediapipe_json":
+        stream = _mediapipe_json(text, required)
+    elif kind == "mediapipe_csv":
+        stream = _mediapipe_csv(text, required)
+    else:
+        raise ShapeSpaceError(f"unknown capture kind {kind!r}", ErrorCode.UNSUPPORTED_FILE)
+    stream.kind = kind
+    return stream
+
+
+def describe_stream(stream: WeightStream) -> dict:
+    """What a recording holds, as JSON-ready data: kind, channels, rate, duration, head / eye channels."""
+    steps = np.diff(stream.times)
+    median = float(np.median(steps)) if steps.size else 0.0
+    rot = stream.rotations
+    moving = [] if rot is None else [c for c, col in zip(ROTATION_CHANNELS, rot.T) if np.ptp(col) > 0]
+    return {"kind": stream.kind, "format": KINDS.get(stream.kind, stream.kind), "frames": int(stream.times.size),
+            "channels": len(stream.names), "channel_names": list(stream.names),
+            "rate": stream.rate if stream.rate is not None else (round(1.0 / median, 3) if median > 0 else None),
+            "measured_rate": round(1.0 / median, 3) if median > 0 else None,
+            "variable_rate": bool(steps.size and (steps.max() - steps.min()) > 0.25 * median),
+            "duration_s": float(stream.times[-1]), "head_eye_channels": list(ROTATION_CHANNELS) if rot is not None
+            else [], "head_eye_moving": moving, "start_timecode": stream.start_timecode,
+            "issues": [i.message for i in stream.issues]}
+
+
+# ------------------------------------------------------------------ shared cell parsing
+def _number(text: str, where: str, limit: float) -> float:
+    """One numeric cell (NaN when empty); damaged cells refused naming ``where`` (line and field)."""
+    cell = text.strip()
+    if not cell:
+        return math.nan
+    try:
+        value = float(cell)
+    except ValueError:
+        raise ShapeSpaceError(f"{where}: {cell[:40]!r} is not a number", ErrorCode.NOT_NUMBER) from None
+    if math.isfinite(value) and abs(value) > limit:
+        raise ShapeSpaceError(f"{where}: {cell[:40]} is beyond ±{limit:g}: a damaged value", ErrorCode.RANGE)
+    return value
+
+
+def _columns(names: Sequence[str], required: Sequence[str]) -> tuple:
+    """``(columns, names, issues)`` of the wanted ARKit channels among ``names`` (``_neutral`` dropped)."""
+    if len(names) > MAX_CHANNELS:
+        raise ShapeSpaceError(f"the recording names {len(names)} channels (at most {MAX_CHANNELS})",
+                              ErrorCode.TOO_LARGE)
+    header = [str(n).strip() for n in names]
+    header = ["BlendShapeCount" if h == "_neutral" else h for h in header]     # skipped like LLF's count
+    return _channel_columns(header, -1, required)
+
+
+def _frames(values: array_of, count: int, width: int) -> np.ndarray:
+    return np.frombuffer(values, dtype=np.float64).copy().reshape(count, width)
+
+
+# ------------------------------------------------------------------ Face Cap TXT
+def _facecap(text: str, required: Sequence[str]) -> WeightStream:
+    names, t, w, pose, lines = _facecap_plain(text) or _facecap_cells(text)
+    cols, kept, issues = _columns(names, required)
+    rot = np.concatenate([ypr_from_degrees(pose[:, 3:6]), eye_ypr_from_degrees(pose[:, 6:8]),
+                          eye_ypr_from_degrees(pose[:, 8:10])], axis=1)
+    _check_time(t)
+    return finish_stream(t, w[:, cols], kept, lines, issues, rot, "facecap_txt")
+
+
+#: Face Cap's value limits per key field after ``k``: time (ms), head position, head and eye angles (degrees).
+_FACECAP_LIMITS = np.array([1e12] + [MAX_ABS_POSITION] * 3 + [MAX_ABS_DEGREES] * 7)
+
+
+def _facecap_plain(text: str) -> tuple | None:
+    """:func:`_facecap_cells`'s result in one pass for a recording of plain keys (:func:`~.capture.plain_rows`:
+    every cell a number, every key line ``k,…``), else ``None``."""
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    at = 0 if text.startswith("k,") else text.find("\nk,") + 1
+    if at < 0 or (at == 0 and not text.startswith("k,")):
+        return None
+    names = list(FACECAP_52)
+    for line in text[:at].split("\n"):
+        line = line.strip()
+        if line.startswith("bs,"):
+            names = [n.strip() for n in line.split(",")[1:]]
+        elif line and not line.startswith("info,"):
+            return None
+    body = text[at:].rstrip() + "\n"
+    if body.count("\nk,") != body.count("\n") - 1:
+        return None                                            # a line that is not a key
+    a = plain_rows(("\n" + body).replace("\nk,", "\n")[1:], 11 + len(names))
+    if a is None or np.any(np.abs(a[:, :11]) > _FACECAP_LIMITS) or np.any(np.abs(a[:, 11:]) > MAX_ABS_WEIGHT):
+        return None
+    first = text[:at].count("\n") + 1
+    return names, a[:, 0] / 1000.0, a[:, 11:], a[:, 1:11], np.arange(first, first + a.shape[0])
+
+
+def _facecap_cells(text: str) -> tuple:
+    """``(names, times (f,), weights (f, n), head / eye fields (f, 10), lines)`` read cell by cell, naming the
+    line and field of anything wrong."""
+    names, width = list(FACECAP_52), None
+    times, values, poses, lines = array_of("d"), array_of("d"), array_of("d"), array_of("q")
+    for i, line in _numbered_lines(text):
+        if line.startswith("info,"):
+            continue
+        if line.startswith("bs,"):
+            if lines:
+                raise ShapeSpaceError(f"line {i}: the blendshape names (bs,…) come after the first key",
+                                      ErrorCode.CORRUPT_FILE)
+            names = [n.strip() for n in line.split(",")[1:]]
+            continue
+        if not line.startswith("k,"):
+            raise ShapeSpaceError(f"line {i}: {line[:30]!r} is neither info, bs nor a key (k,…): not a Face Cap "
+                                  "TXT line", ErrorCode.CORRUPT_FILE)
+        cells = line.split(",")
+        width = width or len(names)
+        if len(cells) != 12 + width:
+            raise ShapeSpaceError(f"line {i} has {len(cells) - 12} blendshape values, the recording names {width}",
+                                  ErrorCode.RAGGED)
+        times.append(_number(cells[1], f"line {i}, field 2 (time ms)", 1e12) / 1000.0)
+        poses.extend([_number(c, f"line {i}, field {k + 3} (head/eye)", MAX_ABS_DEGREES if k >= 3 else
+                              MAX_ABS_POSITION) for k, c in enumerate(cells[2:12])])
+        values.extend([_number(c, f"line {i}, field {k + 13} ({names[k]})", MAX_ABS_WEIGHT)
+                       for k, c in enumerate(cells[12:])])
+        lines.append(i)
+    if not lines:
+        raise ShapeSpaceError("the Face Cap recording has no keys (k,… lines)", ErrorCode.TOO_SHORT)
+    t = np.frombuffer(times, dtype=np.float64).copy()
+    return (names, t, _frames(values, t.size, len(names)), _frames(poses, t.size, 10),
+            np.frombuffer(lines, dtype=np.int64).copy())
+
+
+def _numbered_lines(text: str):
+    """``(line number, stripped line)`` of every non-blank line (any line ending)."""
+    if "\r" in text:
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    for i, line in enumerate(text.split("\n"), start=1):
+        line = line.strip()
+        if line:
+            yield i, line
+
+
+def _check_time(t: np.ndarray) -> None:
+    bad = np.flatnonzero(~np.isfinite(t))
+    if bad.size:
+        raise ShapeSpaceError(f"key {int(bad[0]) + 1}: its time is missing or not finite", ErrorCode.TIMECODE)
+
+
+# ------------------------------------------------------------------ iFacialMocap
+_IFM_POSES = {"=head#": 0, "head#": 0, "rightEye#": 6, "leftEye#": 9}
+_IFM_SIZES = {0: 6, 6: 3, 9: 3}
+
+
+def _ifacialmocap(text: str, required: Sequence[str]) -> WeightStream:
+    frames = text.replace(_IFM_END, "\n") if _IFM_END in text else text
+    names, w, pose, lines = _ifm_plain(frames) or _ifm_cells(frames)
+    cols, kept, issues = _columns(names, required)
+    # iFacialMocap sends head and eyes as Euler degrees (x pitch, y yaw, z roll), like its live packets
+    rot = np.concatenate([ypr_from_degrees(pose[:, 0:3]), ypr_from_degrees(pose[:, 9:12]),
+                          ypr_from_degrees(pose[:, 6:9])], axis=1)
+    t = np.arange(w.shape[0]) / IFACIALMOCAP_FPS
+    stream = finish_stream(t, np.ascontiguousarray(w[:, cols]), kept, lines, issues, rot, "ifacialmocap")
+    stream.rate = IFACIALMOCAP_FPS
+    return stream
+
+
+_POSE_LIMITS = np.array([MAX_ABS_DEGREES] * 3 + [MAX_ABS_POSITION] * 3 + [MAX_ABS_DEGREES] * 6)
+
+
+def _ifm_plain(frames: str) -> tuple | None:
+    """:func:`_ifm_cells`'s result for a recording whose frames all repeat the first one's fields (names,
+    separators and poses, in order) with plain numbers, read by slicing the values out of every field and one
+    numeric pass (:func:`~.capture.plain_rows`); ``None`` otherwise."""
+    if "\r" in frames:
+        frames = frames.replace("\r\n", "\n").replace("\r", "\n")
+    lines = frames.split("\n")
+    while lines and not lines[-1]:
+        lines.pop()
+    lead = next((k for k, line in enumerate(lines) if line), len(lines))
+    if lead >= len(lines) or not all(lines[lead:]):
+        return None
+    first = lines[lead]
+    try:
+        names, _, _, _ = _ifm_cells(first)
+    except ShapeSpaceError:
+        return None
+    prefixes, targets = [], []                       # each field's text before its values; where they go
+    for field in first.rstrip("|").split("|"):
+        tag = next((t for t in _IFM_POSES if field.startswith(t)), None)
+        if tag is not None:
+            prefixes.append(tag)
+            targets += [("pose", _IFM_POSES[tag] + k) for k in range(_IFM_SIZES[_IFM_POSES[tag]])]
+        else:
+            name, sep, _ = field.partition("&") if "&" in field else field.partition("-")
+            if field != field.strip() or name not in names:
+                return None                              # an empty or padded field: read cell by cell
+            prefixes.append(name + sep)
+            targets.append(("w", names.index(name)))
+    if len(set(prefixes)) != len(prefixes) or sorted(k for kind, k in targets if kind == "pose") != list(range(12)):
+        return None
+    cuts = [len(p) for p in prefixes]
+    out = []
+    for line in lines[lead:]:
+        parts = line.rstrip("|").split("|")
+        if len(parts) != len(prefixes):
+            return None
+        values = [p[c:] for p, c, pre in zip(parts, cuts, prefixes) if p[:c] == pre]
+        if len(values) != len(prefixes):
+            return None
+        out.append(",".join(values))
+    del lines
+    a = plain_rows("\n".join(out) + "\n", len(targets))
+    del out
+    if a is None:
+        return None
+    w_cols = [j for j, (kind, _) in enumerate(targets) if kind == "w"]
+    p_cols = [j for _, j in sorted((k, j) for j, (kind, k) in enumerate(targets) if kind == "pose")]
+    w, pose = a[:, w_cols], a[:, p_cols]
+    if np.any(np.abs(w) > 100.0 * MAX_ABS_WEIGHT) or np.any(np.abs(pose) > _POSE_LIMITS):
+        return None
+    return names, w / 100.0, pose, np.arange(lead + 1, lead + 1 + a.shape[0])
+
+
+def _ifm_cells(frames: str) -> tuple:
+    """``(names, weights (f, n), poses (f, 12): head 6, right eye 3, left eye 3, lines)`` read field by field,
+    naming the line and field of anything wrong."""
+    column = {}                       # canonical name → column (first frame's order, then new names appended)
+    names, rows, poses, lines = [], [], array_of("d"), array_of("q")
+    for i, line in _numbered_lines(frames):
+        row, pose = {}, [0.0] * 12
+        for field in line.strip("\0").split("|"):
+            field = field.strip()
+            if not field:
+                continue
+            for tag, at in _IFM_POSES.items():
+                if field.startswith(tag):
+                    parts = field[len(tag):].split(",")
+                    if len(parts) != _IFM_SIZES[at]:
+                        raise ShapeSpaceError(f"frame {len(lines) + 1} (line {i}): {tag.strip('=#')} has "
+                                              f"{len(parts)} numbers, expected {_IFM_SIZES[at]}", ErrorCode.RAGGED)
+                    for k, p in enumerate(parts):
+                        pose[at + k] = _number(p, f"line {i}, {tag.strip('=#')} value {k + 1}",
+                                               MAX_ABS_POSITION if at == 0 and k >= 3 else MAX_ABS_DEGREES)
+                    break
+            else:
+                name, sep, value = field.partition("&") if "&" in field else field.partition("-")
+                if not sep or not name or len(name) > 64:
+                    raise ShapeSpaceError(f"line {i}: field {field[:40]!r} is neither a blendshape (name-value) "
+                                          "nor a pose (=head#, rightEye#, leftEye#)", ErrorCode.CORRUPT_FILE)
+                if name not in column:
+                    if len(column) >= MAX_CHANNELS:
+                        raise ShapeSpaceError(f"line {i}: more than {MAX_CHANNELS} blendshape names",
+                                              ErrorCode.TOO_LARGE)
+                    column[name] = len(names)
+                    names.append(name)
+                row[column[name]] = _number(value, f"line {i}, {name}", 100.0 * MAX_ABS_WEIGHT) / 100.0
+        if not row:
+            raise ShapeSpaceError(f"line {i}: the frame has no blendshape (name-value|…)", ErrorCode.CORRUPT_FILE)
+        rows.append(row)
+        poses.extend(pose)
+        lines.append(i)
+    if not rows:
+        raise ShapeSpaceError("the iFacialMocap recording has no frames", ErrorCode.TOO_SHORT)
+    w = np.full((len(rows), len(names)), np.nan)
+    for f, row in enumerate(rows):
+        w[f, list(row)] = list(row.values())
+    return names, w, _frames(poses, len(rows), 12), np.frombuffer(lines, dtype=np.int64).copy()
+
+
+# ------------------------------------------------------------------ JSON (Audio2Face, MediaPipe)
+def _json(text: str):
+    if len(text) > MAX_JSON_BYTES:
+        raise ShapeSpaceError(f"the JSON is {len(text) / 2 ** 20:.0f} MiB; capture JSON larger than "
+                              f"{MAX_JSON_BYTES / 2 ** 20:.0f} MiB is refused (split the take)", ErrorCode.TOO_LARGE)
+    try:
+        return json.loads(text, parse_constant=lambda c: math.nan)
+    except json.JSONDecodeError as exc:
+        raise ShapeSpaceError(f"line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})",
+                              ErrorCode.CORRUPT_FILE) from None
+    except (RecursionError, ValueError) as exc:
+        raise ShapeSpaceError(f"not readable JSON ({type(exc).__name__})", ErrorCode.CORRUPT_FILE) from None
+
+
+def _field(data: dict, key: str, kind, what: str):
+    if not isinstance(data, dict) or key not in data:
+        raise ShapeSpaceError(f"the {what} has no {key!r} field", ErrorCode.CORRUPT_FILE)
+    value = data[key]
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise ShapeSpaceError(f"the {what}'s {key!r} is a {type(value).__name__}", ErrorCode.CORRUPT_FILE)
+    return value
+
+
+def _weight_row(row, width: int, where: str) -> list:
+    if not isinstance(row, list) or len(row) != width:
+        size = len(row) if isinstance(row, list) else type(row).__name__
+        raise ShapeSpaceError(f"{where} has {size} weights, expected {width}", ErrorCode.RAGGED)
+    out = []
+    for k, v in enumerate(row):
+        if v is None:
+            out.append(math.nan)
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ShapeSpaceError(f"{where}, weight {k + 1}: {str(v)[:40]!r} is not a number", ErrorCode.NOT_NUMBER)
+        if math.isfinite(v) and abs(v) > MAX_ABS_WEIGHT:
+            raise ShapeSpaceError(f"{where}, weight {k + 1}: {v:g} is beyond ±{MAX_ABS_WEIGHT:g}: a damaged value",
+                                  ErrorCode.RANGE)
+        out.append(float(v))
+    return out
+
+
+_A2F_MATRIX = re.compile(r'"weightMat"\s*:\s*(\[[\[\]0-9eE.+\-,\s]*\])')
+_ROW_BREAK = re.compile(r"\]\s*,\s*\[")
+_SPACE = re.compile(r"\s+")
+
+
+def _audio2face_text(text: str, required: Sequence[str]) -> WeightStream:
+    """An Audio2Face export: a ``weightMat`` of plain numbers read in one pass (:func:`~.capture.plain_rows`),
+    the other fields by the json module; anything else parsed whole and checked cell by cell."""
+    found = _A2F_MATRIX.search(text)
+    if found is not None and found.group(1).count("[") == found.group(1).count("]"):
+        try:
+            data = _json(text[:found.start(1)] + "[]" + text[found.end(1):])
+        except ShapeSpaceError:                  # not the whole matrix: the whole text names what is wrong
+            return _audio2face(_json(text), required)
+        names = data.get("facsNames") if isinstance(data, dict) else None
+        matrix = found.group(1)
+        matrix = _SPACE.sub("", matrix) if "\n" in matrix else matrix.strip()     # pretty-printed rows: one line
+        if isinstance(names, list) and matrix.startswith("[[") and matrix.endswith("]]"):
+            rows = plain_rows(_ROW_BREAK.sub("\n", matrix[2:-2]) + "\n", len(names))
+            if rows is not None and not np.any(np.abs(rows) > MAX_ABS_WEIGHT):
+                return _audio2face(data, required, rows)
+    return _audio2face(_json(text), required)
+
+
+def _audio2face(data, required: Sequence[str], rows: np.ndarray | None = None) -> WeightStream:
+    what = "Audio2Face export"
+    names = _field(data, "facsNames", list, what)
+    if not all(isinstance(n, str) for n in names):
+        raise ShapeSpaceError("the Audio2Face export's facsNames are not all names", ErrorCode.CORRUPT_FILE)
+    fps = float(_field(data, "exportFps", (int, float), what))
+    if not (math.isfinite(fps) and 0 < fps <= 1000):
+        raise ShapeSpaceError(f"the Audio2Face export's exportFps is {fps:g}; it must lie in (0, 1000]",
+                              ErrorCode.FPS)
+    mat = _field(data, "weightMat", list, what) if rows is None else rows
+    for key, expected in (("numPoses", len(names)), ("numFrames", len(mat))):
+        stated = data.get(key, expected)
+        if stated != expected:
+            raise ShapeSpaceError(f"the Audio2Face export's {key} is {stated!r} but it holds {expected}",
+                                  ErrorCode.RAGGED)
+    cols, kept, issues = _columns(names, required)
+    if not len(mat):
+        raise ShapeSpaceError("the Audio2Face export has no frames", ErrorCode.TOO_SHORT)
+    if rows is None:
+        values = array_of("d")
+        for f, row in enumerate(mat):
+            values.extend(_weight_row(row, len(names), f"weightMat frame {f + 1}"))
+        rows = _frames(values, len(mat), len(names))
+    w = np.ascontiguousarray(rows[:, cols])
+    t = np.arange(len(mat)) / fps
+    stream = finish_stream(t, w, kept, np.arange(1, len(mat) + 1), issues, None, "audio2face_json")
+    stream.rate = fps
+    return stream
+
+
+def _mediapipe_frame(frame, k: int) -> tuple:
+    """``(timestamp ms, {category name: score})`` of one MediaPipe result frame (the first face)."""
+    where = f"frame {k + 1}"
+    t = _field(frame, "timestamp_ms", (int, float), where)
+    faces = frame.get("face_blendshapes", frame.get("blendshapes"))
+    if faces is None:
+        raise ShapeSpaceError(f"{where} has no 'face_blendshapes'", ErrorCode.CORRUPT_FILE)
+    if not isinstance(faces, list):
+        raise ShapeSpaceError(f"{where}: 'face_blendshapes' is a {type(faces).__name__}", ErrorCode.CORRUPT_FILE)
+    if faces and isinstance(faces[0], list):           # one list of categories per face: the first face
+        faces = faces[0]
+    scores = {}
+    for c in faces:
+        name = c.get("category_name") if isinstance(c, dict) else None
+        score = c.get("score") if isinstance(c, dict) else None
+        if not isinstance(name, str) or isinstance(score, bool) or not isinstance(score, (int, float)):
+            raise ShapeSpaceError(f"{where}: a category without a category_name and a numeric score",
+                                  ErrorCode.CORRUPT_FILE)
+        if math.isfinite(score) and abs(score) > MAX_ABS_WEIGHT:
+            raise ShapeSpaceError(f"{where}, {name}: {score:g} is beyond ±{MAX_ABS_WEIGHT:g}: a damaged value",
+                                  ErrorCode.RANGE)
+        scores[name] = float(score)
+    return float(t), scores
+
+
+def _mediapipe_json(text: str, required: Sequence[str]) -> WeightStream:
+    """A MediaPipe JSON recording, one frame at a time (a list of frames is never held as Python objects)."""
+    column, names, times, rows = {}, [], array_of("d"), []
+    lost = 0
+    for k, frame in enumerate(_json_frames(text)):
+        ms, scores = _mediapipe_frame(frame, k)
+        row = array_of("d", [math.nan]) * len(names)
+        for name, score in scores.items():
+            if name not in column:
+                if len(column) >= MAX_CHANNELS:
+                    raise ShapeSpaceError(f"frame {k + 1}: more than {MAX_CHANNELS} category names",
+                                          ErrorCode.TOO_LARGE)
+                column[name] = len(names)
+                names.append(name)
+                row.append(math.nan)
+            row[column[name]] = score
+        lost += not scores
+        times.append(ms / 1000.0)
+        rows.append(row)
+    if not names:
+        raise ShapeSpaceError("the MediaPipe JSON has no blendshape scores", ErrorCode.NO_CHANNELS)
+    cols, kept, issues = _columns(names, required)
+    w = np.full((len(rows), len(names)), np.nan)
+    for f, row in enumerate(rows):
+        w[f, :len(row)] = row
+    rows.clear()
+    t = np.frombuffer(times, dtype=np.float64).copy()
+    _check_time(t)
+    if lost:
+        issues.append(Issue("warning", "no_face", f"{lost} frames found no face; filled from the neighbours"))
+    return finish_stream(t, w[:, cols], kept, np.arange(1, t.size + 1), issues, None, "mediapipe_json")
+
+
+_WS = re.compile(r"[ \t\n\r]*")
+
+
+def _json_frames(text: str):
+    """The frames of a MediaPipe JSON recording one by one: a top-level list streamed element by element
+    (``json.JSONDecoder.raw_decode``), or ``{"frames": [...]}`` parsed whole (within :data:`MAX_JSON_BYTES`)."""
+    at = _WS.match(text, text.startswith("\ufeff")).end()
+    if text[at:at + 1] != "[":
+        data = _json(text)
+        frames = data.get("frames") if isinstance(data, dict) else None
+        if not isinstance(frames, list):
+            raise ShapeSpaceError("the MediaPipe JSON is neither a list of frames nor {\"frames\": [...]}",
+                                  ErrorCode.CORRUPT_FILE)
+        yield from frames
+        return
+    decoder = json.JSONDecoder(parse_constant=lambda c: math.nan)
+    at = _WS.match(text, at + 1).end()
+    if text[at:at + 1] == "]":
+        at += 1
+    else:
+        while True:
+            try:
+                frame, at = decoder.raw_decode(text, at)
+            except json.JSONDecodeError as exc:
+                raise ShapeSpaceError(f"line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})",
+                                      ErrorCode.CORRUPT_FILE) from None
+            except (RecursionError, ValueError) as exc:
+                raise ShapeSpaceError(f"not readable JSON ({type(exc).__name__})", ErrorCode.CORRUPT_FILE) from None
+            yield frame
+            at = _WS.match(text, at).end()
+            sep = text[at:at + 1]
+            at = _WS.match(text, at + 1).end()
+            if sep == "]":
+                break
+            if sep != ",":
+                raise ShapeSpaceError(f"line {text.count(chr(10), 0, at) + 1}: the list of frames is not valid JSON "
+                                      "(expected ',' or ']')", ErrorCode.CORRUPT_FILE)
+    if _WS.match(text, at).end() != len(text):
+        raise ShapeSpaceError(f"line {text.count(chr(10), 0, at) + 1}: text after the list of frames",
+                              ErrorCode.CORRUPT_FILE)
+
+
+def _mediapipe_csv(text: str, required: Sequence[str]) -> WeightStream:
+    rows = _csv_rows(text)
+    first = next(rows, None)
+    if first is None:
+        raise ShapeSpaceError("the CSV file is empty", ErrorCode.EMPTY)
+    header = [h.strip() for h in first[1]]
+    if "timestamp_ms" not in header:
+        raise ShapeSpaceError("line 1: the CSV has no timestamp_ms column: not a MediaPipe recording",
+                              ErrorCode.NO_TIMECODE)
+    t_col = header.index("timestamp_ms")
+    names = [h for j, h in enumerate(header) if j != t_col]
+    cols, kept, issues = _columns(names, required)
+    cols = [c + (c >= t_col) for c in cols]                 # back to header columns
+    plain = None if '"' in text else plain_rows(text.replace("\r\n", "\n").replace("\r", "\n")
+                                                .split("\n", 1)[-1].rstrip() + "\n", len(header))
+    if plain is not None and not np.any(np.abs(plain[:, cols]) > MAX_ABS_WEIGHT) and plain[0].size:
+        t = plain[:, t_col] / 1000.0
+        return finish_stream(t, np.ascontiguousarray(plain[:, cols]), kept, np.arange(2, t.size + 2), issues, None,
+                             "mediapipe_csv")
+    times, values, lines = array_of("d"), array_of("d"), array_of("q")
+    for i, r in rows:
+        if len(r) != len(header):
+            raise ShapeSpaceError(f"line {i} has {len(r)} cells, the header has {len(header)}", ErrorCode.RAGGED)
+        times.append(_number(r[t_col], f"line {i}, column 'timestamp_ms'", 1e12) / 1000.0)
+        values.extend([_number(r[j], f"line {i}, column {header[j]!r}", MAX_ABS_WEIGHT) for j in cols])
+        lines.append(i)
+    t = np.frombuffer(times, dtype=np.float64).copy()
+    _check_time(t)
+    w = _frames(values, t.size, len(cols))
+    return finish_stream(t, w, kept, np.frombuffer(lines, dtype=np.int64).copy(), issues, None, "mediapipe_csv")
