@@ -1,4 +1,6 @@
 """Sidebar ▸ ShapeSpace ▸ Rig ▸ Transfer Shapes: model transfer of a source rig's shapes onto the active mesh."""
+from collections import Counter
+
 import bpy
 
 from ..bridge import authoring
@@ -71,9 +73,7 @@ def _draw_verdict(layout, ob) -> None:
         col.label(text=f"{name}: {', '.join(checks)}")
     if len(verdict["failed"]) > SHOWN:
         col.label(text=f"… and {len(verdict['failed']) - SHOWN} more")
-    kinds = {}
-    for _, kind, _, _ in verdict["parts"]:
-        kinds[kind] = kinds.get(kind, 0) + 1
+    kinds = Counter(kind for _, kind, _, _ in verdict["parts"])
     if kinds:
         box.label(text="Parts: " + ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())), icon="MESH_DATA")
     unsure = [str(p) for p, _, _, flag in verdict["parts"] if flag]

@@ -25,7 +25,7 @@ from ..errors import ErrorCode
 from ..headpose import (FACE_TO_ARMATURE, bone_local, euler_matrix, face_to_armature, matrix_euler,
                         matrix_quaternion, rotation_power)
 from ..result import ShapeSpaceError
-from ..validate import array, in_range
+from ..validate import array
 from .frames import implausible_channel
 
 __all__ = ["Neutral", "calibrate", "euler_matrix", "matrix_euler", "matrix_quaternion", "rotation_power",
