@@ -206,12 +206,38 @@ def _parse(text: str, required: Sequence[str], fps: float, rotations: bool = Fal
 _PLAIN = re.compile(r"[0-9eE.+\-,\n naifNAIF]*")
 
 
-def plain_rows(body: str, width: int) -> np.ndarray | None:
-    """The numbers of ``body`` as (rows, width), read in one C pass, when it is lines (each ending in ``\n``,
-    none blank) of exactly ``width`` comma-separated plain numbers; ``None`` otherwise (an empty or damaged
-    cell, a ragged line, other syntax): the caller's per-cell reader then reads it and names the culprit."""
-    if not body.endswith("\n") or "\n\n" in body or not _PLAIN.fullmatch(body):
+_PLAIN_COLONS = re.compile(r"[0-9eE.+\-,:\n naifNAIF]*")
+#: Characters of text parsed at a time by :func:`plain_rows` (bounds its temporaries, whatever the file size).
+PLAIN_CHUNK = 1 << 22
+
+
+def plain_rows(body: str, width: int, start: int = 0, stop: int | None = None,
+               colons: bool = False) -> np.ndarray | None:
+    """The numbers of ``body[start:stop]`` as (rows, width), read in one C pass per chunk of
+    :data:`PLAIN_CHUNK` characters, when it is lines (none blank) of exactly ``width`` comma-separated plain
+    numbers (``colons``: ``:`` separates too, as in a timecode); ``None`` otherwise (an empty or damaged cell,
+    a ragged line, other syntax): the caller's per-cell reader then reads it and names the culprit.  The text
+    is never copied whole: a long take is parsed in bounded memory."""
+    stop = len(body) if stop is None else stop
+    pattern = _PLAIN_COLONS if colons else _PLAIN
+    if start >= stop or body.find("\n\n", start, stop) >= 0 or not pattern.fullmatch(body, start, stop):
         return None
+    rows = []
+    while start < stop:
+        end = body.rfind("\n", start, min(stop, start + PLAIN_CHUNK)) + 1
+        if end <= start:
+            end = body.find("\n", start, stop) + 1 or stop
+        part = body[start:end] if body[end - 1] == "\n" else body[start:end] + "\n"
+        a = _plain_chunk(part.replace(":", ",") if colons else part, width)
+        if a is None:
+            return None
+        rows.append(a)
+        start = end
+    return rows[0] if len(rows) == 1 else np.concatenate(rows)
+
+
+def _plain_chunk(body: str, width: int) -> np.ndarray | None:
+    """:func:`plain_rows` of whole lines (``body`` ends in a newline)."""
     raw = np.frombuffer(body.encode("ascii"), dtype=np.uint8)
     ends = np.flatnonzero(raw == 10)
     commas = np.bincount(np.searchsorted(ends, np.flatnonzero(raw == 44)), minlength=ends.size)
@@ -230,14 +256,18 @@ def plain_rows(body: str, width: int) -> np.ndarray | None:
 
 
 class _FirstFields:
-    """The first cell of each line of a body of text, looked up on demand (a long take's timecodes are never
-    held as strings)."""
+    """The first cell of each line of a body of text from ``start``, looked up on demand (a long take's
+    timecodes are never held as strings)."""
 
-    def __init__(self, body: str) -> None:
-        self.body = body
+    def __init__(self, body: str, start: int = 0) -> None:
+        self.body, self.start = body, start
 
     def __getitem__(self, k: int) -> str:
-        return self.body.split("\n", k + 1)[k].split(",", 1)[0]
+        at = self.start
+        for _ in range(k):
+            at = self.body.index("\n", at) + 1
+        end = self.body.find("\n", at)
+        return self.body[at:end if end >= 0 else len(self.body)].split(",", 1)[0]
 
 
 def _plain_llf_rows(text: str, header: list, t_col: int, cols: list, fps: float) -> tuple | None:
@@ -248,11 +278,13 @@ def _plain_llf_rows(text: str, header: list, t_col: int, cols: list, fps: float)
         return None
     if "\r" in text:
         text = text.replace("\r\n", "\n").replace("\r", "\n")
-    first, _, body = text.partition("\n")
-    if [h.strip() for h in first.split(",")] != header:
+    nl = text.find("\n")
+    if nl < 0 or [h.strip() for h in text[:nl].split(",")] != header:
         return None
-    body = body.rstrip("\n") + "\n"
-    a = plain_rows(body.replace(":", ","), len(header) + 3)
+    stop = len(text)
+    while stop > nl + 1 and text[stop - 1] == "\n":
+        stop -= 1
+    a = plain_rows(text, len(header) + 3, nl + 1, stop, colons=True)
     if a is None or a.shape[0] == 0:
         return None
     h, m, s, ff = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
@@ -264,7 +296,7 @@ def _plain_llf_rows(text: str, header: list, t_col: int, cols: list, fps: float)
     if np.any(np.isfinite(w) & (np.abs(w) > MAX_ABS_WEIGHT)):
         return None
     t = h * 3600.0 + m * 60.0 + s + ff / fps
-    return t, np.ascontiguousarray(w), np.arange(2, t.size + 2, dtype=np.int64), _FirstFields(body)
+    return t, np.ascontiguousarray(w), np.arange(2, t.size + 2, dtype=np.int64), _FirstFields(text, nl + 1)
 
 
 def finish_stream(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray, issues: list,
