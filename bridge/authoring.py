@@ -852,8 +852,9 @@ def compute_transfer(plan: TransferPlan, progress=None) -> TransferOutcome:
     if result.status != Status.OK and result.message:
         report.warnings.append(f"registration: {result.message}")
     moving = plan.unmatched_parts == "move"
+    openings = core_contacts.with_references(plan.openings, rig.neutral, rig.full_sculpts(), rig.names)
     transfer = core.Transfer(rig.neutral, rig.triangles, tgt.neutral, tgt.triangles, corr,
-                             unmatched_parts="keep" if moving else plan.unmatched_parts, openings=plan.openings)
+                             unmatched_parts="keep" if moving else plan.unmatched_parts, openings=openings)
     if not moving:
         report.warnings.extend(issue.message for issue in transfer.issues)
     notify(progress, 0.7)

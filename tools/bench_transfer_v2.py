@@ -110,14 +110,14 @@ def transferred(src, dst, src_tag, dst_tag):
     """Landmarks → register → Transfer (with the named openings) → parts of one ordered pair: (deltas
     (k, n_t, 3) in the source's shape order, target part labels, openings, part plan, moved parts)."""
     from shapespace.core import authoring
-    from shapespace.core.authoring import parts
+    from shapespace.core.authoring import contacts, parts
     S, ST, SD, SN = src
     T, TT, TD, TN = dst
     s_part, _ = authoring.triangle_parts(S.shape[0], ST)
     t_part, _ = authoring.triangle_parts(T.shape[0], TT)
     lm = authoring.landmarks_from_shared_shapes(S, SD, SN, T, TD, TN, src_mask=s_part == 0, dst_mask=t_part == 0)
     reg = authoring.register(S, ST, T, TT, lm.value)
-    openings = _openings(src_tag, S, ST, dst_tag, T, TT)
+    openings = contacts.with_references(_openings(src_tag, S, ST, dst_tag, T, TT), S, SD, SN)
     tr = authoring.Transfer(S, ST, T, TT, reg.value, openings=openings)
     DT = tr.solve(SD)
     plan = parts.plan_for_transfer(S, ST, SD, SN, T, TT, DT, reg.value.part_map)

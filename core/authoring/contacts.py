@@ -24,18 +24,20 @@ Lips that touch at rest have no gap to take a fraction of: such an opening (mode
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
 from ..errors import ErrorCode
+from ..names import canonical_name
 from ..result import ShapeSpaceError
 from .named import contour_paths
 
 __all__ = ["Opening", "SHUT", "OPENINGS", "facing_pairs", "opening", "openings_from_named", "constraint_matrix",
-           "closures", "gap_changes", "carried", "gap_fractions", "gap_left"]
+           "closures", "gap_changes", "carried", "gap_fractions", "gap_left", "with_references", "CLOSING",
+           "REFERENCE_MIN"]
 
 
 @dataclass
@@ -59,6 +61,9 @@ class Opening:
     scale : float
         Target contour length over the source's (the feature's size ratio: a smile on a small mouth moves
         its corners in proportion).
+    reference : ndarray (m_s,), optional
+        The source's closure of each of its pairs in the shape that closes the opening by definition
+        (``eyeBlinkLeft`` for ``eye_L``; :func:`with_references`): closures are measured against it.
     """
 
     name: str
@@ -68,6 +73,7 @@ class Opening:
     target_t: np.ndarray
     mode: str = "ratio"
     scale: float = 1.0
+    reference: np.ndarray | None = None     # (m_s,) the source's closure in its own full-closing shape
 
 
 def _arc(verts, path):
@@ -113,6 +119,14 @@ def _length(verts, path):
     return float(np.linalg.norm(np.diff(verts[np.asarray(path)], axis=0), axis=1).sum())
 
 
+def _spread(t):
+    """Arc-length parameters stretched over [0, 1]: two contours may share their first or last edges (the
+    pairs there coincide and are left out), and the opening proper is what lies between; ICT FaceKit's named
+    lid contours share their first third."""
+    span = float(t.max() - t.min()) if t.size else 0.0
+    return (t - t.min()) / span if span > 0 else np.zeros_like(t)
+
+
 def opening(name: str, src_verts: ArrayLike, src_upper: Sequence[int], src_lower: Sequence[int],
             dst_verts: ArrayLike, dst_upper: Sequence[int], dst_lower: Sequence[int]) -> Opening:
     """An :class:`Opening` from the two heads' contour paths (same corner first on both heads); ``offset``
@@ -122,6 +136,7 @@ def opening(name: str, src_verts: ArrayLike, src_upper: Sequence[int], src_lower
     tp, tt = facing_pairs(T, dst_upper, dst_lower)
     if sp_.shape[0] == 0 or tp.shape[0] == 0:
         raise ShapeSpaceError(f"opening {name}: the upper and lower contours coincide", ErrorCode.DEGENERATE)
+    st, tt = _spread(st), _spread(tt)
     ls, lt = _length(S, src_upper), _length(T, dst_upper)
     shut = any(np.median(np.linalg.norm(V[p[:, 0]] - V[p[:, 1]], axis=1)) < SHUT * length
                for V, p, length in ((S, sp_, ls), (T, tp, lt)))
@@ -160,19 +175,51 @@ def closures(openings: Sequence[Opening], src_verts: np.ndarray, src_deltas: np.
         G = src_verts[u] - src_verts[lo]                                   # (m_s, 3)
         G2 = G[None] + src_deltas[:, u] - src_deltas[:, lo]                # (k, m_s, 3)
         c = 1.0 - np.einsum("kmi,mi->km", G2, G) / np.maximum(np.sum(G * G, axis=1), 1e-300)
+        if o.reference is not None:                       # against the source's own full closure, within ±1
+            c = np.clip(c / np.where(o.reference >= REFERENCE_MIN, o.reference, 1.0), -1.0, 1.0)
         out.append(np.stack([np.interp(o.target_t, o.source_t, ck) for ck in c]) if c.shape[0] else
                    np.zeros((0, o.target_t.size)))
     return np.concatenate(out, axis=1) if out else np.zeros((src_deltas.shape[0], 0))
 
 
+#: A source pair whose closure in the full-closing shape is below this is not normalised by it (a corner
+#: that does not move); normalised closures are clipped to ±1.
+REFERENCE_MIN = 0.02
+#: The shape that closes each opening by definition (ARKit: the eye is shut at eyeBlink = 1).
+CLOSING = {"eye_L": "eyeBlinkLeft", "eye_R": "eyeBlinkRight"}
+
+
+def with_references(openings: Sequence[Opening], src_verts: np.ndarray, src_deltas: np.ndarray,
+                    names: Sequence[str]) -> list:
+    """The openings with their :attr:`Opening.reference` set from the source's closing shape (:data:`CLOSING`,
+    by canonical name).  The source's lid contours are where an artist (or the proposal) put them, which need
+    not be exactly where its lids meet: ICT FaceKit's own blink shuts its named lid contours to a third of the
+    gap only.  Measured against its own blink, a source's closures mean "shut" where its blink shuts, and a
+    target closes over its own gap as far as the source's eye closes.  Measured with the shared heads' named
+    contours (blink gap left, widest over widest open): ICT FaceKit → FBHead 0.73 → 0.015, FBHead → Ready
+    Player Me 0.27 → 0.021, Ready Player Me → Face Cap 0.25 → 0.005, the joint relative error unchanged."""
+    canon = [canonical_name(n) for n in names]
+    out = []
+    for o in openings:
+        name = CLOSING.get(o.name)
+        if name is None or name not in canon:
+            out.append(o)
+            continue
+        ref = closures([replace(o, reference=None, target_t=o.source_t)], src_verts,
+                       src_deltas[canon.index(name)][None])[0]
+        out.append(replace(o, reference=ref))
+    return out
+
+
 def gap_changes(openings: Sequence[Opening], src_verts: np.ndarray, src_deltas: np.ndarray,
                 dst_verts: np.ndarray) -> np.ndarray:
-    """The change ``d_u − d_l = −c · (u − l)`` every target pair of the (``ratio``) openings must make, per
-    shape: (k, m, 3), with the source's closure ``c`` at the pair's arc length (:func:`closures`)."""
+    """The change ``d_u − d_l = −min(c, 1) · (u − l)`` every target pair of the (``ratio``) openings must make,
+    per shape: (k, m, 3), with the source's closure ``c`` at the pair's arc length (:func:`closures`).  A source
+    whose lids pass each other (``c > 1``: Face Cap's blink) makes the target's meet, not cross."""
     out = []
     for o in openings:
         G_t = dst_verts[o.target_pairs[:, 0]] - dst_verts[o.target_pairs[:, 1]]
-        out.append(-closures([o], src_verts, src_deltas)[:, :, None] * G_t[None])
+        out.append(-np.minimum(closures([o], src_verts, src_deltas), 1.0)[:, :, None] * G_t[None])
     return np.concatenate(out, axis=1) if out else np.zeros((src_deltas.shape[0], 0, 3))
 
 

@@ -228,3 +228,28 @@ def test_lips_check_fails_when_the_target_opens_lips_the_source_keeps_shut():
     assert keys[0]["lips_meet"] and not keys[0]["failed"]
     assert not keys[1]["lips_meet"] and keys[1]["failed"] == ["lips"] and status == Status.WARNING
     assert "mouthFunnel: leaves the lips apart" in issues[0].message
+
+
+def test_a_source_whose_lids_cross_makes_the_targets_meet_not_cross():
+    V = np.array([[0, 1, 0], [1, 1, 0], [2, 1, 0], [0, 0, 0], [1, 0, 0], [2, 0, 0]], float)
+    pairs, t = contacts.facing_pairs(V, [0, 1, 2], [3, 4, 5])
+    o = contacts.Opening("eye_L", pairs, t, pairs, t)
+    D = np.zeros((1, 6, 3))
+    D[0, [0, 1, 2], 1] = -1.3                                # the source's upper lid passes the lower by 30 %
+    assert np.allclose(contacts.closures([o], V, D), 1.3)
+    assert np.allclose(contacts.gap_changes([o], V, D, V)[0], [[0, -1, 0]] * 3)
+
+
+def test_closures_are_measured_against_the_sources_own_blink():
+    """A source whose blink shuts its lid contour to a third of the gap only (the contour sits off where its
+    lids meet): against that blink, the blink is a full closure and a half-way shape two thirds of it."""
+    V = np.array([[0, 1, 0], [1, 1, 0], [2, 1, 0], [0, 0, 0], [1, 0, 0], [2, 0, 0]], float)
+    pairs, t = contacts.facing_pairs(V, [0, 1, 2], [3, 4, 5])
+    o = contacts.Opening("eye_L", pairs, t, pairs, t)
+    D = np.zeros((2, 6, 3))
+    D[0, [0, 1, 2], 1] = -2.0 / 3.0                          # eyeBlinkLeft: a third of the gap left
+    D[1, [0, 1, 2], 1] = -1.0 / 3.0
+    (ref,) = contacts.with_references([o], V, D, ["eyeBlink_L", "eyeSquint_L"])
+    assert np.allclose(ref.reference, 2.0 / 3.0)
+    assert np.allclose(contacts.closures([ref], V, D), [[1.0] * 3, [0.5] * 3])
+    assert contacts.with_references([o], V, D, ["jawOpen", "eyeSquint_L"])[0].reference is None
