@@ -70,7 +70,7 @@ LAST_PROP = "shapespace_last_retarget"
 REPORT_KEYS = ("source", "method", "frames", "mapped_channels", "position_error_mm", "velocity_error_mm",
                "position_error_rms", "velocity_error_rms", "clipping_frames", "clipped_frames", "frame_range",
                "scene_range_extended", "scene_range_before", "keys_kept_frac", "converged", "action",
-               "previous_action", "previous_fake_user")
+               "previous_action", "previous_fake_user", "bones", "bones_action", "armature", "armature_previous")
 LAST_SCHEMA = Schema(
     "last retarget result", 1,
     fields={"source": "string", "method": "string", "frames": "int", "position_error_rms": "number?",
@@ -79,7 +79,8 @@ LAST_SCHEMA = Schema(
     optional={"mapped_channels": "int", "keys_kept_frac": "number?", "converged": "bool",
               "position_error_mm": "number?", "velocity_error_mm": "number?",
               "previous_fake_user": "bool", "clipped_frames": "list", "frame_range": "list",
-              "scene_range_extended": "bool", "scene_range_before": "list"})
+              "scene_range_extended": "bool", "scene_range_before": "list", "bones": "list",
+              "bones_action": "string", "armature": "string", "armature_previous": "list"})
 
 LANDMARK_PREFIX = "lm_"
 STABLE_GROUP = "stable"
@@ -645,6 +646,10 @@ def _write_result(obj, curves, action_name, report, scene, extend_scene_range: b
         _write_plan(key, curves)
         if bone_plan:
             bones_action = _write_bones(arm, action, bone_plan, report)
+            report.armature = arm.name
+            report.armature_previous = [arm_before[0].name if arm_before[0] is not None else "",
+                                        getattr(arm_before[1], "identifier", "") or "",
+                                        bool(arm_before[0].use_fake_user) if arm_before[0] is not None else False]
         report.action = action.name
         report.previous_action = previous.name if previous is not None else ""
         report.previous_fake_user = previous_fake
@@ -765,6 +770,7 @@ def discard_last(obj, scene=None) -> str:
     if rep.previous_action and previous is None:
         raise ShapeSpaceError(f"the action {rep.previous_action!r} that {rep.action!r} replaced is no longer in "
                               "the file: nothing was discarded (the result is kept)", ErrorCode.NO_ACTION)
+    arm_plan = _armature_discard_plan(rep)
     if previous is not None:
         actions.assign_action(key, previous)
         if rep.previous_fake_user is not None:
@@ -773,9 +779,51 @@ def discard_last(obj, scene=None) -> str:
         key.animation_data.action = None
     if made is not None and made != previous and made.users - int(made.use_fake_user) == 0:
         bpy.data.actions.remove(made)
+    if arm_plan is not None:
+        _discard_bones(*arm_plan)
     _restore_scene_range(rep, scene or bpy.context.scene)
     del key[LAST_PROP]
     return previous.name if previous is not None else ""
+
+
+def _armature_discard_plan(rep: RetargetReport):
+    """What Discard Result gives the armature back, checked before anything changes: ``(armature, bones
+    action, previous action or None, previous slot identifier, previous fake user)``; None when no bones were
+    keyed (or the armature is gone).  Refused when the armature no longer plays the result's bones or the
+    action it played before is gone."""
+    if not rep.armature or not rep.bones_action or not rep.armature_previous:
+        return None
+    arm = bpy.data.objects.get(rep.armature)
+    if arm is None:
+        return None
+    bones_action = bpy.data.actions.get(rep.bones_action)
+    playing = arm.animation_data.action if arm.animation_data is not None else None
+    if playing is not None and playing != bones_action:
+        raise ShapeSpaceError(f"the armature {arm.name!r} plays {playing.name!r}, not the retarget's bone keys "
+                              f"{rep.bones_action!r}: nothing was discarded", ErrorCode.NO_RESULT)
+    name, slot, fake = rep.armature_previous
+    previous = bpy.data.actions.get(name) if name else None
+    if name and previous is None:
+        raise ShapeSpaceError(f"the action {name!r} the armature {arm.name!r} played before is no longer in the "
+                              "file: nothing was discarded (the result is kept)", ErrorCode.NO_ACTION)
+    return arm, bones_action, previous, slot, fake
+
+
+def _discard_bones(arm, bones_action, previous, slot: str, fake: bool) -> None:
+    """Give the armature back what it played (action, slot, fake-user flag); delete a bones action nothing
+    else uses (on 4.2 the bones have an action of their own)."""
+    if previous is not None:
+        actions.assign_action(arm, previous)
+        ad = arm.animation_data
+        if slot and hasattr(ad, "action_slot"):
+            match = next((sl for sl in previous.slots if sl.identifier == slot), None)
+            if match is not None:
+                ad.action_slot = match
+        previous.use_fake_user = bool(fake)
+    elif arm.animation_data is not None:
+        arm.animation_data.action = None
+    if bones_action is not None and bones_action.users - int(bones_action.use_fake_user) == 0:
+        bpy.data.actions.remove(bones_action)
 
 
 # ------------------------------------------------------------------ channel-mapping overrides (stored on the Key)

@@ -134,6 +134,11 @@ class RetargetReport(Report):
         Head / neck / eye bones keyed from the source's head and eye channels.
     bones_action : str or None
         The action holding the bone curves (the result action on Blender 4.4+, a second one on 4.2).
+    armature : str or None
+        The armature whose bones were keyed.
+    armature_previous : list or None
+        What it played before: ``[action name ('' for none), slot identifier ('' for none), had a fake user]``
+        (*Discard Result* gives it back).
     previous_fake_user : bool or None
         Whether that action had a fake user before the retarget gave it one (``None``: no previous action,
         or a report written by ShapeSpace 0.1.0).
@@ -161,6 +166,8 @@ class RetargetReport(Report):
     keys_kept_frac: float | None = None
     bones: list | None = None
     bones_action: str | None = None
+    armature: str | None = None
+    armature_previous: list | None = None
     action: str = ""
     previous_action: str = ""
     previous_fake_user: bool | None = None

@@ -220,3 +220,27 @@ def test_calibration_rest_frame_becomes_the_rest_pose(scene_with_take):
     expected = face_rotation(ypr(rest)).transposed() @ face_rotation(ypr(frame))    # C R₀ᵀ R Cᵀ
     got = delta(arm, "head")
     assert max(abs(a - b) for ra, rb in zip(got, expected) for a, b in zip(ra, rb)) < 1e-4
+
+
+def test_discard_result_gives_the_armature_back_what_it_played(scene_with_take):
+    """Discard Result after a retarget that keyed the bones: the armature plays its own action again (with its
+    fake-user flag as it was), the bone keys are gone from the file, and a poll of Blender's evaluation shows
+    the bones back in that action's pose; refused, changing nothing, when the armature plays something else."""
+    ob, arm, path, _ = scene_with_take
+    own = bpy.data.actions.new("ArmOwn")
+    actions.assign_action(arm, own)
+    actions.write_curve(arm, 'pose.bones["head"].rotation_quaternion', np.array([1.0, 2.0]),
+                        np.array([0.9, 0.8]), index=0, group="head")
+    rep = retarget.retarget(ob, path, "copy", bones=bones_setting())
+    assert arm.animation_data.action.name == rep.bones_action != "ArmOwn"
+    other = bpy.data.actions.new("Elsewhere")
+    arm.animation_data.action = other
+    with pytest.raises(ShapeSpaceError, match="plays 'Elsewhere', not the retarget's bone keys"):
+        retarget.discard_last(ob)
+    assert retarget.has_result(ob) and ob.data.shape_keys.animation_data.action.name == rep.action
+    arm.animation_data.action = bpy.data.actions[rep.bones_action]
+    retarget.discard_last(ob)
+    assert arm.animation_data.action == own and not own.use_fake_user
+    assert rep.bones_action not in bpy.data.actions and rep.action not in bpy.data.actions
+    bpy.context.scene.frame_set(1)
+    assert abs(arm.pose.bones["head"].rotation_quaternion[0] - 0.9) < 1e-6
