@@ -474,22 +474,30 @@ def _fill_and_check(t: np.ndarray, w: np.ndarray, names: list, lines: np.ndarray
     """Fill NaN cells in ``w`` (in place) from the neighbouring frames; issues for the fills, channels
     leaving ``[0, 1]`` (the first ``n_weights`` columns: the others are angles) and timecode gaps."""
     issues = []
+    n_weights = w.shape[1] if n_weights is None else n_weights
     bad = ~np.isfinite(w)
     if bad.any():
-        empty = np.flatnonzero(bad.all(axis=0))
-        if empty.size:                       # nothing recorded for a channel: refuse, naming them all
+        silent = np.flatnonzero(bad[:, n_weights:].all(axis=0)) + n_weights
+        if silent.size:                      # a head / eye angle never recorded: the pose at rest
+            w[:, silent] = 0.0
+            bad[:, silent] = False
+            issues.append(Issue("warning", "rotations_missing", f"{', '.join(names[j] for j in silent)} "
+                                "recorded no value: left at rest", tuple(names[j] for j in silent)))
+        empty = np.flatnonzero(bad[:, :n_weights].all(axis=0))
+        if empty.size:                       # nothing recorded for a weight channel: refuse, naming them all
             listed = ", ".join(repr(names[j]) for j in empty[:4]) + (" …" if empty.size > 4 else "")
-            recorded = w.shape[1] - empty.size
+            recorded = n_weights - empty.size
             raise ShapeSpaceError(
-                f"{'channel' if empty.size == 1 else f'{empty.size} of {w.shape[1]} channels'} {listed} "
+                f"{'channel' if empty.size == 1 else f'{empty.size} of {n_weights} channels'} {listed} "
                 f"{'has' if empty.size == 1 else 'have'} no valid value in {w.shape[0]} rows (NaN or empty)"
                 + (f"; only {recorded} channel{'s' if recorded != 1 else ''} recorded: did the capture lose "
                    "tracking?" if recorded < empty.size else ""), ErrorCode.NON_FINITE)
         for j in np.flatnonzero(bad.any(axis=0)):
             ok = ~bad[:, j]
             w[~ok, j] = np.interp(t[~ok], t[ok], w[ok, j])
-        issues.append(Issue("warning", "filled_nan", f"filled {int(bad.sum())} missing or NaN values from "
-                            "neighbouring frames"))
+        if bad.any():
+            issues.append(Issue("warning", "filled_nan", f"filled {int(bad.sum())} missing or NaN values from "
+                                "neighbouring frames"))
     ww = w[:, :n_weights]
     outside = np.flatnonzero(((ww < -WEIGHT_SLACK) | (ww > 1.0 + WEIGHT_SLACK)).any(axis=0))
     if outside.size:
