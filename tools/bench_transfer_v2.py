@@ -7,7 +7,8 @@ each in world space, keys of one name on several objects joined.  Per pair ``<sr
 - ``transfer_rel_energy_<pair>``: ‖ΔT − ΔA‖ / ‖ΔA‖ jointly over every key the target authored (peak at least
   5 % of its largest) and all its vertices; ``transfer_rel_median_<pair>`` the per-key median;
 - ``transfer_parts_moved_frac_<pair>``: the share of the target's authored motion on its parts (every
-  connected part but the skin) that the transfer reproduces, ``max(0, 1 − ‖ΔT − ΔA‖ / ‖ΔA‖)`` on the parts;
+  connected part but the skin) that the transfer reproduces, ``max(0, 1 − ‖ΔT − ΔA‖ / ‖ΔA‖)`` on the parts
+  (``None`` for a target without authored part motion: FBHead is one surface);
 - ``transfer_blink_gap_frac_<pair>``: the lid gap left at eyeBlink weight 1 as a fraction of the target's open
   gap (widest remaining over widest open, ``core.authoring.contacts.gap_left``), the worse of L and R
   (``transfer_blink_gap_frac_authored_<head>``: the target's own authored blink);
@@ -91,9 +92,10 @@ def _scores(T, TD, TN, DT, SN, t_part, openings):
     X = np.stack([DT[idx[TN[j]]] for j in keep])
     per = np.linalg.norm((X - A).reshape(len(keep), -1), axis=1) / np.linalg.norm(A.reshape(len(keep), -1), axis=1)
     on = t_part != 0
-    parts_frac = max(0.0, 1.0 - np.linalg.norm(X[:, on] - A[:, on]) / max(np.linalg.norm(A[:, on]), 1e-300))
+    authored = np.linalg.norm(A[:, on])
+    parts_frac = max(0.0, 1.0 - np.linalg.norm(X[:, on] - A[:, on]) / authored) if authored > 0 else None
     out = {"transfer_rel_energy": float(np.linalg.norm(X - A) / np.linalg.norm(A)),
-           "transfer_rel_median": float(np.median(per)), "transfer_parts_moved_frac": float(parts_frac)}
+           "transfer_rel_median": float(np.median(per)), "transfer_parts_moved_frac": parts_frac}
     gaps, gaps_a, cross = [], [], 0
     for o in (o for o in openings if o.name.startswith("eye")):
         name = "eyeBlink" + {"L": "Left", "R": "Right"}[o.name[-1]]
@@ -153,6 +155,6 @@ def run(quick: bool = False) -> dict:
             out.update({f"{k}_{s}_{d}": v for k, v in m.items()})
             out[f"transfer_blink_gap_frac_authored_{d}"] = authored
             print(f"bench transfer v2: {s} -> {d}: rel energy {m['transfer_rel_energy']:.3f} median "
-                  f"{m['transfer_rel_median']:.3f} parts {m['transfer_parts_moved_frac']:.2f} blink gap "
+                  f"{m['transfer_rel_median']:.3f} parts {m['transfer_parts_moved_frac']} blink gap "
                   f"{m['transfer_blink_gap_frac']} {m['transfer_s']:.1f} s", file=sys.stderr)
     return out
