@@ -49,33 +49,11 @@ import numpy as np
 import bench_examples
 import bench_landmarks
 import bench_transfer_v2
-from bench_support import ASSETS, shared_data
+from bench_support import ASSETS
 
-HEADS = {
-    "facecap": ("facecap/facecap_decoded.glb", "Mesh_2"),
-    "fbhead": ("llf_fbhead/Live_Link_Face.blend", "FBHead"),
-    "ict": ("ict_facekit/ict_facekit_expressions.glb", "ICTFace"),
-}
+HEADS = ("facecap", "fbhead", "ict")                # the v1 suite's heads (read by bench_landmarks.read_head)
 PAIRS = (("ict", "fbhead"), ("ict", "facecap"), ("facecap", "fbhead"), ("fbhead", "facecap"),
          ("facecap", "ict"), ("fbhead", "ict"))
-
-
-def _read_head(tag):
-    """(neutral (n, 3), triangles (f, 3), deltas (k, n, 3), names) of a shared head, read through Blender."""
-    import bpy
-    from shapespace.bridge import assets, shapekeys
-    rel, name = HEADS[tag]
-    path = shared_data(rel, f"the {tag} head")
-    if path is None:
-        return None
-    assets.load(path)
-    ob = bpy.data.objects[name]
-    me = ob.data
-    me.calc_loop_triangles()
-    tris = np.empty(len(me.loop_triangles) * 3, dtype=np.int32)
-    me.loop_triangles.foreach_get("vertices", tris)
-    model = shapekeys.read_blendshape_model(ob)
-    return model.neutral, tris.reshape(-1, 3).astype(np.int64), model.deltas, list(model.names)
 
 
 def _scores(SN, TN, TD, deltas, empty, mm):
@@ -171,7 +149,7 @@ def run(quick: bool = False) -> dict:
     """All metrics (``quick`` computes the same ones: the suite has no repetitions to cut)."""
     import package
     package.load()
-    heads = {tag: _read_head(tag) for tag in HEADS}
+    heads = {tag: bench_landmarks.read_head(tag) for tag in HEADS}
     out = {}
     fb_transferred = None
     for s, d in PAIRS:
