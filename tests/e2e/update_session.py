@@ -26,6 +26,7 @@ import bpy  # noqa: E402
 
 MODULE = "bl_ext.studio.shapespace"
 seen = {"blender": bpy.app.version_string}
+KEPT = []          # every module object seen stays alive, so a new one can never reuse an old one's id()
 
 
 def state(tag):
@@ -39,6 +40,7 @@ def state(tag):
             seen[tag + "_manifest"] = tomllib.load(fh)["version"]
     seen[tag + "_module_version"] = ext.core.version.version() if ext is not None else None
     seen[tag + "_module_file"] = getattr(ext, "__file__", None)
+    KEPT.append(ext)
     seen[tag + "_module_id"] = id(ext) if ext is not None else None       # a new object once reloaded
     seen[tag + "_operator"] = hasattr(bpy.types, "SHAPESPACE_OT_check_rig")
     buf = io.StringIO()
