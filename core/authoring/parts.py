@@ -49,6 +49,7 @@ from ..errors import ErrorCode
 from ..names import canonical_name
 from ..result import ShapeSpaceError
 from .mesh import bbox_diagonal, closest_on_triangles, inv3, symmetry_plane, triangle_parts
+from .transfer import frames
 
 __all__ = ["KINDS", "UNSURE", "EYE_LOOK_DEGREES", "PartPlan", "propose_parts", "plan_for_transfer", "move_parts",
            "jaw_membership",
@@ -309,19 +310,6 @@ def _eye_likeness(V, frame, idx, diag):
     return float(np.clip(max(on_hull, 1.0 - res / EYE_RESIDUAL), 0.3, 1.0))
 
 
-def _lr_axis(V, lab):
-    """Index of the coordinate axis with the largest spread of the skin (left–right on the shared heads is
-    not assumed: the axis whose mirror is best is used)."""
-    S = V[lab == 0] if np.any(lab == 0) else V
-    c = S.mean(axis=0)
-    errs = []
-    for a in range(3):
-        M = S.copy()
-        M[:, a] = 2 * c[a] - M[:, a]
-        errs.append(np.mean(np.abs(np.sort(M[:, a]) - np.sort(S[:, a]))) / max(np.ptp(S[:, a]), 1e-300))
-    return int(np.argmin(errs))
-
-
 def _inverse_frames(F0):
     """``F0⁻¹`` (f, 3, 3), identity where a frame is singular (a degenerate triangle turns with nothing)."""
     inv, det = inv3(F0)
@@ -335,13 +323,6 @@ def _rotations(F0inv, F1):
     d = np.sign(np.linalg.det(U @ Vt))
     U[:, :, 2] *= d[:, None]
     return U @ Vt
-
-
-def _frames(V, T):
-    a, b, c = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
-    n = np.cross(b - a, c - a)
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.stack([b - a, c - a, n / np.where(ln > 0, np.sqrt(ln), 1.0)], axis=-1)
 
 
 def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.ndarray, names: Sequence[str],
@@ -418,13 +399,13 @@ def _follow(V, skin, idx, deltas, jaw, jaw_motion):
     share = np.sum(bary * jaw[ST[tri]], axis=1)
     used = ST[tri]                                                      # (m, 3) skin vertices
     uniq, inv = np.unique(tri, return_inverse=True)
-    F0inv = _inverse_frames(_frames(V, ST[uniq]))
+    F0inv = _inverse_frames(frames(V, ST[uniq]))
     off = V[idx] - point
     R, t = jaw_motion
     out = np.empty((deltas.shape[0], idx.size, 3))
     for s in range(deltas.shape[0]):
         d = deltas[s]
-        rot = _rotations(F0inv, _frames(V + d, ST[uniq]))[inv]           # (m, 3, 3)
+        rot = _rotations(F0inv, frames(V + d, ST[uniq]))[inv]           # (m, 3, 3)
         bound = np.einsum("mj,mjc->mc", bary, d[used]) + np.einsum("mij,mj->mi", rot, off) - off
         rigid = (V[idx] @ R[s].T + t[s] - V[idx]) * share[:, None]
         out[s] = w[:, None] * bound + (1.0 - w[:, None]) * rigid
