@@ -37,7 +37,7 @@ import numpy as np
 from .errors import ErrorCode
 
 __all__ = ["ErrorCode", "Issue", "Report", "Result", "STATUS_MESSAGES", "ShapeSpaceError", "Status",
-           "to_jsonable"]
+           "exit_code", "to_jsonable"]
 
 
 class Status(enum.IntEnum):
@@ -169,14 +169,54 @@ def to_jsonable(obj: Any) -> Any:
 
 @dataclass
 class Report:
-    """Base of the typed reports the command line prints and the panels show.
+    """Base of every report the command line prints and the panels show (one contract for all capabilities).
 
-    Subclasses are plain dataclasses; :meth:`to_json` gives the JSON-ready dict
-    (NaN → ``null``), so every report is serialised the same way.
+    Each capability owns its report type in core, a dataclass deriving from this one. Every report carries
+
+    - ``status`` — a :class:`Status`, with the same meaning as in :class:`Result`;
+    - ``issues`` — findings (:class:`Issue`), most severe first; an ``error`` issue is a refused quality check
+      (the data was written, but it failed a check the user must look at);
+    - :meth:`to_json` — the JSON-ready dict (NaN → ``null``, ``status`` as its lower-case name: ``"ok"``,
+      ``"warning"``, ``"not_converged"``, ``"failed"``);
+    - :meth:`exit_code` — the one command-line exit rule.
+
+    Command-line exit rule (every subcommand)::
+
+        0  every report OK or WARNING, and no error issue
+        1  any report FAILED or NOT_CONVERGED, or any error issue (a refused quality check)
+        2  usage (bad arguments; raised before any report exists)
     """
 
+    _: KW_ONLY
+    status: Status = Status.OK
+    issues: list = field(default_factory=list)
+
+    def __post_init__(self):
+        if isinstance(self.status, int):
+            self.status = Status(int(self.status))
+
     def to_json(self) -> dict:
-        return to_jsonable(self)
+        out = to_jsonable(self)
+        if isinstance(self.status, Status):
+            out["status"] = self.status.name.lower()
+        return out
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+    def error_issues(self) -> list:
+        """The issues of severity ``error`` (refused quality checks)."""
+        return [i for i in self.issues if getattr(i, "severity", None) == "error"]
+
+    def exit_code(self) -> int:
+        """The command-line exit code this report asks for (see the class docstring)."""
+        if self.status in (Status.FAILED, Status.NOT_CONVERGED) or self.error_issues():
+            return 1
+        return 0
+
+
+def exit_code(reports) -> int:
+    """The exit code of a command that produced ``reports`` (one or many): the worst of theirs."""
+    if isinstance(reports, Report):
+        reports = [reports]
+    return max((r.exit_code() for r in reports), default=0)
