@@ -145,6 +145,41 @@ def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.n
         the bounds.
     """
     tol, max_iter = _stopping(tol, max_iter)
+    a, V, s, g, lo, hi = _checked_problem(a, V, s, g, lo, hi)
+    n = g.shape[0]
+    x = np.clip(np.zeros(n) if x0 is None else _vector(x0, "x0", n), lo, hi)
+    prob = _BoxQP(a, V, s, g, lo, hi)
+    scale = max(1.0, float(np.abs(g).max(initial=0.0)))
+    vx = V.T @ x
+    f = prob.value(x, vx)
+    for it in range(1, max_iter + 1):
+        grad = a * x + V @ (s * vx) - g
+        res = prob.residual(x, grad)
+        if res <= tol * scale:
+            return BoxQPResult(x, iterations=it - 1, status=Status.OK, residual=res, message="converged")
+        active = prob.active_set(x, grad, min(1e-3, res))
+        d = prob.direction(grad, active)
+        xt, vxt, ft = prob.line_search(x, f, grad, d, active)
+        if f - ft <= 4 * np.finfo(float).eps * max(abs(f), 1e-300):
+            # no measurable decrease of f (its rounding hides the last digits of an ill-conditioned problem):
+            # keep going while the step still lowers the natural residual, which the rounding of f does not hide
+            x1 = np.clip(x + d, lo, hi)                                # the full step
+            vx1 = V.T @ x1
+            if prob.residual(x1, a * x1 + V @ (s * vx1) - g) < 0.5 * res:
+                x, vx = x1, vx1
+                f = prob.value(x, vx)
+                continue
+            return prob.stalled(x, xt, f, ft, grad, active, it, res, tol, scale)
+        x, f, vx = xt, ft, vxt
+    grad = _hess_apply(a, V, s, x) - g
+    res = prob.residual(x, grad)
+    status = Status.OK if res <= tol * scale else Status.NOT_CONVERGED
+    return BoxQPResult(x, iterations=max_iter, status=status, residual=res,
+                       message="converged" if status == Status.OK else "iteration limit reached")
+
+
+def _checked_problem(a, V, s, g, lo, hi) -> tuple:
+    """The problem data of :func:`solve_box_qp`, validated: ``(a, V (n, r), s (r,), g (n,), lo, hi)``."""
     g = array(g, "g", ndim=1)
     n = g.shape[0]
     V = array(V, "V", ndim=(1, 2))
@@ -159,78 +194,80 @@ def solve_box_qp(a: float, V: np.ndarray, s: np.ndarray, g: np.ndarray, lo: np.n
         raise ShapeSpaceError(f"V has {V.shape[1]} columns but s has {s.shape[0]} entries", ErrorCode.SHAPE)
     if np.any(s == 0):
         raise ShapeSpaceError("s must have no zero entries (drop those columns of V)", ErrorCode.RANGE)
-    x = np.clip(np.zeros(n) if x0 is None else _vector(x0, "x0", n), lo, hi)
-    scale = max(1.0, float(np.abs(g).max(initial=0.0)))
-    sigma = 1e-4
-    dense = V.shape[1] >= n             # low rank buys nothing: solve the free block directly
-    H = a * np.eye(n) + (V * s) @ V.T if dense else None
-    gram = None if dense else V.T @ V   # r × r, reused for every free-set solve
-    positive_s = bool(np.all(s > 0))    # then the Woodbury inner matrix a S⁻¹ + VfᵀVf is positive definite
-    vx = V.T @ x
-    f = 0.5 * (a * (x @ x) + (s * vx) @ vx) - g @ x
-    for it in range(1, max_iter + 1):
-        grad = a * x + V @ (s * vx) - g
-        res = float(np.abs(x - np.clip(x - grad, lo, hi)).max(initial=0.0))
-        if res <= tol * scale:
-            return BoxQPResult(x, iterations=it - 1, status=Status.OK, residual=res, message="converged")
-        eps = min(1e-3, res)
-        active = ((x <= lo + eps) & (grad > 0)) | ((x >= hi - eps) & (grad < 0))
+    return a, V, s, g, lo, hi
+
+
+class _BoxQP:
+    """The steps of :func:`solve_box_qp` on one validated problem ``½ xᵀ(aI + V diag(s) Vᵀ)x − gᵀx``."""
+
+    sigma = 1e-4                        # Armijo constant of the projected line search
+
+    def __init__(self, a, V, s, g, lo, hi):
+        self.a, self.V, self.s, self.g, self.lo, self.hi = a, V, s, g, lo, hi
+        n = g.shape[0]
+        self.dense = V.shape[1] >= n            # low rank buys nothing: solve the free block directly
+        self.H = a * np.eye(n) + (V * s) @ V.T if self.dense else None
+        self.gram = None if self.dense else V.T @ V   # r × r, reused for every free-set solve
+        self.positive_s = bool(np.all(s > 0))   # then the Woodbury inner matrix a S⁻¹ + VfᵀVf is positive definite
+
+    def value(self, x, vx) -> float:
+        return 0.5 * (self.a * (x @ x) + (self.s * vx) @ vx) - self.g @ x
+
+    def residual(self, x, grad) -> float:
+        """The natural residual ``‖x − P(x − ∇f)‖∞``."""
+        return float(np.abs(x - np.clip(x - grad, self.lo, self.hi)).max(initial=0.0))
+
+    def active_set(self, x, grad, eps) -> np.ndarray:
+        return ((x <= self.lo + eps) & (grad > 0)) | ((x >= self.hi - eps) & (grad < 0))
+
+    def direction(self, grad, active) -> np.ndarray:
+        """Newton step on the free variables, scaled steepest descent on the held ones."""
+        a, V = self.a, self.V
         d = -grad / a
-        n_act = int(active.sum())
-        if n_act < n and dense:
+        if int(active.sum()) == grad.shape[0]:
+            return d
+        if self.dense:
             free_idx = np.flatnonzero(~active)
             d = d.copy()
-            d[free_idx] = -_spd_solve(H[np.ix_(free_idx, free_idx)], grad[free_idx])
-        elif n_act < n:
-            # Woodbury on the free block: (aI + Vf S Vfᵀ)⁻¹ q = (q − Vf (aS⁻¹ + VfᵀVf)⁻¹ Vfᵀ q) / a,
-            # with VfᵀVf = VᵀV − VaᵀVa (cheaper when few variables are bound).
-            Va = V[active]
-            inner = gram - Va.T @ Va
-            inner[np.diag_indices_from(inner)] += a / s
-            qf = np.where(active, 0.0, grad)
-            vq = V.T @ qf
-            d_free = -(qf - V @ (_spd_solve(inner, vq) if positive_s else np.linalg.solve(inner, vq))) / a
-            d = np.where(active, d, d_free)
+            d[free_idx] = -_spd_solve(self.H[np.ix_(free_idx, free_idx)], grad[free_idx])
+            return d
+        # Woodbury on the free block: (aI + Vf S Vfᵀ)⁻¹ q = (q − Vf (aS⁻¹ + VfᵀVf)⁻¹ Vfᵀ q) / a,
+        # with VfᵀVf = VᵀV − VaᵀVa (cheaper when few variables are bound).
+        Va = V[active]
+        inner = self.gram - Va.T @ Va
+        inner[np.diag_indices_from(inner)] += a / self.s
+        qf = np.where(active, 0.0, grad)
+        vq = V.T @ qf
+        d_free = -(qf - V @ (_spd_solve(inner, vq) if self.positive_s else np.linalg.solve(inner, vq))) / a
+        return np.where(active, d, d_free)
+
+    def line_search(self, x, f, grad, d, active) -> tuple:
+        """Projected backtracking (Armijo on the projected path): ``(x_t, Vᵀx_t, f(x_t))``."""
         free = ~active
         t = 1.0
         while True:
-            xt = np.clip(x + t * d, lo, hi)
-            vxt = V.T @ xt
-            ft = 0.5 * (a * (xt @ xt) + (s * vxt) @ vxt) - g @ xt
-            decrease = sigma * (-t * grad[free] @ d[free] + grad[active] @ (x[active] - xt[active]))
+            xt = np.clip(x + t * d, self.lo, self.hi)
+            vxt = self.V.T @ xt
+            ft = self.value(xt, vxt)
+            decrease = self.sigma * (-t * grad[free] @ d[free] + grad[active] @ (x[active] - xt[active]))
             if f - ft >= decrease or t < 1e-12:
-                break
+                return xt, vxt, ft
             t *= 0.5
-        if f - ft <= 4 * np.finfo(float).eps * max(abs(f), 1e-300):
-            # no measurable decrease of f (its rounding hides the last digits of an ill-conditioned problem):
-            # keep going while the step still lowers the natural residual, which the rounding of f does not hide
-            x1 = np.clip(x + d, lo, hi)                                # the full step
-            vx1 = V.T @ x1
-            grad_1 = a * x1 + V @ (s * vx1) - g
-            if float(np.abs(x1 - np.clip(x1 - grad_1, lo, hi)).max(initial=0.0)) < 0.5 * res:
-                x, vx = x1, vx1
-                f = 0.5 * (a * (x @ x) + (s * vx) @ vx) - g @ x
-                continue
-            # at the optimum to rounding, or stalled
-            if res <= 1e-8 * scale:
-                return BoxQPResult(x if ft > f else xt, iterations=it, status=Status.OK, residual=res,
-                                   message="converged (rounding limit)")
-            if dense:       # the ε-active set flips between two faces: settle the face by a primal–dual active set
-                xp, k = _pdas_dense(H, g, lo, hi, x, active & (grad > 0), active & (grad < 0))
-                if xp is not None:
-                    gp = H @ xp - g
-                    rp = float(np.abs(xp - np.clip(xp - gp, lo, hi)).max(initial=0.0))
-                    if rp <= max(tol, 1e-8) * scale:
-                        return BoxQPResult(xp, iterations=it + k, status=Status.OK, residual=rp,
-                                           message="converged (active set)")
-            return BoxQPResult(x, iterations=it, status=Status.NOT_CONVERGED, residual=res,
-                               message="stalled: no decrease possible")
-        x, f, vx = xt, ft, vxt
-    grad = _hess_apply(a, V, s, x) - g
-    res = float(np.abs(x - np.clip(x - grad, lo, hi)).max(initial=0.0))
-    status = Status.OK if res <= tol * scale else Status.NOT_CONVERGED
-    return BoxQPResult(x, iterations=max_iter, status=status, residual=res,
-                       message="converged" if status == Status.OK else "iteration limit reached")
+
+    def stalled(self, x, xt, f, ft, grad, active, it, res, tol, scale) -> BoxQPResult:
+        """No step lowers f or the residual: converged to rounding, settled by an active set, or stalled."""
+        if res <= 1e-8 * scale:
+            return BoxQPResult(x if ft > f else xt, iterations=it, status=Status.OK, residual=res,
+                               message="converged (rounding limit)")
+        if self.dense:      # the ε-active set flips between two faces: settle the face by a primal–dual active set
+            xp, k = _pdas_dense(self.H, self.g, self.lo, self.hi, x, active & (grad > 0), active & (grad < 0))
+            if xp is not None:
+                rp = self.residual(xp, self.H @ xp - self.g)
+                if rp <= max(tol, 1e-8) * scale:
+                    return BoxQPResult(xp, iterations=it + k, status=Status.OK, residual=rp,
+                                       message="converged (active set)")
+        return BoxQPResult(x, iterations=it, status=Status.NOT_CONVERGED, residual=res,
+                           message="stalled: no decrease possible")
 
 
 def _pdas_dense(H, g, lo, hi, x, lower, upper, max_iter=50):
