@@ -215,7 +215,7 @@ class Report:
         return 0
 
 
-def exit_code(reports) -> int:
+def exit_code(reports: Report | list) -> int:
     """The exit code of a command that produced ``reports`` (one or many): the worst of theirs."""
     if isinstance(reports, Report):
         reports = [reports]
