@@ -4,7 +4,8 @@ Each environment ``.venv/<name>`` is described by ``requirements/<name>.txt``, w
 Python it needs (``# python: 3.13``) and, optionally, which packages it must NOT have
 (``# without: scipy``):
 
-* ``core``           Python 3.11, numpy/scipy/pytest/ruff, no Blender: the core tier and the linter;
+* ``core``           Python 3.11, numpy/scipy/pytest/ruff/mkdocs, no Blender: the core tier, the linter and
+                     the strict documentation build;
 * ``bpy50``          Blender 5.0.1 (Python 3.11): the demo, the build and every test tier;
 * ``bpy42``/``bpy45`` Blender 4.2 LTS / 4.5 LTS (Python 3.11): the Blender tiers;
 * ``bpy52``          Blender 5.2 LTS (Python 3.13): the Blender tiers;

@@ -3,7 +3,9 @@
     python tools/run_tests.py [--env NAME ...] [extra pytest arguments]
 
 1. ``ruff check .`` (settings in pyproject.toml) in ``.venv/core``; lint errors fail the run.
-2. pytest, one run per line of ``RUNS``: the core tier on a plain Python without Blender, every tier on
+2. ``mkdocs build --strict`` (mkdocs.yml) in ``.venv/core`` into ``site/``: a broken link or anchor, a missing
+   page or a page left out of the navigation fails the run.
+3. pytest, one run per line of ``RUNS``: the core tier on a plain Python without Blender, every tier on
    Blender 5.0, the Blender tiers on 4.2 LTS, 4.5 LTS and 5.2 LTS (Python 3.13), and the
    installed-extension test once more on 5.2 LTS in a venv WITHOUT SciPy, so the SciPy wheel the
    extension bundles is what runs.
@@ -33,6 +35,7 @@ RUNS = (  # (environment, pytest paths, extra environment variables)
     ("bpy52-noscipy", ["tests/e2e/test_installed_extension.py"], {"SHAPESPACE_E2E_BUNDLED_SCIPY": "1"}),
 )
 LINT_ENV = "core"
+DOCS_ENV = "core"
 COUNT = re.compile(r"(\d+) (passed|failed|errors?|skipped|xfailed|xpassed|deselected)\b")
 
 
@@ -47,6 +50,16 @@ def lint() -> int:
         return 0
     m = re.search(r"Found (\d+) error", proc.stdout)
     return int(m[1]) if m else 1
+
+
+def docs() -> bool:
+    """Build the documentation site strictly (mkdocs.yml); True when it built without a warning."""
+    py = env.ensure(DOCS_ENV)
+    print("\n=== mkdocs build --strict ===", flush=True)
+    proc = subprocess.run([py, "-m", "mkdocs", "build", "--strict"], cwd=env.ROOT,
+                          capture_output=True, text=True)
+    sys.stdout.write(proc.stdout + proc.stderr)
+    return proc.returncode == 0
 
 
 def pytest_run(name: str, paths, extra_env: dict, argv) -> tuple[int, dict]:
@@ -88,6 +101,10 @@ def main(argv) -> int:
     timings.append(("ruff", time.monotonic() - t0))
     if lint_errors:
         failed.append(f"ruff ({lint_errors} errors)")
+    t0 = time.monotonic()
+    if not docs():
+        failed.append("docs (mkdocs build --strict)")
+    timings.append(("docs", time.monotonic() - t0))
     for name, paths, extra_env in RUNS:
         if only and name not in only:
             continue
