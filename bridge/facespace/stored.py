@@ -16,7 +16,7 @@ PRIOR_PROP = "shapespace_face_prior"
 ANALYSIS_PROP = "shapespace_analysis"
 #: What a converted copy is (Key custom property :data:`REPRESENTATION_PROP`): ``form`` "whole_face" (with
 #: ``convex`` and ``neutral_keys``, the keys sharing the neutral's weight; absent in files of 0.1.0: one key
-#: :data:`NEUTRAL_KEY`) or "pca" (with the source ``sliders`` and the slider map ``A`` (m, n), ``a`` (m,)).
+#: :data:`.conversions.NEUTRAL_KEY`) or "pca" (with the source ``sliders`` and the slider map ``A`` (m, n), ``a`` (m,)).
 REPRESENTATION_SCHEMA = Schema("face-space representation", version=1,
                                fields={"form": "string", "source": "string"},
                                optional={"convex": "bool", "neutral_keys": "list", "sliders": "list", "A": "list",
