@@ -78,9 +78,9 @@ class SHAPESPACE_PT_face_space(ShapeKeyPanel, bpy.types.Panel):
             try:
                 m = facespace.meter(ob)
                 col = box.column(align=True)
-                col.label(text=f"face norm {m['norm']:.2f} (typical ≈ {m['shell_radius']:.2f})")
-                col.label(text=f"percentile {100 * m['percentile']:.1f} % — {m['status'].replace('_', ' ')}",
-                          icon="CHECKMARK" if m["status"] == "typical" else "ERROR")
+                col.label(text=f"face norm {m.norm:.2f} (typical ≈ {m.shell_radius:.2f})")
+                col.label(text=f"percentile {100 * m.percentile:.1f} % — {m.plausibility.replace('_', ' ')}",
+                          icon="CHECKMARK" if m.plausibility == "typical" else "ERROR")
             except ShapeSpaceError as exc:   # a stale or damaged prior must not break the sidebar
                 box.label(text=str(exc), icon="ERROR")
             box.operator("shapespace.find_implausible_frames", icon="ZOOM_ALL")

@@ -304,13 +304,13 @@ def _facespace_demo(bpy, np, out_dir, size):
     scene.frame_set(21)
     paths.append(_render(bpy, os.path.join(out_dir, "inbetween_end.png")))
     grid = _grid(bpy, np, paths, os.path.join(out_dir, "inbetween_linear_vs_shell.png"), 4)
-    return {"mutual_coherence": analysis["mutual_coherence"], "empty_targets": analysis["empty_targets"],
-            "similar_pairs": analysis["similar_pairs"], "sparsity": analysis.get("sparsity_message"),
-            "compression": compression, "prior": prior, "implausible_frames": len(flagged),
+    return {"mutual_coherence": analysis.mutual_coherence, "empty_targets": analysis.empty_targets,
+            "similar_pairs": analysis.similar_pairs, "sparsity": analysis.sparsity_message,
+            "compression": compression.to_json(), "prior": prior.to_json(), "implausible_frames": len(flagged),
             "inbetween": {"frames": [int(frames[a]), int(frames[b])], "endpoint_norms":
                           [float(norms[a]), float(norms[b])], "mid_norm_linear": mid_norms["LINEAR"],
                           "mid_norm_shell": mid_norms["SHELL"], "shell_radius": g.shell_radius},
-            "renders": {"coherence": analysis["png"], "inbetween": grid}}
+            "renders": {"coherence": analysis.png, "inbetween": grid}}
 
 
 def run(out_dir: str, size: int = 512) -> dict:

@@ -7,7 +7,9 @@ J.P. Lewis, *Learning from the Artist*, 2016:
 - :mod:`.diagnostics` — empty targets, coherence and near-duplicates, sparsity (3.7.1, 3.7.6, Figs 3.12–3.15);
 - :mod:`.prior` — the face-space Gaussian and its plausibility meter (3.7.9, ch. 6);
 - :mod:`.shell` — linear and shell in-betweens (6.5);
-- :mod:`.inpainting` — covariance inpainting and superresolution of curves (9.3).
+- :mod:`.inpainting` — covariance inpainting and superresolution of curves (9.3);
+- :mod:`.job` — the pure middle step of each face-space verb of :mod:`bridge.facespace` (arrays in, report out);
+- :mod:`.report` — the reports those verbs return (:class:`core.result.Report`).
 """
 from .diagnostics import (coherence_image, coherence_matrix, empty_targets, mutual_coherence, similar_pairs,
                           sparsity_comparison)

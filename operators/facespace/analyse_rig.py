@@ -30,9 +30,9 @@ animation in blendshape vs PCA form (thesis 3.7)"""
             rep = attempt(self, facespace.analyse, ob, None, path, self.threshold, progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}
-        for name in rep["empty_targets"]:
+        for name in rep.empty_targets:
             self.report({"WARNING"}, f"{name} moves no vertex")
-        for a, b, c in rep["similar_pairs"]:
+        for a, b, c in rep.similar_pairs:
             self.report({"WARNING"}, f"{a} and {b} nearly duplicate each other (coherence {c:.3f})")
-        self.report({"INFO"}, f"mutual coherence {rep['mutual_coherence']:.3f}; image {rep['image']!r}")
+        self.report({"INFO"}, f"mutual coherence {rep.mutual_coherence:.3f}; image {rep.image!r}")
         return {"FINISHED"}

@@ -26,6 +26,6 @@ class SHAPESPACE_OT_compression_report(bpy.types.Operator):
                           progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}
-        self.report({"INFO"}, f"{rep['components']} of {rep['targets']} components keep {rep['frames']} frames "
-                              f"within {self.tolerance:g} of the head size ({rep['ratio']:.2f}:1)")
+        self.report({"INFO"}, f"{rep.components} of {rep.targets} components keep {rep.frames} frames "
+                              f"within {self.tolerance:g} of the head size ({rep.ratio:.2f}:1)")
         return {"FINISHED"}

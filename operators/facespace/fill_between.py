@@ -30,6 +30,6 @@ strength) or linearly (drifts toward the average face) (thesis 6.5)"""
                       self.frame_start, self.frame_end, self.mode)
         if rep is FAILED:
             return {"CANCELLED"}
-        self.report({"INFO"}, f"{rep['frames']} frames between {rep['start']} and {rep['end']} "
+        self.report({"INFO"}, f"{rep.frames} frames between {rep.start} and {rep.end} "
                               f"({self.mode.lower()})")
         return {"FINISHED"}

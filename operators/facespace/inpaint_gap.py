@@ -33,5 +33,5 @@ inpainting, thesis 9.3): known frames stay exact, the gap gets one key per frame
                           self.frame_start, self.frame_end, self.use_other_channels, progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}
-        self.report({"INFO"}, f"{rep['frames']} frames filled from {rep['channels']} curve(s): {rep['message']}")
+        self.report({"INFO"}, f"{rep.frames} frames filled from {rep.channels} curve(s): {rep.message}")
         return {"FINISHED"}

@@ -23,5 +23,5 @@ probability meter and shell in-betweens (thesis ch. 6)"""
             rep = attempt(self, facespace.learn_prior, context.active_object, progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}
-        self.report({"WARNING"} if rep["regularised"] else {"INFO"}, rep["message"])
+        self.report({"WARNING"} if rep.regularised else {"INFO"}, rep.message)
         return {"FINISHED"}

@@ -21,6 +21,6 @@ class SHAPESPACE_OT_make_convex(bpy.types.Operator):
         rep = attempt(self, facespace.make_convex, context.active_object)
         if rep is FAILED:
             return {"CANCELLED"}
-        self.report({"INFO"}, f"slider sum {rep['sum_before']:.3f} → {rep['sum_after']:.3f} "
-                              f"(moved {rep['moved']:.3f})")
+        self.report({"INFO"}, f"slider sum {rep.sum_before:.3f} → {rep.sum_after:.3f} "
+                              f"(moved {rep.moved:.3f})")
         return {"FINISHED"}

@@ -1,25 +1,15 @@
-"""Face-space statistics (thesis ch. 6), inpainting (9.3) and pose-space confidence (9.1-9.2).
-
-References are computed independently here: covariances and Mahalanobis distances with plain
-numpy, chi-square tails with scipy.stats, Gaussian-process formulas with np.linalg.solve, and a
-small BVH reader (test-only) for a real CMU knee channel.
-"""
+"""Covariance inpainting and superresolution of curves (core.facespace.inpainting, thesis 9.3): Gaussian-process
+formulas with np.linalg.solve, linear and cubic references, and a small BVH reader (test-only) for a real CMU
+knee channel."""
 import os
 
 import numpy as np
 import pytest
-from scipy import stats
 
-from core.facespace import (FaceGaussian, cubic_fill, fit_face_gaussian, inpaint_curve, linear_fill,
-                            linear_interpolate, shell_interpolate)
-from core.result import Result, ShapeSpaceError
+from core.facespace import cubic_fill, inpaint_curve, linear_fill
+from core.result import ShapeSpaceError
 
 BVH = "/work/shared/data/cmu_mocap/131_01.bvh"
-
-
-def correlated_faces(rng, f=3000, n=6):
-    A = rng.normal(size=(n, n))
-    return rng.normal(size=(f, n)) @ A + rng.normal(size=n), A.T @ A
 
 
 def ar2_sine(rng, T, period=50.0, noise=0.3):
@@ -31,169 +21,6 @@ def ar2_sine(rng, T, period=50.0, noise=0.3):
 
 def rms(a, b, mask):
     return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b))[mask] ** 2)))
-
-
-# ------------------------------------------------------------------ face Gaussian
-def test_fit_matches_numpy_covariance_and_whitening_round_trips():
-    rng = np.random.default_rng(0)
-    W, _ = correlated_faces(rng)
-    g = fit_face_gaussian(W)
-    assert isinstance(g, FaceGaussian) and not g.regularised and g.ridge == 0.0
-    C = np.cov(W, rowvar=False)
-    np.testing.assert_allclose(g.mean, W.mean(axis=0), atol=1e-12)
-    np.testing.assert_allclose((g.eigvecs * g.eigvals) @ g.eigvecs.T, C, rtol=1e-10, atol=1e-10)
-    Z = g.whiten(W)
-    np.testing.assert_allclose(np.cov(Z, rowvar=False), np.eye(6), atol=1e-9)
-    np.testing.assert_allclose(g.unwhiten(Z), W, atol=1e-9)
-    assert g.dimension == 6.0 and g.shell_radius == pytest.approx(np.sqrt(5.0))
-
-
-def test_face_norm_and_percentile_match_direct_formulas():
-    rng = np.random.default_rng(1)
-    W, _ = correlated_faces(rng, n=4)
-    g = fit_face_gaussian(W)
-    C = np.cov(W, rowvar=False)
-    w = rng.normal(size=(3, 5, 4)) * 3
-    diff = w - W.mean(axis=0)
-    maha = np.sqrt(np.einsum("...i,ij,...j->...", diff, np.linalg.inv(C), diff))
-    np.testing.assert_allclose(g.face_norm(w), maha, rtol=1e-10)
-    np.testing.assert_allclose(g.percentile(w), stats.chi2.cdf(maha ** 2, 4), rtol=1e-10)
-    assert g.face_norm(g.mean) == 0.0 and g.percentile(g.mean) == 0.0
-
-
-def test_high_dimensional_mass_sits_in_a_shell_and_the_mean_face_is_atypical():
-    rng = np.random.default_rng(2)
-    n = 50
-    W = rng.normal(size=(5000, n)) * rng.uniform(0.5, 2.0, n)
-    g = fit_face_gaussian(W)
-    norms = g.face_norm(W)
-    assert abs(np.median(norms) - np.sqrt(n)) < 0.5
-    assert np.std(norms) < 1.0                       # thin shell: width O(1) at radius ≈ 7
-    assert np.mean(norms < 0.5 * np.sqrt(n)) == 0.0  # nothing near the mean
-    test = np.vstack([g.mean, W[:200], g.mean + 3 * (W[0] - g.mean)])
-    res = g.plausibility(test, alpha=0.01)
-    assert isinstance(res, Result) and res.status == 1
-    assert res.value[0] == "too_average" and res.value[-1] == "too_extreme"
-    assert np.mean(res.value[1:-1] == "typical") > 0.97
-    np.testing.assert_allclose(res.diagnostics["norm"], g.face_norm(test))
-    codes = {i.code for i in res.issues}
-    assert {"too_average", "too_extreme"} <= codes
-    # about alpha of the training frames are flagged
-    idx, reasons = g.implausible_frames(W, alpha=0.05)
-    assert 0.02 < idx.size / W.shape[0] < 0.08
-    assert set(reasons) <= {"too_average", "too_extreme"} and len(reasons) == idx.size
-    ok = g.plausibility(W[5], alpha=0.01)
-    assert ok.value.shape == () and (ok.status == 0) == (ok.value == "typical")
-
-
-def test_too_few_frames_regularise_and_say_so():
-    rng = np.random.default_rng(3)
-    W = rng.normal(size=(4, 10))
-    g = fit_face_gaussian(W)
-    assert g.regularised and "ridge" in g.message and "4 frames for 10 channels" in g.message
-    assert g.ridge == pytest.approx(1e-3 * np.mean(np.var(W, axis=0, ddof=1)))
-    assert 2.9 < g.dimension <= 3.0                  # rank of 4 centred frames
-    assert np.isfinite(g.whiten(rng.normal(size=10))).all()
-    np.testing.assert_allclose(g.unwhiten(g.whiten(W)), W, atol=1e-10)
-
-
-def test_constant_channels_are_listed_and_whitened_with_the_ridge():
-    rng = np.random.default_rng(4)
-    W = rng.normal(size=(500, 4))
-    W[:, 2] = 0.25
-    g = fit_face_gaussian(W)
-    assert g.regularised and g.diagnostics["constant_channels"] == [2] and "constant" in g.message
-    w = g.mean.copy()
-    w[2] += np.sqrt(g.ridge)                           # one ridge standard deviation on the flat channel
-    assert g.face_norm(w) == pytest.approx(1.0, rel=1e-6)
-    allflat = fit_face_gaussian(np.ones((10, 3)))
-    assert allflat.ridge == 1e-6 and "every channel is constant" in allflat.message
-    explicit = fit_face_gaussian(rng.normal(size=(100, 3)), ridge=0.5)
-    assert explicit.regularised and explicit.ridge == 0.5 and explicit.dimension < 3
-
-
-def test_face_gaussian_bad_input_names_the_argument():
-    with pytest.raises(ShapeSpaceError, match="weights must have shape"):
-        fit_face_gaussian(np.zeros(5))
-    with pytest.raises(ShapeSpaceError, match="weights contains NaN"):
-        fit_face_gaussian(np.array([[0.0, np.nan], [1.0, 2.0], [0.0, 1.0]]))
-    with pytest.raises(ShapeSpaceError, match="ridge"):
-        fit_face_gaussian(np.eye(3), ridge=-1.0)
-    g = fit_face_gaussian(np.random.default_rng(5).normal(size=(50, 3)))
-    with pytest.raises(ShapeSpaceError, match=r"w must have shape \(\.\.\., 3\)"):
-        g.face_norm(np.zeros(4))
-    with pytest.raises(ShapeSpaceError, match="alpha"):
-        g.plausibility(g.mean, alpha=1.5)
-    with pytest.raises(ShapeSpaceError, match="frames_weights"):
-        g.implausible_frames(g.mean)
-
-
-# ------------------------------------------------------------------ shell interpolation
-def _equal_norm_pair(g, rng, radius):
-    z0, z1 = rng.normal(size=(2, g.mean.size))
-    return g.unwhiten(radius * z0 / np.linalg.norm(z0)), g.unwhiten(radius * z1 / np.linalg.norm(z1))
-
-
-def test_shell_keeps_the_norm_and_linear_collapses_toward_the_mean():
-    rng = np.random.default_rng(6)
-    W, _ = correlated_faces(rng, n=8)
-    g = fit_face_gaussian(W)
-    w0, w1 = _equal_norm_pair(g, rng, g.shell_radius)
-    t = np.linspace(0.0, 1.0, 11)
-    shell, lin = shell_interpolate(g, w0, w1, t), linear_interpolate(w0, w1, t)
-    assert shell.shape == lin.shape == (11, 8)
-    np.testing.assert_allclose(g.face_norm(shell), g.shell_radius, rtol=1e-10)
-    assert np.array_equal(shell[0], w0) and np.array_equal(shell[-1], w1)
-    assert np.array_equal(lin[0], w0) and np.array_equal(lin[-1], w1)
-    z0, z1 = g.whiten(w0), g.whiten(w1)
-    assert g.face_norm(lin[5]) == pytest.approx(np.linalg.norm(z0 + z1) / 2, rel=1e-10)
-    assert g.face_norm(lin[5]) < g.shell_radius - 1e-3
-    # the path is a great circle in whitened space: constant angular speed
-    Z = g.whiten(shell)
-    ang = np.arccos(np.clip(np.sum(Z[:-1] * Z[1:], axis=1) / g.shell_radius ** 2, -1, 1))
-    np.testing.assert_allclose(ang, ang[0], rtol=1e-6)
-
-
-def test_shell_radius_goes_linearly_between_unequal_norms():
-    rng = np.random.default_rng(7)
-    g = fit_face_gaussian(correlated_faces(rng, n=5)[0])
-    w0 = g.unwhiten(np.array([1.0, 0, 0, 0, 0]))
-    w1 = g.unwhiten(np.array([0, 3.0, 0, 0, 0]))
-    t = np.array([0.0, 0.25, 0.5, 1.0])
-    np.testing.assert_allclose(g.face_norm(shell_interpolate(g, w0, w1, t)), 1 + 2 * t, rtol=1e-10)
-    same_dir = shell_interpolate(g, w0, g.unwhiten(np.array([4.0, 0, 0, 0, 0])), t)
-    np.testing.assert_allclose(same_dir, linear_interpolate(w0, g.unwhiten(np.array([4.0, 0, 0, 0, 0])), t),
-                               atol=1e-10)
-
-
-def test_shell_special_cases_antipodal_and_mean_endpoint():
-    rng = np.random.default_rng(8)
-    g = fit_face_gaussian(correlated_faces(rng, n=4)[0])
-    z = np.array([0.5, -1.0, 2.0, 0.3])
-    w0, w1 = g.unwhiten(z), g.unwhiten(-z)
-    t = np.linspace(0, 1, 9)
-    path = shell_interpolate(g, w0, w1, t)
-    assert np.isfinite(path).all()
-    np.testing.assert_allclose(g.face_norm(path), np.linalg.norm(z), rtol=1e-10)
-    Zm = g.whiten(path[4])
-    assert abs(Zm @ z) < 1e-9 * np.linalg.norm(z) ** 2        # halfway: perpendicular to both ends
-    # an endpoint at the mean face has no direction: the radial line, same as the lerp
-    np.testing.assert_allclose(shell_interpolate(g, g.mean, w1, t), linear_interpolate(g.mean, w1, t), atol=1e-12)
-    np.testing.assert_allclose(shell_interpolate(g, g.mean, g.mean, t), np.tile(g.mean, (9, 1)), atol=1e-12)
-    # 1-D: the shell is two points, so antipodal ends fall back to the lerp
-    g1 = fit_face_gaussian(rng.normal(size=(100, 1)))
-    a, b = g1.unwhiten([1.0]), g1.unwhiten([-1.0])
-    np.testing.assert_allclose(shell_interpolate(g1, a, b, t), linear_interpolate(a, b, t), atol=1e-12)
-
-
-def test_shell_bad_input():
-    g = fit_face_gaussian(np.random.default_rng(9).normal(size=(50, 3)))
-    with pytest.raises(ShapeSpaceError, match=r"w1 must have shape \(3,\)"):
-        shell_interpolate(g, np.zeros(3), np.zeros(4), [0.5])
-    with pytest.raises(ShapeSpaceError, match="t must be"):
-        shell_interpolate(g, np.zeros(3), np.ones(3), [1.5])
-    with pytest.raises(ShapeSpaceError, match="FaceGaussian"):
-        shell_interpolate(None, np.zeros(3), np.ones(3), [0.5])
 
 
 # ------------------------------------------------------------------ inpainting
