@@ -32,7 +32,7 @@ from ..core.errors import ErrorCode
 from ..core.jobs import BackgroundJob
 from ..core.progress import notify, scaled
 from ..core.result import Result, ShapeSpaceError, Status, to_jsonable
-from ..core.schema import Schema
+from ..core import blobs
 from ..core.validate import ABSURD_COORDINATE, coordinates
 from . import driven, named_landmarks, part_objects, shapekeys, storage
 from .arrays import read_float, write_float
@@ -175,8 +175,7 @@ def read_target(obj) -> TargetMesh:
 #: ``{"pairs": [[source vertex, target vertex], …], "source_vertices": int, "target_vertices": int}`` — the
 #: vertex counts the pairs were placed on (a topology change makes them stale).
 LANDMARKS_PROP = "shapespace_landmarks"
-LANDMARKS_SCHEMA = Schema("transfer landmark pairs", 1,
-                          fields={"pairs": "list", "source_vertices": "int", "target_vertices": "int"})
+LANDMARKS_SCHEMA = blobs.LANDMARK_PAIRS.schema
 
 
 def _stored(target) -> dict:
@@ -915,9 +914,7 @@ def _write_part_objects(outcome: TransferOutcome, report: TransferReport) -> Non
 
 #: Shape-key custom property of a transfer target: the last transfer's verdict for the panel.
 LAST_PROP = "shapespace_last_transfer"
-LAST_SCHEMA = Schema("last transfer checks", 1,
-                     fields={"source": "string", "status": "string", "failed": "list", "parts": "list",
-                             "openings": "list"})
+LAST_SCHEMA = blobs.TRANSFER_LAST.schema
 
 
 def _store_verdict(target, report: TransferReport) -> None:

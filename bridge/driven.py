@@ -19,24 +19,15 @@ import re
 import bpy
 import numpy as np
 
+from ..core import blobs
 from ..core.result import ShapeSpaceError
-from ..core.schema import Schema
 from ..core.validate import coordinates
 from . import storage
 from .arrays import read_float, write_float
 
-PROP = "shapespace_driven"
-
-
-def _migrate_v0(data: dict) -> dict:
-    data.setdefault("inbetweens", {})
-    data.setdefault("combinations", {})
-    return data
-
-
 #: ``{"inbetweens": {key: {"primary": str, "at": float}}, "combinations": {key: {"inputs": [str]}}}``
-SCHEMA = Schema("driven in-betweens and combinations", 1,
-                fields={"inbetweens": "object", "combinations": "object"}, migrations={0: _migrate_v0})
+PROP = blobs.DRIVEN.prop
+SCHEMA = blobs.DRIVEN.schema
 
 
 def metadata(key) -> dict:

@@ -9,7 +9,7 @@ from ..core.inventory import (ActionInfo, ArmatureInfo, ArmatureModifierInfo, Fi
 from ..core.names import ARKIT_52, canonical_name
 from ..core.skinning import diagnose_weights
 from ..core.version import version
-from . import actions, shapekeys, skin, storage
+from . import actions, shapekeys, skin, storage, symmetry
 
 
 def bone_shape_objects() -> set:
@@ -105,6 +105,7 @@ def check_object(obj) -> list:
     has_keys = obj.data.shape_keys is not None
     has_skin = bool(skin.armature_modifiers(obj))
     found += storage.damaged_blobs(obj)
+    found += symmetry.table_damage(obj)
     if has_keys or not has_skin:
         structural = shapekeys.check_shape_keys(obj)
         found += structural

@@ -8,18 +8,18 @@ A change of the mesh's vertex count makes them stale (refused with a message, ne
 """
 from __future__ import annotations
 
+from ..core import blobs
 from ..core.authoring import named as core_named
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
-from ..core.schema import Schema
 from . import storage
 from . import symmetry as bsym
 
 __all__ = ["PROP", "SCHEMA", "named_landmarks", "next_name", "place", "remove", "clear_named", "mirror_complete",
            "named_status"]
 
-PROP = "shapespace_named_landmarks"
-SCHEMA = Schema("named landmarks", 1, fields={"landmarks": "object", "vertices": "int"})
+PROP = blobs.NAMED_LANDMARKS.prop
+SCHEMA = blobs.NAMED_LANDMARKS.schema
 
 
 def _read(obj) -> dict:

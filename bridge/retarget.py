@@ -39,7 +39,7 @@ from ..core.retarget import (GEOMETRIC_METHODS, METHODS, LearnedCloning, Retarge
                              retarget_positions, retarget_weights, split_mapping, stabilise, suggest_key_frames,
                              transfer_motion)
 from ..core.retarget.performance import check_dense_budget, check_finite_weights
-from ..core.schema import Schema
+from ..core import blobs
 from ..core.validate import choice, non_negative, positive
 from . import actions, shapekeys, storage
 
@@ -60,7 +60,7 @@ NONLINEAR_MESSAGE = ("the target has in-between or combination shapes, so its fa
 
 #: Key custom property: the channel-mapping overrides ``{source channel: {target, gain, offset}}``.
 MAPPING_PROP = "shapespace_mapping"
-MAPPING_SCHEMA = Schema("retarget channel mapping", 1, values="object")
+MAPPING_SCHEMA = blobs.RETARGET_MAPPING.schema
 
 #: Largest magnitude of a mapping override's gain or offset.
 MAX_MAPPING_VALUE = 100.0
@@ -71,16 +71,7 @@ REPORT_KEYS = ("source", "method", "frames", "mapped_channels", "position_error_
                "position_error_rms", "velocity_error_rms", "clipping_frames", "clipped_frames", "frame_range",
                "scene_range_extended", "scene_range_before", "keys_kept_frac", "converged", "action",
                "previous_action", "previous_fake_user", "bones", "bones_action", "armature", "armature_previous")
-LAST_SCHEMA = Schema(
-    "last retarget result", 1,
-    fields={"source": "string", "method": "string", "frames": "int", "position_error_rms": "number?",
-            "velocity_error_rms": "number?", "clipping_frames": "int", "action": "string",
-            "previous_action": "string"},
-    optional={"mapped_channels": "int", "keys_kept_frac": "number?", "converged": "bool",
-              "position_error_mm": "number?", "velocity_error_mm": "number?",
-              "previous_fake_user": "bool", "clipped_frames": "list", "frame_range": "list",
-              "scene_range_extended": "bool", "scene_range_before": "list", "bones": "list",
-              "bones_action": "string", "armature": "string", "armature_previous": "list"})
+LAST_SCHEMA = blobs.RETARGET_LAST.schema
 
 LANDMARK_PREFIX = "lm_"
 STABLE_GROUP = "stable"

@@ -5,12 +5,20 @@ or as string properties of ShapeSpace PropertyGroups (``example.pose``).
 Every read validates against the blob's schema and migrates files saved by
 older versions; damage raises ``ShapeSpaceError`` (code ``corrupt_metadata``)
 naming the datablock and property.
+
+Which blobs exist, on which owner, with which schema, is declared once in
+:mod:`core.blobs`: :func:`upgrade_file` (before each save) and :func:`damaged_blobs`
+(Check Rig) walk that registry, so this module imports none of the modules that own
+a blob (they import it).
 """
 from __future__ import annotations
 
 import json
 
+from ..core import blobs as _blobs
 from ..core import schema as _schema
+from ..core.result import Issue, ShapeSpaceError
+from . import actions
 
 
 def where(owner, prop: str) -> str:
@@ -40,19 +48,43 @@ def write_string_blob(owner, attr: str, schema: _schema.Schema, data: dict) -> N
     setattr(owner, attr, _schema.dumps(data, schema))
 
 
-def _key_blob_schemas() -> dict:
-    """Every JSON blob ShapeSpace keeps on a shape-key datablock: property name → schema."""
-    from . import authoring, driven, facespace, retarget
-    return {driven.PROP: driven.SCHEMA, retarget.MAPPING_PROP: retarget.MAPPING_SCHEMA,
-            retarget.LAST_PROP: retarget.LAST_SCHEMA, authoring.LAST_PROP: authoring.LAST_SCHEMA,
-            **facespace.blob_schemas()}
+def _local(owner) -> bool:
+    """Whether ``owner`` (an ID, or a PropertyGroup of one) belongs to this file (not linked from a library)."""
+    return getattr(owner.id_data, "library", None) is None
 
 
-def _example_blob_schemas() -> dict:
-    """Every JSON string of a pose-space example: attribute name → schema."""
-    from .posespace import stored
-    return {"pose": stored.POSE_SCHEMA, "pseudo_pose": stored.PSEUDO_POSE_SCHEMA,
-            "target_values": stored.TARGET_VALUES_SCHEMA}
+#: Every owner of each kind (:data:`core.blobs.OWNERS`) in ``bpy.data``.
+_FILE_OWNERS = {
+    "Key": lambda data: list(data.shape_keys),
+    "Mesh": lambda data: list(data.meshes),
+    "Object": lambda data: list(data.objects),
+    "Action": lambda data: list(data.actions),
+    "Example": lambda data: [ex for ob in data.objects if ob.type == "MESH" for ex in ob.shapespace_psd.examples],
+}
+
+
+def _played(obj) -> list:
+    """The actions the mesh object ``obj`` and its shape keys play (each once)."""
+    ids = [obj] + ([obj.data.shape_keys] if obj.data.shape_keys is not None else [])
+    return list(dict.fromkeys(a for a in map(actions.active_action, ids) if a is not None))
+
+
+#: The owners of each kind that belong to a mesh object: itself, its mesh, its shape keys, the actions it and its
+#: shape keys play, its pose-space examples.
+_OBJECT_OWNERS = {
+    "Key": lambda obj: [obj.data.shape_keys] if obj.data.shape_keys is not None else [],
+    "Mesh": lambda obj: [obj.data],
+    "Object": lambda obj: [obj],
+    "Action": _played,
+    "Example": lambda obj: list(obj.shapespace_psd.examples),
+}
+
+
+def _stored_text(owner, blob: _blobs.Blob):
+    """What ``owner`` holds in the blob's property (None when absent)."""
+    if blob.on_id:
+        return owner.get(blob.prop)
+    return getattr(owner, blob.prop)
 
 
 def _upgraded(text, schema: _schema.Schema, where_: str):
@@ -69,77 +101,59 @@ def _upgraded(text, schema: _schema.Schema, where_: str):
         return None
 
 
-def pin_settings(data) -> int:
-    """Store explicitly every ShapeSpace setting whose default changed since the file was made, at the value
-    the file meant: a pose space with examples and no stored distance was made before 0.2.0 and keeps Skin
-    Weighted.  Runs after each load and before each save; linked (library) data is left untouched (it reads
-    the same through ``bridge.posespace.stored.wpsd_distance``).  Returns how many settings it wrote."""
-    from .posespace import stored
-    return sum(stored.pin_wpsd_distance(ob.shapespace_psd) for ob in data.objects
-               if ob.library is None and ob.type == "MESH" and len(ob.shapespace_psd.examples))
-
-
 def upgrade_file(data) -> int:
-    """Rewrite every readable older-version blob in ``data`` (``bpy.data``) at the current schema version,
-    and pin the settings whose default changed (:func:`pin_settings`).
+    """Rewrite every readable older-version blob of :data:`core.blobs.BLOBS` in ``data`` (``bpy.data``) at the
+    current schema version.
 
-    Runs before each save, so files written by this version hold only current blobs; linked (library)
-    data and damaged blobs are left untouched.  Returns how many blobs and settings were rewritten.
+    Runs before each save (after :func:`bridge.posespace.stored.pin_settings`), so files written by this version
+    hold only current blobs; linked (library) data and damaged blobs are left untouched.  Returns how many blobs
+    were rewritten.
     """
-    count = pin_settings(data)
-    key_schemas = _key_blob_schemas()
-    for key in data.shape_keys:
-        if key.library is not None:
-            continue
-        for prop, schema in key_schemas.items():
-            new = _upgraded(key.get(prop), schema, where(key, prop))
-            if new is not None:
-                key[prop] = new
-                count += 1
-    example_schemas = _example_blob_schemas()
-    for ob in data.objects:
-        if ob.library is not None or ob.type != "MESH":
-            continue
-        for ex in ob.shapespace_psd.examples:
-            for attr, schema in example_schemas.items():
-                new = _upgraded(getattr(ex, attr), schema, where(ex, attr))
-                if new is not None:
-                    setattr(ex, attr, new)
-                    count += 1
+    count = 0
+    for blob in _blobs.BLOBS:
+        for owner in _FILE_OWNERS[blob.owner](data):
+            if not _local(owner):
+                continue
+            new = _upgraded(_stored_text(owner, blob), blob.schema, where(owner, blob.prop))
+            if new is None:
+                continue
+            if blob.on_id:
+                owner[blob.prop] = new
+            else:
+                setattr(owner, blob.prop, new)
+            count += 1
     return count
 
 
-def damaged_blobs(obj) -> list:
+def _damage(text, blob: _blobs.Blob, place: str) -> str | None:
+    """The one-line message when ``text`` does not read as ``blob`` (or one of its sections), else None."""
+    try:
+        data = _schema.loads(text, blob.schema, place)
+        for section, schema in blob.sections.items():
+            if section in data:
+                _schema.loads(json.dumps(data[section]), schema, f"{place} ▸ {section}")
+    except ShapeSpaceError as exc:
+        return str(exc)
+    return None
+
+
+def damaged_blobs(obj, which=_blobs.BLOBS) -> list:
     """``core.Issue`` errors (code ``corrupt_metadata``) for every stored blob of ``obj`` that does not read.
 
-    Covers the blobs on the object's shape keys, its pose-space examples' strings and its mesh's mirror map
-    (which must also be a mirror table of the mesh's vertices; a stale map is not damage); used by Check Rig.
+    Walks :data:`core.blobs.BLOBS` (``which``: the blobs to check, default all) on the mesh object, its mesh,
+    its shape keys, the actions it and its shape keys play and its pose-space examples; used by Check Rig.
+    (That a mirror map is also a mirror table of the mesh's vertices is :func:`bridge.symmetry.table_damage`'s
+    check.)
     """
-    from ..core.result import Issue, ShapeSpaceError
+    if obj is None or obj.type != "MESH":
+        return []
     found = []
-    key = getattr(obj.data, "shape_keys", None) if obj is not None and obj.type == "MESH" else None
-    checks = []
-    if key is not None:
-        checks += [(key.get(prop), schema, where(key, prop)) for prop, schema in _key_blob_schemas().items()
-                   if prop in key]
-    if obj is not None and obj.type == "MESH":
-        for ex in obj.shapespace_psd.examples:
-            checks += [(getattr(ex, attr), schema, where(ex, attr))
-                       for attr, schema in _example_blob_schemas().items() if getattr(ex, attr)]
-    for text, schema, place in checks:
-        try:
-            _schema.loads(text, schema, place)
-        except ShapeSpaceError as exc:
-            found.append(Issue("error", "corrupt_metadata", str(exc)))
-    if obj is not None and obj.type == "MESH":
-        from . import symmetry
-        if symmetry.PROP in obj.data:
-            try:
-                symmetry.load_map(obj)
-            except ShapeSpaceError as exc:
-                if exc.code == "corrupt_metadata":
-                    found.append(Issue("error", "corrupt_metadata", str(exc)))
-                elif exc.code == "no_mirror_map":          # the blob reads but holds no table
-                    found.append(Issue("error", "corrupt_metadata", f"damaged ShapeSpace data in "
-                                       f"{where(obj.data, symmetry.PROP)}: {exc}"))
+    for blob in which:
+        for owner in _OBJECT_OWNERS[blob.owner](obj):
+            text = _stored_text(owner, blob)
+            if text is None or (not blob.on_id and not text):
+                continue
+            message = _damage(text, blob, where(owner, blob.prop))
+            if message is not None:
+                found.append(Issue("error", "corrupt_metadata", message))
     return found

@@ -13,23 +13,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core import blobs
 from ..core import symmetry as core_sym
 from ..core.errors import ErrorCode
-from ..core.result import ShapeSpaceError
-from ..core.schema import Schema
+from ..core.result import Issue, ShapeSpaceError
 from ..core.validate import coordinates, in_range
 from . import storage
 from .arrays import read_float, write_float
 from .meshes import triangles
 from .meshes import group_weight_vector
 
-PROP = "shapespace_mirror_map"
-
 #: ``{"mirror": [int], "axis": int, "offset": float, "method": str, "tolerance": float,
 #: "topology": {"vertices", "edges", "faces", "edge_hash"}, "coverage": float}``
-SCHEMA = Schema("mirror map", 1, fields={"mirror": "list", "axis": "int", "offset": "number", "method": "string",
-                                         "tolerance": "number", "topology": "object", "coverage": "number"},
-                optional={"centre_edge": "list?"})
+PROP = blobs.MIRROR_MAP.prop
+SCHEMA = blobs.MIRROR_MAP.schema
 
 METHODS = ("AUTO", "POSITION", "TOPOLOGY")
 
@@ -192,6 +189,23 @@ def load_map(obj) -> core_sym.MirrorMap:
     if data.get("centre_edge"):
         diag["centre_edge"] = data["centre_edge"]
     return core_sym._finish(mirror, data["axis"], float(data["offset"]), data["method"], diag)
+
+
+def table_damage(obj) -> list:
+    """``core.Issue`` errors (code ``corrupt_metadata``) when ``obj``'s stored map reads but is no mirror table of
+    its vertices (for Check Rig; a stale map is not damage, and a blob that does not read at all is
+    :func:`bridge.storage.damaged_blobs`'s finding)."""
+    if not has_map(obj) or storage.damaged_blobs(obj, (blobs.MIRROR_MAP,)):
+        return []
+    try:
+        load_map(obj)
+    except ShapeSpaceError as exc:
+        if exc.code == ErrorCode.CORRUPT_METADATA:
+            return [Issue("error", "corrupt_metadata", str(exc))]
+        if exc.code == ErrorCode.NO_MIRROR_MAP:          # the blob reads but holds no table
+            return [Issue("error", "corrupt_metadata",
+                          f"damaged ShapeSpace data in {storage.where(obj.data, PROP)}: {exc}")]
+    return []
 
 
 def map_for(obj) -> tuple:

@@ -10,6 +10,7 @@ from bpy.app.handlers import persistent
 
 from ..bridge import storage
 from ..bridge.live import session as live_session
+from ..bridge.posespace import stored as posespace_stored
 
 from .authoring import SHAPESPACE_PG_authoring
 from .facespace import SHAPESPACE_PG_face, SHAPESPACE_PG_flagged_frame
@@ -28,14 +29,16 @@ classes = (SHAPESPACE_PG_pin, SHAPESPACE_PG_settings, SHAPESPACE_PG_reader, SHAP
 
 @persistent
 def _upgrade_before_save(_filepath, *_):
-    """Files saved by this version hold only current-version blobs (older ones are migrated on save)."""
+    """Files saved by this version hold only current-version blobs (older ones are migrated on save) and every
+    setting whose default changed stored explicitly."""
+    posespace_stored.pin_settings(bpy.data)
     storage.upgrade_file(bpy.data)
 
 
 @persistent
 def _pin_after_load(_filepath, *_):
     """A file made before a default changed keeps the value it meant (e.g. its pose spaces' distance)."""
-    storage.pin_settings(bpy.data)
+    posespace_stored.pin_settings(bpy.data)
 
 
 def register():

@@ -22,11 +22,11 @@ from .prior import (fill_around, fill_between, flag_implausible_frames, has_prio
 from .readers import MAX_FRAMES, animation_weights, linear_model
 from .reports import analyse, compression, compression_relative
 from .stored import (ANALYSIS_PROP, ANALYSIS_SCHEMA, COHERENCE_SCHEMA, COMPRESSION_SCHEMA, PRIOR_PROP, PRIOR_SCHEMA,
-                     REPRESENTATION_PROP, REPRESENTATION_SCHEMA, blob_schemas, stored, stored_analysis)
+                     REPRESENTATION_PROP, REPRESENTATION_SCHEMA, stored, stored_analysis)
 
 __all__ = [
     "REPRESENTATION_PROP", "PRIOR_PROP", "ANALYSIS_PROP", "REPRESENTATION_SCHEMA", "PRIOR_SCHEMA",
-    "ANALYSIS_SCHEMA", "COMPRESSION_SCHEMA", "COHERENCE_SCHEMA", "blob_schemas", "stored", "stored_analysis",
+    "ANALYSIS_SCHEMA", "COMPRESSION_SCHEMA", "COHERENCE_SCHEMA", "stored", "stored_analysis",
     "MAX_FRAMES", "linear_model", "animation_weights",
     "NEUTRAL_KEY", "ZERO_KEY", "FORMS", "SLIDER_LIMIT", "to_whole_face_object", "whole_face_issue",
     "to_delta_object", "to_pca_object", "to_pca_object_relative", "convert_rig", "make_convex",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+from ...core import blobs
 from ...core import schema as _schema
 from ...core.errors import ErrorCode
 from ...core.facespace.job import coherence_problem
@@ -17,34 +18,15 @@ ANALYSIS_PROP = "shapespace_analysis"
 #: What a converted copy is (Key custom property :data:`REPRESENTATION_PROP`): ``form`` "whole_face" (with
 #: ``convex`` and ``neutral_keys``, the keys sharing the neutral's weight; absent in files of 0.1.0: one key
 #: :data:`.conversions.NEUTRAL_KEY`) or "pca" (with the source ``sliders`` and the slider map ``A`` (m, n), ``a`` (m,)).
-REPRESENTATION_SCHEMA = Schema("face-space representation", version=1,
-                               fields={"form": "string", "source": "string"},
-                               optional={"convex": "bool", "neutral_keys": "list", "sliders": "list", "A": "list",
-                                         "a": "list"})
+REPRESENTATION_SCHEMA = blobs.REPRESENTATION.schema
 #: The learnt face Gaussian (Key custom property :data:`PRIOR_PROP`), see :class:`core.facespace.FaceGaussian`.
-PRIOR_SCHEMA = Schema("face prior", version=1,
-                      fields={"names": "list", "mean": "list", "eigvecs": "list", "eigvals": "list",
-                              "dimension": "number", "ridge": "number", "regularised": "bool", "message": "string"},
-                      optional={"frames": "int"})
+PRIOR_SCHEMA = blobs.FACE_PRIOR.schema
 #: The last compression report and rig analysis (Key custom property :data:`ANALYSIS_PROP`), for the panel.
-ANALYSIS_SCHEMA = Schema("face-space analysis", version=1,
-                         optional={"compression": "object", "coherence": "object"})
+ANALYSIS_SCHEMA = blobs.ANALYSIS.schema
 _SCHEMAS = {REPRESENTATION_PROP: REPRESENTATION_SCHEMA, PRIOR_PROP: PRIOR_SCHEMA, ANALYSIS_PROP: ANALYSIS_SCHEMA}
 #: The two reports inside :data:`ANALYSIS_SCHEMA` (what :func:`compression` and :func:`analyse` write).
-COMPRESSION_SCHEMA = Schema("compression report", version=1,
-                            fields={"components": "int?", "targets": "int", "tol": "number", "ratio": "number?"},
-                            optional={"frames": "int", "animation_rank": "int", "rig_rank": "int",
-                                      "message": "string"})
-COHERENCE_SCHEMA = Schema("rig analysis", version=1,
-                          fields={"image": "string", "mutual_coherence": "number?", "empty_targets": "list",
-                                  "similar_pairs": "list"},
-                          optional={"targets": "int", "png": "string", "sparsity": "object",
-                                    "sparsity_message": "string"})
-
-
-def blob_schemas() -> dict:
-    """The face-space blobs on a Key: property name → schema (for :func:`bridge.storage.upgrade_file`)."""
-    return dict(_SCHEMAS)
+COMPRESSION_SCHEMA = blobs.ANALYSIS.sections["compression"]
+COHERENCE_SCHEMA = blobs.ANALYSIS.sections["coherence"]
 
 
 def damaged(id_block, prop: str, what: str) -> ShapeSpaceError:

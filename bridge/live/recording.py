@@ -18,24 +18,18 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from ...core import blobs
 from ...core.animation import reduce_keys_bezier
 from ...core.errors import ErrorCode
 from ...core.result import ShapeSpaceError
 from ...core.retarget import retarget_weights
-from ...core.schema import Schema
 from .. import actions, retarget, shapekeys, storage
 
 __all__ = ["TAKE_PROP", "TAKE_SCHEMA", "TakeRecorder", "is_take", "take_info", "takes", "unique_take_name",
            "play_take", "remove_take", "clean_take"]
 
-TAKE_PROP = "shapespace_live_take"
-TAKE_SCHEMA = Schema(
-    "live take", 1,
-    fields={"source": "string", "target": "string", "method": "string", "start_timecode": "string",
-            "start_seconds": "number", "scene_fps": "number", "start_frame": "number", "frames": "int",
-            "complete": "bool"},
-    optional={"subject": "string", "armature": "string", "bones_action": "string", "clean_action": "string",
-              "clean_bones_action": "string"})
+TAKE_PROP = blobs.LIVE_TAKE.prop
+TAKE_SCHEMA = blobs.LIVE_TAKE.schema
 BONE_SUFFIX = " bones"
 
 

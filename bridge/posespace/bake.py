@@ -16,7 +16,7 @@ from ...core.errors import ErrorCode
 from ...core.pointcache import write_pc2
 from ...core.result import ShapeSpaceError
 from .. import actions, shapekeys
-from .examples import check_finite_positions, check_not_editing, example_keys, pre_armature_positions, shape_keys
+from .correctives import check_finite_positions, check_not_editing, example_keys, pre_armature_positions, shape_keys
 from .pose import read_pose, settings
 from .targets import target_driver
 from .training import trained_deformer

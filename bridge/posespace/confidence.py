@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from ...core.posespace import confidence as gpconf
 from ..arrays import write_float
-from .examples import check_not_editing
+from .correctives import check_not_editing
 from .pose import read_pose
 from .training import trained_deformer
 

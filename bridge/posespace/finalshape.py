@@ -30,8 +30,9 @@ from ...core.result import ShapeSpaceError, Status
 from ...core.skinning import ArmatureDeform, SkinningRig, SkinWeights, deform
 from .. import meshes, skin
 from ..arrays import matrix, read_float, read_matrices, write_float
-from .examples import (basis_positions, check_not_editing, check_topology, example_correctives, example_keys,
-                       pre_armature_positions)
+from .correctives import (basis_positions, check_not_editing, check_topology, example_correctives, example_keys,
+                          pre_armature_positions)
+from .inversion import invert_through_blender, modelled_exactly
 from .pose import read_pose, readers, settings
 from .stored import check_examples, example_pose, final_shape, find_example, set_final_shape
 
@@ -397,7 +398,6 @@ def _check_bones(obj, ex, data) -> None:
 
 def _reinverted(obj, ex, data, progress=None) -> tuple:
     """(full corrective (p, 3), InversionResult, indices, positions, groups) for one example, nothing written."""
-    from .sculpt import _invert_through_blender, modelled_exactly
     _check_bones(obj, ex, data)
     idx, pos = _decoded(obj, ex, data)
     p = len(obj.data.vertices)
@@ -423,7 +423,7 @@ def _reinverted(obj, ex, data, progress=None) -> tuple:
             with _only_key(obj, None):
                 target = _evaluated(obj)
             target[idx] = pos
-            result = _invert_through_blender(obj, rest, target, progress)
+            result = invert_through_blender(obj, rest, target, progress)
             full[idx] = result.corrective[idx]
         else:
             full[idx] = pos - rest[idx]

@@ -20,8 +20,9 @@ from ...core.result import ShapeSpaceError
 from .. import symmetry
 from ..arrays import write_float
 from ..meshes import group_weight_vector, vertex_groups
-from .examples import (basis_positions, check_finite_positions, check_not_editing, check_topology,
-                       new_corrective_key, pre_armature_positions)
+from .correctives import (basis_positions, check_finite_positions, check_not_editing, check_topology,
+                          new_corrective_key, pre_armature_positions)
+from .inversion import invert, sculpt_positions_of
 from .pose import settings
 from .stored import check_examples, find_example
 
@@ -72,7 +73,6 @@ def push_sculpt_masked(obj, example_name: str, groups, mirror: bool = False, rem
     the fraction done while inverting through Blender's own evaluation.
     Returns the names of the keys made.  Nothing is written when anything is refused.
     """
-    from .sculpt import _invert, sculpt_positions_of
     check_not_editing(obj)
     check_topology(obj)
     ex = find_example(obj, example_name)
@@ -91,7 +91,7 @@ def push_sculpt_masked(obj, example_name: str, groups, mirror: bool = False, rem
             raise ShapeSpaceError(f"shape key {n!r} exists already: remove it, or push with Replace",
                                   ErrorCode.OVERWRITE)
     basis = basis_positions(obj)
-    result = _invert(obj, pre_armature_positions(obj), sculpt_positions, progress)
+    result = invert(obj, pre_armature_positions(obj), sculpt_positions, progress)
     delta = result.corrective
     check_finite_positions(delta, f"the inverted corrective of {ex.name!r}")
     size = float(np.linalg.norm(np.ptp(basis, axis=0))) or 1.0

@@ -16,7 +16,7 @@ from ...core.posespace.mirror import mirror_displacements, mirror_name, mirror_p
 from ...core.result import ShapeSpaceError, Status
 from .. import symmetry
 from ..arrays import write_float
-from .examples import basis_positions, check_not_editing, example_correctives, new_corrective_key
+from .correctives import basis_positions, check_not_editing, example_correctives, new_corrective_key
 from .pose import armature_of, readers, settings
 from .stored import check_examples, example_pose, find_example, pin_wpsd_distance, set_example_pose
 

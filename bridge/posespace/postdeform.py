@@ -26,15 +26,15 @@ from ...core.posespace.finalshape import TOUCH_REL
 from ...core.result import ShapeSpaceError
 from .. import compat, meshes, skin
 from ..arrays import read_float
-from .examples import check_finite_positions, check_not_editing, check_topology, example_keys
+from .correctives import check_finite_positions, check_not_editing, check_topology, example_keys
+from .inversion import sculpt_positions_of
 from .pose import settings
-from .stored import check_examples, find_example
+from .sculpt import apply_example
+from .stored import MODIFIER, check_examples, find_example, is_post_deform_modifier
 
 __all__ = ["MODIFIER", "GROUP_PREFIX", "REF_ATTRIBUTE", "attribute_name", "post_deform_examples",
            "check_post_deform_stack", "apply_post_deform", "sync_post_deform", "is_post_deform_modifier"]
 
-#: Name of the generated modifier (at the end of the stack).
-MODIFIER = "ShapeSpace Post-Deform"
 #: Prefix of the generated node group (one per mesh).
 GROUP_PREFIX = "ShapeSpace Post-Deform"
 #: Point attribute: the neighbour vertex whose direction gives each vertex's tangent.
@@ -51,11 +51,6 @@ def attribute_name(example_name: str) -> str:
 def post_deform_examples(obj) -> list:
     """The post-deformation examples of ``obj`` (in the examples' order)."""
     return [ex for ex in settings(obj).examples if ex.post_deform]
-
-
-def is_post_deform_modifier(mod) -> bool:
-    """True for the modifier this module generates."""
-    return mod.type == "NODES" and mod.name == MODIFIER
 
 
 def _counts(mesh) -> tuple:
@@ -276,7 +271,6 @@ def apply_post_deform(obj, example_name: str, sculpt_positions=None, progress=No
     per-example weight to drive the offsets) and when a modifier changes the topology.  Returns the
     rest-space ``InversionResult`` (its residual is the rest-space one).
     """
-    from .sculpt import apply_example, sculpt_positions_of
     check_not_editing(obj)
     check_topology(obj)
     st = settings(obj)

@@ -20,7 +20,7 @@ from ...core.errors import ErrorCode
 from ...core.result import ShapeSpaceError
 from .. import shapekeys
 from ..arrays import read_float, write_float
-from .examples import basis_positions, check_finite_positions, check_not_editing, example_keys, shape_keys
+from .correctives import basis_positions, check_finite_positions, check_not_editing, example_keys, shape_keys
 from .pose import read_pose, settings
 from .stored import WPSD_KEY, wpsd_distance
 from .targets import target_driver, write_targets

@@ -1,6 +1,6 @@
 """What the pose-space capability stores on a mesh, and the names of what it creates.
 
-Each example (``SHAPESPACE_PG_example``) keeps three JSON strings, read and
+Each example (``SHAPESPACE_PG_example``) keeps four JSON strings, read and
 written through :mod:`bridge.storage` with a versioned schema:
 
 - ``pose`` — where in pose space it was sculpted (the feature vector);
@@ -9,6 +9,10 @@ written through :mod:`bridge.storage` with a versioned schema:
 - ``target_values`` — the driven targets' values recorded at it;
 - ``final_shape`` — its sculpted posed shape, rig pose and input fingerprint
   (:data:`FINAL_SHAPE_SCHEMA`; see :mod:`.finalshape`).
+
+The schemas are declared in :mod:`core.blobs`.  This module also holds the names ShapeSpace gives what it
+creates (the sculpt copy's suffix, weighted PSD's key, the post-deformation modifier) and pins settings whose
+default changed (:func:`pin_settings`, after each load and before each save).
 
 Version 1 stores ``{"schema_version": 1, "values": [...]}``; files saved by
 ShapeSpace 0.1.0 hold bare JSON lists and still load.  Damage raises
@@ -19,6 +23,7 @@ from __future__ import annotations
 import math
 import numbers
 
+from ...core import blobs
 from ...core.errors import ErrorCode
 from ...core.result import ShapeSpaceError
 from ...core.schema import Schema
@@ -29,16 +34,14 @@ from .pose import settings
 SCULPT_SUFFIX = "_sculpt"
 #: The shape key holding weighted PSD's per-vertex result (the example keys stay at 0).
 WPSD_KEY = "ShapeSpace_WPSD"
+#: Name of the generated post-deformation modifier (at the end of the stack; see :mod:`.postdeform`).
+MODIFIER = "ShapeSpace Post-Deform"
 
-POSE_SCHEMA = Schema("pose-space example pose", 1, fields={"values": "list"}, list_blob=True)
-PSEUDO_POSE_SCHEMA = Schema("pose-space pseudo-example pose", 1, fields={"values": "list"}, list_blob=True)
-TARGET_VALUES_SCHEMA = Schema("driven target values of an example", 1, fields={"values": "list"}, list_blob=True)
-#: An example's final shape (thesis 7.2.1): its sculpted posed positions where it moves the mesh (float32,
-#: base64), the rig pose it was sculpted at and the fingerprint of the inputs its corrective was inverted from.
-#: Absent (empty) on examples made by ShapeSpace 0.1.0 and on examples not applied yet.
-FINAL_SHAPE_SCHEMA = Schema("pose-space example final shape", 1,
-                            fields={"vertex_count": "int", "indices": "string", "positions": "string",
-                                    "pose": "object", "fingerprint": "object"})
+POSE_SCHEMA = blobs.EXAMPLE_POSE.schema
+PSEUDO_POSE_SCHEMA = blobs.EXAMPLE_PSEUDO_POSE.schema
+TARGET_VALUES_SCHEMA = blobs.EXAMPLE_TARGET_VALUES.schema
+#: An example's final shape (:data:`core.blobs.EXAMPLE_FINAL_SHAPE`; see :mod:`.finalshape`).
+FINAL_SHAPE_SCHEMA = blobs.EXAMPLE_FINAL_SHAPE.schema
 
 
 #: Weighted PSD's distance for pose spaces made before ShapeSpace 0.2.0 (when Blended became the default).
@@ -62,6 +65,20 @@ def pin_wpsd_distance(st) -> bool:
         return False
     st.wpsd_distance = wpsd_distance(st)
     return True
+
+
+def pin_settings(data) -> int:
+    """Store explicitly every ShapeSpace setting whose default changed since the file was made, at the value
+    the file meant: a pose space with examples and no stored distance was made before 0.2.0 and keeps Skin
+    Weighted.  Runs after each load and before each save; linked (library) data is left untouched (it reads
+    the same through :func:`wpsd_distance`).  Returns how many settings it wrote."""
+    return sum(pin_wpsd_distance(ob.shapespace_psd) for ob in data.objects
+               if ob.library is None and ob.type == "MESH" and len(ob.shapespace_psd.examples))
+
+
+def is_post_deform_modifier(mod) -> bool:
+    """True for the post-deformation modifier ShapeSpace generates (:mod:`.postdeform`)."""
+    return mod.type == "NODES" and mod.name == MODIFIER
 
 
 def find_example(obj, name: str):

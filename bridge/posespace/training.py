@@ -9,7 +9,7 @@ from ...core.posespace.pairs import bone_pairs
 from ...core.posespace.psd import skin_group_inputs, train_psd
 from ...core.result import Issue, ShapeSpaceError
 from .. import skin
-from .examples import example_correctives
+from .correctives import example_correctives
 from .pose import readers, settings
 from .stored import check_examples, interpolation_pose, wpsd_distance
 

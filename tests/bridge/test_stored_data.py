@@ -128,3 +128,112 @@ def test_saving_keeps_a_damaged_blob_as_it_is_and_upgrades_the_rest(registered, 
     key = bpy.data.objects["Face"].data.shape_keys
     assert key["shapespace_mapping"] == "{not json"
     assert json.loads(key["shapespace_driven"])["schema_version"] == 1
+
+
+# ----------------------------------------------------------------------------------------- the registry
+# Every blob of core.blobs.BLOBS, on the owner it names: saving upgrades an old one, Check Rig names a damaged one.
+from shapespace.bridge import actions  # noqa: E402
+from shapespace.core import blobs  # noqa: E402
+from shapespace.core.schema import Schema, loads  # noqa: E402
+
+_SAMPLE = {"object": {}, "list": [], "string": "x", "number": 1.5, "int": 2, "bool": True}
+
+
+def _version_0(schema) -> str:
+    """A blob as ShapeSpace 0.1.0 wrote it (no schema_version; a bare JSON list for list blobs)."""
+    if schema.list_blob:
+        return json.dumps([0.25, 0.5])
+    data = {name: _SAMPLE[kind.rstrip("?")] for name, kind in schema.fields.items()}
+    if schema.values is not None:
+        data["jawOpen"] = _SAMPLE[schema.values]
+    return json.dumps(data)
+
+
+def _owners():
+    """A mesh object with shape keys, one pose-space example and a take action its shape keys play:
+    ``{owner kind: owner}``."""
+    ob = _rig()
+    ex = ob.shapespace_psd.examples.add()
+    ex.name = "PSD_01"
+    act = bpy.data.actions.new("Take 1")
+    act.use_fake_user = True
+    actions.assign_action(ob.data.shape_keys, act)
+    return ob, {"Object": ob, "Mesh": ob.data, "Key": ob.data.shape_keys, "Action": act, "Example": ex}
+
+
+def _put(owner, blob, text):
+    if blob.on_id:
+        owner[blob.prop] = text
+    else:
+        setattr(owner, blob.prop, text)
+
+
+def _reopened(kind):
+    ob = bpy.data.objects["Face"]
+    return {"Object": ob, "Mesh": ob.data, "Key": ob.data.shape_keys, "Action": bpy.data.actions["Take 1"],
+            "Example": ob.shapespace_psd.examples["PSD_01"]}[kind]
+
+
+def test_the_owners_are_real_blender_types():
+    ob, owners = _owners()
+    assert set(owners) == set(blobs.OWNERS)
+    assert {k: type(v).__name__ for k, v in owners.items() if k in blobs.ID_OWNERS} == \
+        {k: k for k in blobs.ID_OWNERS}
+    for blob in blobs.BLOBS:
+        if not blob.on_id:
+            assert isinstance(getattr(owners[blob.owner], blob.prop), str), blob.prop
+
+
+@pytest.mark.parametrize("blob", blobs.BLOBS, ids=lambda b: f"{b.owner}.{b.prop}")
+def test_saving_upgrades_an_old_blob_of_every_registered_kind(registered, tmp_path, blob):
+    ob, owners = _owners()
+    old = _version_0(blob.schema)
+    _put(owners[blob.owner], blob, old)
+    path = str(tmp_path / "saved.blend")
+    assert bpy.ops.wm.save_as_mainfile(filepath=path) == {"FINISHED"}
+    assert bpy.ops.wm.open_mainfile(filepath=path) == {"FINISHED"}
+    owner = _reopened(blob.owner)
+    text = owner[blob.prop] if blob.on_id else getattr(owner, blob.prop)
+    assert json.loads(text)["schema_version"] == blob.schema.version
+    assert loads(text, blob.schema, "saved") == loads(old, blob.schema, "0.1.0")
+
+
+@pytest.mark.parametrize("blob", blobs.BLOBS, ids=lambda b: f"{b.owner}.{b.prop}")
+def test_check_rig_names_a_damaged_blob_of_every_registered_kind(registered, blob):
+    ob, owners = _owners()
+    _put(owners[blob.owner], blob, "{not json")
+    found = [i for i in inventory.check_object(ob) if i.code == "corrupt_metadata"]
+    assert len(found) == 1 and blob.prop in found[0].message and owners[blob.owner].name in found[0].message, found
+    with pytest.raises(RuntimeError, match=f"damaged ShapeSpace data in .* ▸ {blob.prop}"):
+        bpy.ops.shapespace.check_rig()
+
+
+@pytest.mark.parametrize("section", ["compression", "coherence"])
+def test_check_rig_names_a_damaged_report_inside_the_analysis(registered, section):
+    ob = _rig()
+    ob.data.shape_keys[blobs.ANALYSIS.prop] = json.dumps({"schema_version": 1, section: {"targets": "many"}})
+    found = [i for i in inventory.check_object(ob) if i.code == "corrupt_metadata"]
+    assert len(found) == 1 and f"{blobs.ANALYSIS.prop} ▸ {section}" in found[0].message, found
+
+
+def test_every_schema_of_every_module_of_the_add_on_is_registered(registered):
+    """Walk every module of the add-on (imported): each Schema it holds, at module level or in a module-level
+    dict, list or tuple, is one registered in core.blobs (the same object)."""
+    import importlib
+    import pkgutil
+    import shapespace
+    registered_ids = {id(s) for s in blobs.schemas()}
+    seen, stray = 0, []
+    for info in pkgutil.walk_packages(shapespace.__path__, "shapespace."):
+        if info.name.startswith("shapespace.tests"):
+            continue
+        module = importlib.import_module(info.name)
+        for name, value in vars(module).items():
+            inner = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else ()
+            for item in [value, *inner]:
+                if isinstance(item, Schema):
+                    seen += 1
+                    if id(item) not in registered_ids:
+                        stray.append(f"{info.name}.{name}")
+    assert not stray, f"Schemas not in core.blobs.BLOBS: {stray}"
+    assert seen >= len(registered_ids)
