@@ -1,0 +1,236 @@
+"""Test rigs for issue #25, built from Blender's own parts on a shared real head (facecap's ARKit head).
+
+- :func:`hybrid_rig`: facecap's head (2,694 vertices, 52 ARKit shape keys) + an armature with a jaw bone (Limit
+  Rotation constraint, Y locked) bound by an Armature modifier; the jaw's vertex group is hand-computed from
+  the head's own ``jawOpen`` shape (weight ∝ how far ``jawOpen`` moves the vertex, saturating at 2/3 of its
+  largest motion), so the bone moves the chin and lower lip region.  Controls: jaw rotation X/Z and six shape
+  keys.
+- :func:`driver_rig`: the same head driven by a control armature through drivers: a bone location drives
+  ``jawOpen`` linearly and an in-between shape (half open + funnel) through a hat expression; another bone's
+  location drives ``mouthSmile_L`` through ``sin`` (nonlinear) and a third ``mouthSmile_R`` through an
+  averaged (non-scripted) driver; a bone's rotation drives ``browInnerUp`` through ``var + 2 var²``; a custom
+  property on the armature drives both blinks through ``var (0.5 + var)``.  Bounds from Limit Location / Limit
+  Rotation constraints and the property's soft range.
+
+Each builder returns a :class:`Rig` with the mesh, the armature, the control set and a sampler of random
+control poses inside the bounds.  Used by ``tests/bridge/test_rig*.py`` and ``tools/bench_rig.py``.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+
+import package  # tools/package.py
+
+SS = package.load()
+from shapespace.bridge import assets  # noqa: E402
+from shapespace.bridge import rig as brig  # noqa: E402
+
+FACECAP = os.path.join("facecap", "facecap_decoded.glb")
+HYBRID_KEYS = ("mouthSmile_L", "mouthSmile_R", "browInnerUp", "eyeBlink_L", "mouthFunnel", "cheekPuff")
+
+
+@dataclass
+class Rig:
+    mesh: object
+    armature: object
+    controls: object
+    name: str
+
+    def random_pose(self, rng, spread: float = 0.8) -> np.ndarray:
+        """Random controls uniformly in the inner ``spread`` of every channel's bounds (above the rest value
+        for channels whose rest sits on a bound)."""
+        lo, hi = self.controls.lo, self.controls.hi
+        c0 = brig.read_controls(self.controls)
+        a = np.where(c0 <= lo, lo, c0 - spread * (c0 - lo))
+        b = c0 + spread * (hi - c0)
+        return rng.uniform(a, b)
+
+    def world_points(self) -> np.ndarray:
+        """Blender's evaluated world-space vertex positions of the mesh, float64 (V, 3)."""
+        bpy.context.view_layer.update()
+        dg = bpy.context.evaluated_depsgraph_get()
+        ob = self.mesh.evaluated_get(dg)
+        me = ob.to_mesh()
+        try:
+            co = np.empty(len(me.vertices) * 3, np.float32)
+            me.vertices.foreach_get("co", co)
+        finally:
+            ob.to_mesh_clear()
+        m = np.array(self.mesh.matrix_world, dtype=np.float64)
+        return co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+
+
+def load_head(path: str):
+    """facecap's head ``Mesh_2`` on an empty scene, its capture action removed, every slider at 0."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assets.load(path, replace=False)
+    ob = bpy.data.objects["Mesh_2"]
+    ob.data.shape_keys.animation_data_clear()
+    for kb in ob.data.shape_keys.key_blocks[1:]:
+        kb.value = 0.0
+    return ob
+
+
+def _shape_delta(ob, name: str) -> np.ndarray:
+    """World-space displacement (V, 3) of shape key ``name`` at 1 (linear part of matrix_world)."""
+    kbs = ob.data.shape_keys.key_blocks
+    base = np.empty(len(ob.data.vertices) * 3, np.float32)
+    co = np.empty_like(base)
+    kbs[0].data.foreach_get("co", base)
+    kbs[name].data.foreach_get("co", co)
+    m = np.array(ob.matrix_world, dtype=np.float64)[:3, :3]
+    return (co - base).reshape(-1, 3).astype(np.float64) @ m.T
+
+
+def _armature(name: str, bones: dict, location=(0.0, 0.0, 0.0)):
+    """An armature object with ``bones`` {name: (head, tail)} (world space), linked to the scene, Object Mode."""
+    arm = bpy.data.armatures.new(name)
+    ob = bpy.data.objects.new(name, arm)
+    ob.location = location
+    bpy.context.scene.collection.objects.link(ob)
+    bpy.context.view_layer.objects.active = ob
+    bpy.ops.object.mode_set(mode="EDIT")
+    for bname, (head, tail) in bones.items():
+        eb = arm.edit_bones.new(bname)
+        eb.head, eb.tail = head, tail
+    bpy.ops.object.mode_set(mode="OBJECT")
+    return ob
+
+
+def _limit_rotation(pb, x=None, y=None, z=None):
+    con = pb.constraints.new("LIMIT_ROTATION")
+    con.owner_space = "LOCAL"
+    for axis, lim in zip("xyz", (x, y, z)):
+        if lim is not None:
+            setattr(con, f"use_limit_{axis}", True)
+            setattr(con, f"min_{axis}", lim[0])
+            setattr(con, f"max_{axis}", lim[1])
+    return con
+
+
+def _limit_location(pb, y):
+    con = pb.constraints.new("LIMIT_LOCATION")
+    con.owner_space = "LOCAL"
+    con.use_min_y = con.use_max_y = True
+    con.min_y, con.max_y = y
+    return con
+
+
+def hybrid_rig(path: str) -> Rig:
+    """Facecap's head + a weighted jaw bone + six of its shape keys (module doc)."""
+    ob = load_head(path)
+    jaw = _shape_delta(ob, "jawOpen")
+    mag = np.linalg.norm(jaw, axis=1)
+    world = Rig(ob, None, None, "").world_points()
+    chin = world[np.argmax(mag)]
+    lo, hi = world.min(0), world.max(0)
+    pivot = np.array([0.5 * (lo[0] + hi[0]), chin[1] + 0.55 * (hi[1] - chin[1]), chin[2] + 0.35 * (hi[2] - lo[2])])
+    arm = _armature("FaceRig", {"jaw": (tuple(pivot), tuple(chin))})
+    pb = arm.pose.bones["jaw"]
+    pb.rotation_mode = "XYZ"
+    pb.lock_rotation[1] = True
+    _limit_rotation(pb, x=(-0.35, 0.35), z=(-0.15, 0.15))
+    group = ob.vertex_groups.new(name="jaw")
+    weights = np.clip(1.5 * mag / mag.max(), 0.0, 1.0)
+    for w in np.unique(np.round(weights[weights > 0], 3)):
+        idx = np.flatnonzero(np.isclose(np.round(weights, 3), w))
+        group.add(idx.tolist(), float(w), "REPLACE")
+    mod = ob.modifiers.new("Armature", "ARMATURE")
+    mod.object = arm
+    chans = [brig.bone_channel(arm, "jaw", "rotation", 0), brig.bone_channel(arm, "jaw", "rotation", 2)]
+    chans += [brig.shape_key_channel(ob, k) for k in HYBRID_KEYS]
+    bpy.context.view_layer.update()
+    return Rig(ob, arm, brig.control_set(chans), "hybrid")
+
+
+def _driver(key_block, expression: str, arm, target: dict, dtype: str = "SCRIPTED"):
+    fc = key_block.driver_add("value")
+    drv = fc.driver
+    drv.type = dtype
+    var = drv.variables.new()
+    var.name = "var"
+    if "prop" in target:
+        var.type = "SINGLE_PROP"
+        var.targets[0].id = arm
+        var.targets[0].data_path = f'["{target["prop"]}"]'
+    else:
+        var.type = "TRANSFORMS"
+        var.targets[0].id = arm
+        var.targets[0].bone_target = target["bone"]
+        var.targets[0].transform_type = target["transform"]
+        var.targets[0].transform_space = "LOCAL_SPACE"
+    if dtype == "SCRIPTED":
+        drv.expression = expression
+    return fc
+
+
+def driver_rig(path: str) -> Rig:
+    """Facecap's head driven through drivers by a control armature and a custom property (module doc)."""
+    ob = load_head(path)
+    world = Rig(ob, None, None, "").world_points()
+    top = world.max(0)
+    names = ("ctl_jaw", "ctl_smile_L", "ctl_smile_R", "ctl_brow")
+    bones = {n: ((0.3 * i, top[1] + 0.2, top[2]), (0.3 * i, top[1] + 0.2, top[2] + 0.1)) for i, n in enumerate(names)}
+    arm = _armature("Controls", bones)
+    for n in names[:3]:
+        pb = arm.pose.bones[n]
+        pb.lock_location = (True, False, True)
+        _limit_location(pb, (0.0, 0.5))
+    brow = arm.pose.bones["ctl_brow"]
+    brow.rotation_mode = "XYZ"
+    brow.lock_rotation = (False, True, True)
+    _limit_rotation(brow, x=(0.0, 0.6))
+    arm["blink"] = 0.0
+    arm.id_properties_ui("blink").update(min=0.0, max=1.0, soft_min=0.0, soft_max=1.0)
+    kbs = ob.data.shape_keys.key_blocks
+    jaw, funnel = _shape_delta(ob, "jawOpen"), _shape_delta(ob, "mouthFunnel")
+    inb = ob.shape_key_add(name="jawOpen_half", from_mix=False)
+    base = np.empty(len(ob.data.vertices) * 3, np.float32)
+    kbs[0].data.foreach_get("co", base)
+    minv = np.linalg.inv(np.array(ob.matrix_world, dtype=np.float64)[:3, :3])
+    extra = (0.3 * funnel + 0.2 * jaw) @ minv.T
+    inb.data.foreach_set("co", (base.reshape(-1, 3) + extra).astype(np.float32).ravel())
+    jaw_t = {"bone": "ctl_jaw", "transform": "LOC_Y"}
+    _driver(kbs["jawOpen"], "var * 2.0", arm, jaw_t)
+    _driver(inb, "max(0.0, 1.0 - abs(var * 2.0 - 0.5) * 2.0)", arm, jaw_t)
+    _driver(kbs["mouthSmile_L"], "sin(var * 3.0)", arm, {"bone": "ctl_smile_L", "transform": "LOC_Y"})
+    _driver(kbs["mouthSmile_R"], "", arm, {"bone": "ctl_smile_R", "transform": "LOC_Y"}, dtype="AVERAGE")
+    _driver(kbs["browInnerUp"], "var + 2.0 * var * var", arm, {"bone": "ctl_brow", "transform": "ROT_X"})
+    for side in ("L", "R"):
+        _driver(kbs[f"eyeBlink_{side}"], "var * (0.5 + var)", arm, {"prop": "blink"})
+    chans = [brig.bone_channel(arm, n, "location", 1) for n in names[:3]]
+    chans += [brig.bone_channel(arm, "ctl_brow", "rotation", 0), brig.property_channel(arm, "blink")]
+    bpy.context.view_layer.update()
+    return Rig(ob, arm, brig.control_set(chans), "driver")
+
+
+def pin_vertices(rig: Rig, count: int, rng) -> np.ndarray:
+    """``count`` distinct vertices spread over the channels: channel by channel in turn, one of the vertices
+    that channel alone moves most (among its top 20), so every channel is pinned down."""
+    rest = rig.world_points()
+    c0 = brig.read_controls(rig.controls)
+    far = rig.random_pose(rng, 1.0)
+    tops = []
+    for i in range(len(c0)):
+        c = c0.copy()
+        c[i] = far[i] if abs(far[i] - c0[i]) > 1e-3 else rig.controls.hi[i]
+        brig.apply_controls(rig.controls, c)
+        tops.append(list(np.argsort(np.linalg.norm(rig.world_points() - rest, axis=1))[::-1][:20]))
+    brig.apply_controls(rig.controls, c0)
+    chosen = []
+    while len(chosen) < count:
+        top = tops[len(chosen) % len(tops)]
+        free = [v for v in top if v not in chosen]
+        chosen.append(free[int(rng.integers(len(free)))])
+    return np.sort(np.array(chosen, dtype=np.int64))
+
+
+def diagonal(points) -> float:
+    return float(np.linalg.norm(points.max(0) - points.min(0)))
+
+
+__all__ = ["Rig", "driver_rig", "hybrid_rig", "load_head", "pin_vertices", "diagonal"]
