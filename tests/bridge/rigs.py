@@ -64,12 +64,14 @@ class Rig:
         return co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
 
 
-def load_head(path: str):
-    """facecap's head ``Mesh_2`` on an empty scene, its capture action removed, every slider at 0."""
+def load_head(path: str, mesh_name: str = "Mesh_2"):
+    """A shared head (facecap's ``Mesh_2`` by default) on an empty scene, its shape-key animation removed, every
+    slider at 0."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     assets.load(path, replace=False)
-    ob = bpy.data.objects["Mesh_2"]
-    ob.data.shape_keys.animation_data_clear()
+    ob = bpy.data.objects[mesh_name]
+    if ob.data.shape_keys.animation_data is not None:
+        ob.data.shape_keys.animation_data_clear()
     for kb in ob.data.shape_keys.key_blocks[1:]:
         kb.value = 0.0
     return ob
@@ -120,9 +122,10 @@ def _limit_location(pb, y):
     return con
 
 
-def hybrid_rig(path: str) -> Rig:
-    """Facecap's head + a weighted jaw bone + six of its shape keys (module doc)."""
-    ob = load_head(path)
+def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str = "hybrid") -> Rig:
+    """A shared head + a weighted jaw bone + its shape keys ``keys`` (facecap and six keys by default; ``None``:
+    every key that moves a vertex) (module doc)."""
+    ob = load_head(path, mesh_name)
     jaw = _shape_delta(ob, "jawOpen")
     mag = np.linalg.norm(jaw, axis=1)
     world = Rig(ob, None, None, "").world_points()
@@ -142,9 +145,11 @@ def hybrid_rig(path: str) -> Rig:
     mod = ob.modifiers.new("Armature", "ARMATURE")
     mod.object = arm
     chans = [brig.bone_channel(arm, "jaw", "rotation", 0), brig.bone_channel(arm, "jaw", "rotation", 2)]
-    chans += [brig.shape_key_channel(ob, k) for k in HYBRID_KEYS]
+    if keys is None:
+        keys = [kb.name for kb in ob.data.shape_keys.key_blocks[1:] if np.abs(_shape_delta(ob, kb.name)).max() > 0]
+    chans += [brig.shape_key_channel(ob, k) for k in keys]
     bpy.context.view_layer.update()
-    return Rig(ob, arm, brig.control_set(chans), "hybrid")
+    return Rig(ob, arm, brig.control_set(chans), name)
 
 
 def _driver(key_block, expression: str, arm, target: dict, dtype: str = "SCRIPTED"):

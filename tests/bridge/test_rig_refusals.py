@@ -138,3 +138,9 @@ def test_pins_outside_the_mesh_and_values_outside_bounds_are_refused():
     with pytest.raises(ShapeSpaceError, match="jaw rotation X") as exc:
         brig.apply_controls(rig.controls, c)
     assert exc.value.code == "range"
+
+
+def test_modifier_that_changes_the_vertex_count_is_refused():
+    rig = rigs.hybrid_rig(_head())
+    rig.mesh.modifiers.new("Subdivision", "SUBSURF")
+    _refused(rig, rig.controls, "topology_modifiers", "Mesh_2", "vertex count")
