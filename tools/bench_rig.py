@@ -5,6 +5,8 @@ Rigs (built by ``tests/bridge/rigs.py`` from Blender's own parts on shared heads
 - ``hybrid``: facecap's head (2,694 vertices) + a weighted jaw bone + six ARKit shape keys (8 channels);
 - ``driver``: facecap's head driven by control bones and a custom property through drivers (nonlinear
   expressions, an in-between; 5 channels);
+- ``rigify``: facecap's head with Rigify's own face (the human meta-rig cut to head and face, fitted to the head,
+  generated, automatic weights; 18 channels: quaternion jaw, lip/brow/lid locations);
 - ``hybrid_ict``: ICT FaceKit's head (26,719 vertices) + a weighted jaw bone + every one of its 57 shape keys
   that moves (59 channels) — the size the speed goal names (~150 channels on a 27k-vertex head; the
   per-channel cost is reported so the 150-channel figure can be read off).
@@ -44,7 +46,8 @@ def _rigs(quick: bool) -> list:
     out = []
     facecap = shared_data(FACECAP, "facecap rigs")
     if facecap is not None:
-        out += [("hybrid", lambda: rigs.hybrid_rig(facecap)), ("driver", lambda: rigs.driver_rig(facecap))]
+        out += [("hybrid", lambda: rigs.hybrid_rig(facecap)), ("driver", lambda: rigs.driver_rig(facecap)),
+                ("rigify", lambda: rigs.rigify_rig(facecap))]
     ict = shared_data(ICT, "ICT hybrid rig")
     if ict is not None:
         out.append(("hybrid_ict", lambda: rigs.hybrid_rig(ict, "ICTFace", keys=None, name="hybrid_ict")))
@@ -109,6 +112,7 @@ def run(quick: bool = False) -> dict:
     metrics = {}
     poses, reps = (3, 1) if quick else (10, 3)
     for name, build in _rigs(quick):
+        print(f"bench rig: building {name}", file=sys.stderr)
         metrics.update(_measure(name, build, poses, reps))
     errs = [v for k, v in metrics.items() if k.startswith("rig_drag_pin_err_max_")]
     metrics["rig_drag_pin_err_goal_met"] = bool(errs) and max(errs) <= 1e-3
