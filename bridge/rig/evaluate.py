@@ -283,7 +283,8 @@ def solve_pins(mesh_obj, controls: ControlSet, indices, targets, *, mu: float = 
         lo, hi = ev.controls.solve_bounds(ev.c0)
         tol = 1e-5 * ev.diagonal if pin_tol is None else pin_tol
         res = solve_controls(ev.evaluate, ev.c0, targets, lo=lo, hi=hi, scale=ev.controls.scale,
-                             jacobian=ev.jacobian, reference=reference, mu=mu, pin_tol=tol, max_iter=max_iter)
+                             jacobian=ev.jacobian, steps=ev.steps, reference=reference, mu=mu, pin_tol=tol,
+                             max_iter=max_iter)
         res.diagnostics.update(diagonal=ev.diagonal, scales=ev.controls.scale.tolist(),
                                rig_evaluations=ev.evaluations)
     return res

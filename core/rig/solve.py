@@ -25,7 +25,9 @@ Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one up
 
 Stopping: ``OK`` when every pin is within ``pin_tol`` of its target, or when, on a freshly computed Jacobian,
 the bounded Gauss–Newton step predicts a decrease below ``ftol`` × f (first-order stationarity on the box, up
-to the evaluation's rounding); ``NOT_CONVERGED`` (value: the best controls found, which never have a higher
+to the evaluation's rounding), or when a step computed on a fresh Jacobian is refused although no channel moves
+by more than its finite-difference step (stationary to the resolution of the Jacobian: a smaller step is
+below what the Jacobian can resolve); ``NOT_CONVERGED`` (value: the best controls found, which never have a higher
 objective than the start) at the iteration limit or when no step decreases the objective although the model
 predicts one.
 """
@@ -216,7 +218,9 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
     jacobian : callable (n,), (p, 3) -> (3p, n), optional
         The Jacobian at ``c`` given ``evaluate(c)``; forward finite differences by default.
     steps : array_like (n,), optional
-        Finite-difference steps (``1e-3 / s`` by default: a thousandth of a surface unit).
+        Finite-difference steps (``1e-3 / s`` by default: a thousandth of a surface unit); also the resolution
+        below which a refused step on a fresh Jacobian counts as stationary (pass the steps a supplied
+        ``jacobian`` uses).
     weights : array_like (p,), optional
         Non-negative pin weights ``w`` (ones by default).
     reference : array_like (n,), optional
@@ -325,6 +329,9 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         else:
             if not fresh:
                 J, fresh = jac(c, P), True
+            elif np.all(np.abs(c_new - c) <= h):
+                status, message = Status.OK, "stationary to the resolution of the Jacobian"
+                break
             else:
                 lam *= 4.0
                 if lam > 1e12:

@@ -240,3 +240,16 @@ def test_bad_inputs_are_refused_by_name():
     with pytest.raises(ShapeSpaceError, match="non-finite") as e:
         solve_controls(lambda c: rig(c) * np.nan, [0.0, 0.0], t)
     assert e.value.code == "non_finite"
+
+
+def test_rounded_evaluation_stops_at_the_jacobians_resolution_not_at_the_iteration_limit():
+    """A rig evaluated in float32-like rounding (quantised to 1e-7): the solve reaches the rounding floor and
+    reports OK (stationary to the Jacobian's resolution) well before ``max_iter``."""
+    rig = TwoBoneChain()
+    pins = np.arange(0, 24, 3)
+    t = rig(np.array([0.7, -0.5, 1.05]))[pins]
+    res = solve_controls(lambda c: np.round(rig(c)[pins], 7), [0.0, 0.0, 1.0], t, mu=0.0, ftol=1e-300,
+                         steps=[1e-4] * 3, max_iter=200)
+    assert res.status == Status.OK, res.message
+    assert res.iterations < 200
+    assert res.pin_error_max <= 1e-5
