@@ -250,7 +250,9 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         raise ShapeSpaceError(f"max_iter = {max_iter} must be at least 1", ErrorCode.RANGE)
     sw = np.repeat(np.sqrt(w), 3)
     reg_w = mu * s * s
-    h = 1e-3 / s if steps is None else np.asarray(steps, dtype=np.float64)
+    h = 1e-3 / s if steps is None else np.array(steps, dtype=np.float64).reshape(-1)
+    if h.shape != c.shape or not np.all(np.isfinite(h) & (h > 0)):
+        raise ShapeSpaceError(f"steps: expected {c.size} positive numbers", ErrorCode.RANGE)
     counts = {"evaluations": 0, "jacobians": 0}
 
     def points(x):

@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+import addon_utils
 import bpy
 import numpy as np
 
@@ -255,7 +256,6 @@ def rigify_rig(path: str) -> Rig:
     brows and upper lids' location (:data:`RIGIFY_CONTROLS`), each location bounded by a Limit Location
     constraint (±0.1, about 3 % of the head's diagonal) as an animator would; random poses rotate the jaw by
     at most ±0.2 rad."""
-    import addon_utils
     ob = load_head(path)
     addon_utils.enable("rigify", default_set=True)
     world = Rig(ob, None, None, "").world_points()

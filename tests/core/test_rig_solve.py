@@ -237,6 +237,9 @@ def test_bad_inputs_are_refused_by_name():
     with pytest.raises(ShapeSpaceError) as e:
         solve_controls(rig, [0.0, 0.0], t[:, :2])
     assert e.value.code == "no_pins"
+    with pytest.raises(ShapeSpaceError, match="steps") as e:
+        solve_controls(rig, [0.0, 0.0], t, steps=[1e-3, 0.0])
+    assert e.value.code == "range"
     with pytest.raises(ShapeSpaceError, match="non-finite") as e:
         solve_controls(lambda c: rig(c) * np.nan, [0.0, 0.0], t)
     assert e.value.code == "non_finite"
