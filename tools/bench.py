@@ -24,7 +24,7 @@ TOOLS = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, TOOLS)
 import env  # noqa: E402
 
-SUITES = ("dm", "psd", "retarget", "facespace", "live", "export", "transfer")
+SUITES = ("dm", "psd", "retarget", "facespace", "live", "export", "transfer", "rig")
 
 
 def main(argv) -> int:
@@ -52,6 +52,9 @@ def main(argv) -> int:
     elif args.suite == "transfer":
         import bench_transfer
         metrics = bench_transfer.run(quick=args.quick)
+    elif args.suite == "rig":
+        import bench_rig
+        metrics = bench_rig.run(quick=args.quick)
     else:
         import bench_psd
         metrics = bench_psd.run(quick=args.quick, plot_path=os.path.splitext(args.json)[0] + ".png")

@@ -1,0 +1,11 @@
+"""Any face rig as controls → surface (issue #25): control sets and the bounded Gauss–Newton solve on them.
+
+Pure numpy/SciPy; :mod:`bridge.rig` reads the channels from Blender and evaluates the rig through the depsgraph.
+"""
+from .controls import (Channel, ChannelKind, ControlSet, quaternion_from_rotation_vector,
+                       rotation_vector_from_quaternion)
+from .solve import RigSolveResult, broyden_update, finite_difference_jacobian, solve_controls
+
+__all__ = ["Channel", "ChannelKind", "ControlSet", "RigSolveResult", "broyden_update",
+           "finite_difference_jacobian", "quaternion_from_rotation_vector", "rotation_vector_from_quaternion",
+           "solve_controls"]

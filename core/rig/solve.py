@@ -1,0 +1,348 @@
+"""Pins onto any differentiable rig: bounded, regularised Levenberg–Marquardt in control space.
+
+The direct-manipulation problem of thesis ch. 4 on a rig that is not linear in its controls: find the
+control vector ``c`` (n,) that minimises ::
+
+    f(c) = Σ_k w_k ‖P_k(c) − t_k‖²  +  μ Σ_i (s_i (c_i − r_i))²      subject to  lo ≤ c ≤ hi
+
+where ``P(c)`` (p, 3) are the surface points of the pins for the controls (the rig's evaluation), ``t`` (p, 3)
+their targets, ``r`` (n,) the reference controls the solve is pulled toward (the current or rest pose),
+``s`` (n,) the channels' natural scales (surface displacement per unit, so both terms are squared lengths)
+and ``μ`` a small dimensionless weight.
+
+Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one update between Jacobians):
+
+- The Jacobian ``J = ∂P/∂c`` (3p, n) comes from the caller (``jacobian``) or by forward finite differences,
+  one evaluation per channel, steps pointing into the box.  It is kept between iterations and corrected by
+  Broyden's rank-one update ``J += (ΔP − J d) dᵀ / dᵀd`` after every evaluated trial step.
+- Each step solves the bounded linear least-squares problem ``min ‖J d + e‖² + μ‖S(c + d − r)‖² + λ‖D d‖²``
+  on ``lo − c ≤ d ≤ hi − c`` exactly (a dense primal–dual active set, :func:`core.boxqp.active_set_dense`,
+  falling back on SciPy's bounded least squares), with Marquardt's scaling ``D² = diag(JᵀJ + μS²)``.
+- A step is accepted only when the rig, evaluated again at the new controls, gives an objective that does
+  not increase; otherwise ``λ`` grows.  When a step is refused or *stalls* (actual decrease below a quarter
+  of the predicted one) on a Broyden-updated Jacobian, the Jacobian is recomputed at the current controls
+  before anything else.
+
+Stopping: ``OK`` when every pin is within ``pin_tol`` of its target, or when, on a freshly computed Jacobian,
+the bounded Gauss–Newton step predicts a decrease below ``ftol`` × f (first-order stationarity on the box, up
+to the evaluation's rounding), or when a step computed on a fresh Jacobian is refused although no channel moves
+by more than its finite-difference step (stationary to the resolution of the Jacobian: a smaller step is
+below what the Jacobian can resolve); ``NOT_CONVERGED`` (value: the best controls found, which never have a higher
+objective than the start) at the iteration limit or when no step decreases the objective although the model
+predicts one.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import lsq_linear
+
+from ..boxqp import active_set_dense
+from ..errors import ErrorCode
+from ..result import Result, ShapeSpaceError, Status
+
+__all__ = ["RigSolveResult", "broyden_update", "finite_difference_jacobian", "solve_controls"]
+
+
+@dataclass(kw_only=True)
+class RigSolveResult(Result):
+    """Outcome of :func:`solve_controls` (``value``: the controls (n,), also readable as ``x``).
+
+    Attributes
+    ----------
+    points : ndarray (p, 3)
+        The rig's evaluation at ``value`` (the last verified evaluation, not a prediction).
+    pin_errors : ndarray (p,)
+        Distances ``‖P_k(value) − t_k‖``.
+    objective : float
+        ``f(value)``.
+    objective_start : float
+        ``f`` at the start.
+    evaluations : int
+        Rig evaluations made (trial steps and finite differences).
+    jacobians : int
+        Jacobians computed (finite differences or the caller's), the first included.
+    """
+
+    points: np.ndarray = None
+    pin_errors: np.ndarray = None
+    objective: float = np.nan
+    objective_start: float = np.nan
+    evaluations: int = 0
+    jacobians: int = 0
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.value
+
+    @property
+    def pin_error_max(self) -> float:
+        return float(np.max(self.pin_errors)) if self.pin_errors is not None and self.pin_errors.size else 0.0
+
+
+def finite_difference_jacobian(evaluate: Callable, c: ArrayLike, steps: ArrayLike, lo: ArrayLike, hi: ArrayLike,
+                               base: ArrayLike | None = None) -> np.ndarray:
+    """Forward-difference Jacobian of ``evaluate`` at ``c``, one evaluation per channel, steps into the box.
+
+    Parameters
+    ----------
+    evaluate : callable (n,) -> (p, 3)
+    c : array_like (n,)
+    steps : array_like (n,)
+        Positive step per channel; a channel whose box is narrower than its step on both sides uses the wider
+        side; a channel with ``lo == hi`` gets a zero column (it cannot move).
+    lo, hi : array_like (n,)
+    base : array_like (p, 3), optional
+        ``evaluate(c)`` when already known.
+
+    Returns
+    -------
+    ndarray (3p, n) float64
+    """
+    c = np.asarray(c, dtype=np.float64)
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    h = np.abs(np.asarray(steps, dtype=np.float64))
+    p0 = np.asarray(evaluate(c) if base is None else base, dtype=np.float64).reshape(-1)
+    J = np.zeros((p0.size, c.size))
+    for i in range(c.size):
+        up, down = hi[i] - c[i], c[i] - lo[i]
+        if up <= 0.0 and down <= 0.0:
+            continue
+        hi_ = min(h[i], up) if up >= h[i] or up >= down else -min(h[i], down)
+        ci = c.copy()
+        ci[i] += hi_
+        J[:, i] = (np.asarray(evaluate(ci), dtype=np.float64).reshape(-1) - p0) / (ci[i] - c[i])
+    return J
+
+
+def broyden_update(J: np.ndarray, d: ArrayLike, dp: ArrayLike) -> np.ndarray:
+    """Broyden's rank-one secant update of a Jacobian, in place and returned.
+
+    ``J`` (m, n) becomes ``J + (dp − J d) dᵀ / dᵀd`` so that ``J d = dp`` (the observed change ``dp`` (m,) for
+    the step ``d`` (n,)); a zero step leaves ``J`` unchanged.
+    """
+    d = np.asarray(d, dtype=np.float64)
+    dd = float(d @ d)
+    if dd > 0.0:
+        J += np.outer(np.asarray(dp, dtype=np.float64) - J @ d, d / dd)
+    return J
+
+
+def _step(J, e, reg_w, c, ref, lam, D2, lo, hi):
+    """The bounded LM step: argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c."""
+    H = J.T @ J + np.diag(reg_w + lam * D2)
+    g = -(J.T @ e) - reg_w * (c - ref)
+    dlo, dhi = lo - c, hi - c
+    try:
+        d, _ = active_set_dense(H, g, dlo, dhi, np.clip(np.zeros_like(c), dlo, dhi),
+                                np.zeros(c.size, bool), np.zeros(c.size, bool))
+    except np.linalg.LinAlgError:
+        d = None
+    if d is None:
+        a = np.sqrt(reg_w + lam * D2)
+        A = np.vstack([J, np.diag(a)])
+        b = np.concatenate([-e, -reg_w * (c - ref) / np.where(a > 0, a, 1.0)])
+        free = dhi > dlo
+        d = np.zeros_like(c)
+        if free.any():
+            d[free] = lsq_linear(A[:, free], b, bounds=(dlo[free], dhi[free]), method="bvls").x
+    return np.clip(d, dlo, dhi)
+
+
+def _model(J, e, reg_w, c, ref, d):
+    """The Gauss–Newton model of f at c + d."""
+    r = e + J @ d
+    return float(r @ r + np.sum(reg_w * (c + d - ref) ** 2))
+
+
+def _check_inputs(c0, targets, lo, hi, scale, weights, reference):
+    c0 = np.array(c0, dtype=np.float64).reshape(-1)
+    n = c0.size
+    if n == 0:
+        raise ShapeSpaceError("no controls to solve for", ErrorCode.NO_CHANNELS)
+    t = np.array(targets, dtype=np.float64)
+    if t.ndim != 2 or t.shape[1] != 3 or t.shape[0] == 0:
+        raise ShapeSpaceError(f"targets: expected (p, 3) with p ≥ 1, got {t.shape}", ErrorCode.NO_PINS)
+
+    def vec(v, name, default, finite=True):
+        out = np.full(n, default, np.float64) if v is None else np.array(v, dtype=np.float64).reshape(-1)
+        if out.shape != (n,):
+            raise ShapeSpaceError(f"{name}: expected {n} values, got {out.size}", ErrorCode.SHAPE)
+        bad = np.flatnonzero(np.isnan(out) | (~np.isfinite(out) if finite else False))
+        if bad.size:
+            raise ShapeSpaceError(f"{name}: entry {bad[0]} is {out[bad[0]]}", ErrorCode.NON_FINITE)
+        return out
+
+    c0 = vec(c0, "controls", 0.0)
+    lo, hi = vec(lo, "lo", -np.inf, False), vec(hi, "hi", np.inf, False)
+    bad = np.flatnonzero((c0 < lo) | (c0 > hi))
+    if bad.size:
+        i = bad[0]
+        raise ShapeSpaceError(f"controls: channel {i} = {c0[i]} lies outside [{lo[i]}, {hi[i]}]", ErrorCode.RANGE)
+    s = vec(scale, "scale", 1.0)
+    if np.any(s <= 0):
+        raise ShapeSpaceError(f"scale: channel {int(np.flatnonzero(s <= 0)[0])} is not positive", ErrorCode.RANGE)
+    if not np.all(np.isfinite(t)):
+        raise ShapeSpaceError(f"targets: pin {int(np.flatnonzero(~np.isfinite(t).all(1))[0])} is not finite",
+                              ErrorCode.NON_FINITE)
+    w = np.ones(t.shape[0]) if weights is None else np.array(weights, dtype=np.float64).reshape(-1)
+    if w.shape != (t.shape[0],) or not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ShapeSpaceError(f"weights: expected {t.shape[0]} non-negative numbers", ErrorCode.INVALID)
+    ref = c0.copy() if reference is None else vec(reference, "reference", 0.0)
+    return c0, t, lo, hi, s, w, ref
+
+
+def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo: ArrayLike | None = None,
+                   hi: ArrayLike | None = None, scale: ArrayLike | None = None, jacobian: Callable | None = None,
+                   steps: ArrayLike | None = None, weights: ArrayLike | None = None,
+                   reference: ArrayLike | None = None, mu: float = 1e-6, pin_tol: float = 0.0,
+                   ftol: float = 1e-10, max_iter: int = 50, first_jacobian: np.ndarray | None = None,
+                   first_points: np.ndarray | None = None) -> RigSolveResult:
+    """Controls that bring the pins to their targets (bounded, regularised Levenberg–Marquardt; module doc).
+
+    Parameters
+    ----------
+    evaluate : callable (n,) -> (p, 3)
+        The rig's surface points of the pins for a control vector (any float dtype; read as float64).
+    c0 : array_like (n,)
+        Start (inside the bounds).
+    targets : array_like (p, 3)
+    lo, hi : array_like (n,), optional
+        Box bounds (infinite by default; ``lo == hi`` holds a channel).
+    scale : array_like (n,), optional
+        Natural scales ``s`` (ones by default).
+    jacobian : callable (n,), (p, 3) -> (3p, n), optional
+        The Jacobian at ``c`` given ``evaluate(c)``; forward finite differences by default.
+    steps : array_like (n,), optional
+        Finite-difference steps (``1e-3 / s`` by default: a thousandth of a surface unit); also the resolution
+        below which a refused step on a fresh Jacobian counts as stationary (pass the steps a supplied
+        ``jacobian`` uses).
+    weights : array_like (p,), optional
+        Non-negative pin weights ``w`` (ones by default).
+    reference : array_like (n,), optional
+        Controls ``r`` the regulariser pulls toward (``c0`` by default).
+    mu : float
+        Regularisation weight ``μ`` ≥ 0 (dimensionless).
+    pin_tol : float
+        Stop as soon as every pin is within this distance of its target (0: only stationarity stops).
+    ftol : float
+        Relative predicted decrease below which a fresh-Jacobian step counts as stationary.
+    max_iter : int
+        Trial steps (each one rig evaluation) before ``NOT_CONVERGED``.
+    first_jacobian : ndarray (3p, n), optional
+        A Jacobian already known at ``c0`` (a cached one; counted as Broyden-updated, so it is refreshed before
+        it can stop the solve).
+    first_points : ndarray (p, 3), optional
+        ``evaluate(c0)`` when already known.
+
+    Returns
+    -------
+    RigSolveResult
+    """
+    c, t, lo, hi, s, w, ref = _check_inputs(c0, targets, lo, hi, scale, weights, reference)
+    if not (np.isfinite(mu) and mu >= 0):
+        raise ShapeSpaceError(f"mu = {mu} must be a non-negative number", ErrorCode.RANGE)
+    if max_iter < 1:
+        raise ShapeSpaceError(f"max_iter = {max_iter} must be at least 1", ErrorCode.RANGE)
+    sw = np.repeat(np.sqrt(w), 3)
+    reg_w = mu * s * s
+    h = 1e-3 / s if steps is None else np.array(steps, dtype=np.float64).reshape(-1)
+    if h.shape != c.shape or not np.all(np.isfinite(h) & (h > 0)):
+        raise ShapeSpaceError(f"steps: expected {c.size} positive numbers", ErrorCode.RANGE)
+    counts = {"evaluations": 0, "jacobians": 0}
+
+    def points(x):
+        counts["evaluations"] += 1
+        out = np.asarray(evaluate(x), dtype=np.float64)
+        if out.shape != t.shape:
+            raise ShapeSpaceError(f"the rig evaluated {out.shape} points, expected {t.shape}", ErrorCode.SHAPE)
+        if not np.all(np.isfinite(out)):
+            raise ShapeSpaceError("the rig evaluated non-finite points for controls "
+                                  f"{np.round(x, 6).tolist()}", ErrorCode.NON_FINITE)
+        return out
+
+    def jac(x, px):
+        counts["jacobians"] += 1
+        if jacobian is not None:
+            out = np.asarray(jacobian(x, px), dtype=np.float64)
+        else:
+            out = finite_difference_jacobian(points, x, h, lo, hi, base=px)
+        if out.shape != (t.size, c.size) or not np.all(np.isfinite(out)):
+            raise ShapeSpaceError(f"Jacobian: expected finite ({t.size}, {c.size}), got {out.shape}",
+                                  ErrorCode.SHAPE)
+        return out * sw[:, None]
+
+    def objective(px, x):
+        e = (px - t).reshape(-1) * sw
+        return e, float(e @ e + np.sum(reg_w * (x - ref) ** 2))
+
+    P = points(c) if first_points is None else np.array(first_points, dtype=np.float64).reshape(t.shape)
+    e, f = objective(P, c)
+    f_start = f
+    if first_jacobian is not None:
+        J, fresh = np.array(first_jacobian, dtype=np.float64).reshape(t.size, c.size) * sw[:, None], False
+    else:
+        J, fresh = jac(c, P), True
+    lam = 1e-3
+    status, message, it = Status.NOT_CONVERGED, "", 0
+    history = [f]
+    while True:
+        if pin_tol > 0 and np.max(np.linalg.norm(P - t, axis=1)) <= pin_tol:
+            status, message = Status.OK, "every pin within tolerance"
+            break
+        D2 = np.maximum(np.einsum("ij,ij->j", J, J) + reg_w, 1e-12 * np.max(s * s))
+        if fresh:
+            d_gn = _step(J, e, reg_w, c, ref, 1e-9, D2, lo, hi)
+            if f - _model(J, e, reg_w, c, ref, d_gn) <= ftol * f + 1e-300:
+                status, message = Status.OK, "stationary on the bounds"
+                break
+        if it >= max_iter:
+            message = f"stopped after {it} steps, pins up to {np.max(np.linalg.norm(P - t, axis=1)):.3g} away"
+            break
+        it += 1
+        d = _step(J, e, reg_w, c, ref, lam, D2, lo, hi)
+        was_fresh = fresh
+        pred = f - _model(J, e, reg_w, c, ref, d)
+        if not np.any(d) or pred <= 0.0:
+            if not fresh:
+                J, fresh = jac(c, P), True
+                continue
+            if lam > 1e12:
+                message = "stalled: no step decreases the objective although the model predicts one"
+                break
+            lam *= 10.0
+            continue
+        c_new = np.clip(c + d, lo, hi)
+        P_new = points(c_new)
+        e_new, f_new = objective(P_new, c_new)
+        J = broyden_update(J, c_new - c, e_new - e)
+        rho = (f - f_new) / pred
+        if f_new <= f:
+            c, P, e, f = c_new, P_new, e_new, f_new
+            history.append(f)
+            fresh = False
+            lam = lam / 3.0 if rho > 0.75 else (lam * 2.0 if rho < 0.25 else lam)
+            if rho < 0.25 and not was_fresh:
+                J, fresh = jac(c, P), True
+        else:
+            if not fresh:
+                J, fresh = jac(c, P), True
+            elif np.all(np.abs(c_new - c) <= h):
+                status, message = Status.OK, "stationary to the resolution of the Jacobian"
+                break
+            else:
+                lam *= 4.0
+                if lam > 1e12:
+                    message = "stalled: no step decreases the objective although the model predicts one"
+                    break
+        lam = max(lam, 1e-12)
+    errs = np.linalg.norm(P - t, axis=1)
+    return RigSolveResult(c, status=status, message=message, iterations=it, points=P, pin_errors=errs,
+                          objective=f, objective_start=f_start, evaluations=counts["evaluations"],
+                          jacobians=counts["jacobians"],
+                          diagnostics={"lambda": lam, "pin_error_max": float(errs.max()),
+                                       "objective_history": history})

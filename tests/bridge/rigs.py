@@ -1,0 +1,325 @@
+"""Test rigs for issue #25, built from Blender's own parts on a shared real head (facecap's ARKit head).
+
+- :func:`hybrid_rig`: facecap's head (2,694 vertices, 52 ARKit shape keys) + an armature with a jaw bone (Limit
+  Rotation constraint, Y locked) bound by an Armature modifier; the jaw's vertex group is hand-computed from
+  the head's own ``jawOpen`` shape (weight ∝ how far ``jawOpen`` moves the vertex, saturating at 2/3 of its
+  largest motion), so the bone moves the chin and lower lip region.  Controls: jaw rotation X/Z and six shape
+  keys.
+- :func:`driver_rig`: the same head driven by a control armature through drivers: a bone location drives
+  ``jawOpen`` linearly and an in-between shape (half open + funnel) through a hat expression; another bone's
+  location drives ``mouthSmile_L`` through ``sin`` (nonlinear) and a third ``mouthSmile_R`` through an
+  averaged (non-scripted) driver; a bone's rotation drives ``browInnerUp`` through ``var + 2 var²``; a custom
+  property on the armature drives both blinks through ``var (0.5 + var)``.  Bounds from Limit Location / Limit
+  Rotation constraints and the property's soft range.
+
+Each builder returns a :class:`Rig` with the mesh, the armature, the control set and a sampler of random
+control poses inside the bounds.  Used by ``tests/bridge/test_rig*.py`` and ``tools/bench_rig.py``.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import addon_utils
+import bpy
+import numpy as np
+
+import package  # tools/package.py
+
+SS = package.load()
+from shapespace.bridge import assets  # noqa: E402
+from shapespace.bridge import rig as brig  # noqa: E402
+
+FACECAP = os.path.join("facecap", "facecap_decoded.glb")
+HYBRID_KEYS = ("mouthSmile_L", "mouthSmile_R", "browInnerUp", "eyeBlink_L", "mouthFunnel", "cheekPuff")
+
+
+@dataclass
+class Rig:
+    mesh: object
+    armature: object
+    controls: object
+    name: str
+    pose_lo: np.ndarray = None
+    pose_hi: np.ndarray = None
+
+    def random_pose(self, rng, spread: float = 0.8) -> np.ndarray:
+        """Random controls uniformly in the inner ``spread`` of every channel's bounds (``pose_lo``/``pose_hi``
+        when set, for channels whose bounds are wider than a plausible pose), above the rest value for channels
+        whose rest sits on a bound."""
+        lo = self.controls.lo if self.pose_lo is None else self.pose_lo
+        hi = self.controls.hi if self.pose_hi is None else self.pose_hi
+        c0 = brig.read_controls(self.controls)
+        a = np.where(c0 <= lo, lo, c0 - spread * (c0 - lo))
+        b = c0 + spread * (hi - c0)
+        return rng.uniform(a, b)
+
+    def world_points(self) -> np.ndarray:
+        """Blender's evaluated world-space vertex positions of the mesh, float64 (V, 3)."""
+        bpy.context.view_layer.update()
+        dg = bpy.context.evaluated_depsgraph_get()
+        ob = self.mesh.evaluated_get(dg)
+        me = ob.to_mesh()
+        try:
+            co = np.empty(len(me.vertices) * 3, np.float32)
+            me.vertices.foreach_get("co", co)
+        finally:
+            ob.to_mesh_clear()
+        m = np.array(self.mesh.matrix_world, dtype=np.float64)
+        return co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+
+
+def load_head(path: str, mesh_name: str = "Mesh_2"):
+    """A shared head (facecap's ``Mesh_2`` by default) on an empty scene, its shape-key animation removed, every
+    slider at 0."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    assets.load(path, replace=False)
+    ob = bpy.data.objects[mesh_name]
+    if ob.data.shape_keys.animation_data is not None:
+        ob.data.shape_keys.animation_data_clear()
+    for kb in ob.data.shape_keys.key_blocks[1:]:
+        kb.value = 0.0
+    return ob
+
+
+def _shape_delta(ob, name: str) -> np.ndarray:
+    """World-space displacement (V, 3) of shape key ``name`` at 1 (linear part of matrix_world)."""
+    kbs = ob.data.shape_keys.key_blocks
+    base = np.empty(len(ob.data.vertices) * 3, np.float32)
+    co = np.empty_like(base)
+    kbs[0].data.foreach_get("co", base)
+    kbs[name].data.foreach_get("co", co)
+    m = np.array(ob.matrix_world, dtype=np.float64)[:3, :3]
+    return (co - base).reshape(-1, 3).astype(np.float64) @ m.T
+
+
+def _armature(name: str, bones: dict, location=(0.0, 0.0, 0.0)):
+    """An armature object with ``bones`` {name: (head, tail)} (world space), linked to the scene, Object Mode."""
+    arm = bpy.data.armatures.new(name)
+    ob = bpy.data.objects.new(name, arm)
+    ob.location = location
+    bpy.context.scene.collection.objects.link(ob)
+    bpy.context.view_layer.objects.active = ob
+    bpy.ops.object.mode_set(mode="EDIT")
+    for bname, (head, tail) in bones.items():
+        eb = arm.edit_bones.new(bname)
+        eb.head, eb.tail = head, tail
+    bpy.ops.object.mode_set(mode="OBJECT")
+    return ob
+
+
+def _limit_rotation(pb, x=None, y=None, z=None):
+    con = pb.constraints.new("LIMIT_ROTATION")
+    con.owner_space = "LOCAL"
+    for axis, lim in zip("xyz", (x, y, z)):
+        if lim is not None:
+            setattr(con, f"use_limit_{axis}", True)
+            setattr(con, f"min_{axis}", lim[0])
+            setattr(con, f"max_{axis}", lim[1])
+    return con
+
+
+def _limit_location(pb, y):
+    con = pb.constraints.new("LIMIT_LOCATION")
+    con.owner_space = "LOCAL"
+    con.use_min_y = con.use_max_y = True
+    con.min_y, con.max_y = y
+    return con
+
+
+def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str = "hybrid") -> Rig:
+    """A shared head + a weighted jaw bone + its shape keys ``keys`` (facecap and six keys by default; ``None``:
+    every key that moves a vertex) (module doc)."""
+    ob = load_head(path, mesh_name)
+    jaw = _shape_delta(ob, "jawOpen")
+    mag = np.linalg.norm(jaw, axis=1)
+    world = Rig(ob, None, None, "").world_points()
+    chin = world[np.argmax(mag)]
+    lo, hi = world.min(0), world.max(0)
+    pivot = np.array([0.5 * (lo[0] + hi[0]), chin[1] + 0.55 * (hi[1] - chin[1]), chin[2] + 0.35 * (hi[2] - lo[2])])
+    arm = _armature("FaceRig", {"jaw": (tuple(pivot), tuple(chin))})
+    pb = arm.pose.bones["jaw"]
+    pb.rotation_mode = "XYZ"
+    pb.lock_rotation[1] = True
+    _limit_rotation(pb, x=(-0.35, 0.35), z=(-0.15, 0.15))
+    group = ob.vertex_groups.new(name="jaw")
+    weights = np.clip(1.5 * mag / mag.max(), 0.0, 1.0)
+    for w in np.unique(np.round(weights[weights > 0], 3)):
+        idx = np.flatnonzero(np.isclose(np.round(weights, 3), w))
+        group.add(idx.tolist(), float(w), "REPLACE")
+    mod = ob.modifiers.new("Armature", "ARMATURE")
+    mod.object = arm
+    chans = [brig.bone_channel(arm, "jaw", "rotation", 0), brig.bone_channel(arm, "jaw", "rotation", 2)]
+    if keys is None:
+        keys = [kb.name for kb in ob.data.shape_keys.key_blocks[1:] if np.abs(_shape_delta(ob, kb.name)).max() > 0]
+    chans += [brig.shape_key_channel(ob, k) for k in keys]
+    bpy.context.view_layer.update()
+    return Rig(ob, arm, brig.control_set(chans), name)
+
+
+def _driver(key_block, expression: str, arm, target: dict, dtype: str = "SCRIPTED"):
+    fc = key_block.driver_add("value")
+    drv = fc.driver
+    drv.type = dtype
+    var = drv.variables.new()
+    var.name = "var"
+    if "prop" in target:
+        var.type = "SINGLE_PROP"
+        var.targets[0].id = arm
+        var.targets[0].data_path = f'["{target["prop"]}"]'
+    else:
+        var.type = "TRANSFORMS"
+        var.targets[0].id = arm
+        var.targets[0].bone_target = target["bone"]
+        var.targets[0].transform_type = target["transform"]
+        var.targets[0].transform_space = "LOCAL_SPACE"
+    if dtype == "SCRIPTED":
+        drv.expression = expression
+    return fc
+
+
+def driver_rig(path: str) -> Rig:
+    """Facecap's head driven through drivers by a control armature and a custom property (module doc)."""
+    ob = load_head(path)
+    world = Rig(ob, None, None, "").world_points()
+    top = world.max(0)
+    names = ("ctl_jaw", "ctl_smile_L", "ctl_smile_R", "ctl_brow")
+    bones = {n: ((0.3 * i, top[1] + 0.2, top[2]), (0.3 * i, top[1] + 0.2, top[2] + 0.1)) for i, n in enumerate(names)}
+    arm = _armature("Controls", bones)
+    for n in names[:3]:
+        pb = arm.pose.bones[n]
+        pb.lock_location = (True, False, True)
+        _limit_location(pb, (0.0, 0.5))
+    brow = arm.pose.bones["ctl_brow"]
+    brow.rotation_mode = "XYZ"
+    brow.lock_rotation = (False, True, True)
+    _limit_rotation(brow, x=(0.0, 0.6))
+    arm["blink"] = 0.0
+    arm.id_properties_ui("blink").update(min=0.0, max=1.0, soft_min=0.0, soft_max=1.0)
+    kbs = ob.data.shape_keys.key_blocks
+    jaw, funnel = _shape_delta(ob, "jawOpen"), _shape_delta(ob, "mouthFunnel")
+    inb = ob.shape_key_add(name="jawOpen_half", from_mix=False)
+    base = np.empty(len(ob.data.vertices) * 3, np.float32)
+    kbs[0].data.foreach_get("co", base)
+    minv = np.linalg.inv(np.array(ob.matrix_world, dtype=np.float64)[:3, :3])
+    extra = (0.3 * funnel + 0.2 * jaw) @ minv.T
+    inb.data.foreach_set("co", (base.reshape(-1, 3) + extra).astype(np.float32).ravel())
+    jaw_t = {"bone": "ctl_jaw", "transform": "LOC_Y"}
+    _driver(kbs["jawOpen"], "var * 2.0", arm, jaw_t)
+    _driver(inb, "max(0.0, 1.0 - abs(var * 2.0 - 0.5) * 2.0)", arm, jaw_t)
+    _driver(kbs["mouthSmile_L"], "sin(var * 3.0)", arm, {"bone": "ctl_smile_L", "transform": "LOC_Y"})
+    _driver(kbs["mouthSmile_R"], "", arm, {"bone": "ctl_smile_R", "transform": "LOC_Y"}, dtype="AVERAGE")
+    _driver(kbs["browInnerUp"], "var + 2.0 * var * var", arm, {"bone": "ctl_brow", "transform": "ROT_X"})
+    for side in ("L", "R"):
+        _driver(kbs[f"eyeBlink_{side}"], "var * (0.5 + var)", arm, {"prop": "blink"})
+    chans = [brig.bone_channel(arm, n, "location", 1) for n in names[:3]]
+    chans += [brig.bone_channel(arm, "ctl_brow", "rotation", 0), brig.property_channel(arm, "blink")]
+    bpy.context.view_layer.update()
+    return Rig(ob, arm, brig.control_set(chans), "driver")
+
+
+#: Rigify face controls (generated rig) the Rigify test rig solves for: (bone, kind, axes).
+RIGIFY_CONTROLS = (("jaw_master", "rotation", (0, 2)), ("lips.L", "location", (0, 2)), ("lips.R", "location", (0, 2)),
+                   ("lip.T", "location", (0, 2)), ("lip.B", "location", (0, 2)),
+                   ("brow.T.L.002", "location", (0, 2)), ("brow.T.R.002", "location", (0, 2)),
+                   ("lid.T.L.002", "location", (0, 2)), ("lid.T.R.002", "location", (0, 2)))
+
+
+def _metarig_head_only():
+    """Rigify's human meta-rig cut down to the spine chain and the face (Edit Mode removal of every other
+    bone), in Object Mode."""
+    bpy.ops.object.armature_human_metarig_add()
+    meta = bpy.context.object
+    bpy.ops.object.mode_set(mode="EDIT")
+    eb = meta.data.edit_bones
+    keep = set()
+    b = eb["spine.006"]
+    while b is not None:
+        keep.add(b.name)
+        b = b.parent
+    stack = [eb["spine.006"]]
+    while stack:
+        b = stack.pop()
+        keep.add(b.name)
+        stack += list(b.children)
+    for e in list(eb):
+        if e.name not in keep:
+            eb.remove(e)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    return meta
+
+
+def rigify_rig(path: str) -> Rig:
+    """Facecap's head with Rigify's face: the human meta-rig (head and face only) scaled to the head's width
+    (face bones across 90 % of it) and moved so its chin lands on the head's chin (the vertex ``jawOpen`` moves
+    most), generated by Rigify, bound with automatic weights; controls: jaw_master rotation and the lips,
+    brows and upper lids' location (:data:`RIGIFY_CONTROLS`), each location bounded by a Limit Location
+    constraint (±0.1, about 3 % of the head's diagonal) as an animator would; random poses rotate the jaw by
+    at most ±0.2 rad."""
+    ob = load_head(path)
+    addon_utils.enable("rigify", default_set=True)
+    world = Rig(ob, None, None, "").world_points()
+    chin = world[np.argmax(np.linalg.norm(_shape_delta(ob, "jawOpen"), axis=1))]
+    meta = _metarig_head_only()
+    face = [b for b in meta.data.bones if not b.name.startswith("spine")]
+    pts = np.array([list(b.head_local) for b in face] + [list(b.tail_local) for b in face])
+    s = 0.9 * (world[:, 0].max() - world[:, 0].min()) / (pts[:, 0].max() - pts[:, 0].min())
+    meta.scale = (s, s, s)
+    meta.location = tuple(chin - s * np.array(meta.data.bones["chin"].tail_local))
+    bpy.context.view_layer.update()
+    bpy.ops.object.transform_apply(location=True, rotation=True, scale=True)
+    bpy.ops.pose.rigify_generate()
+    arm = bpy.context.object
+    addon_utils.disable("rigify", default_set=True)           # the generated rig does not need the add-on
+    bpy.ops.object.select_all(action="DESELECT")
+    ob.select_set(True)
+    arm.select_set(True)
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.parent_set(type="ARMATURE_AUTO")
+    bpy.ops.object.select_all(action="DESELECT")
+    chans, pose_lo, pose_hi = [], [], []
+    for bone, kind, axes in RIGIFY_CONTROLS:
+        pb = arm.pose.bones[bone]
+        if kind == "location":
+            con = pb.constraints.new("LIMIT_LOCATION")
+            con.owner_space = "LOCAL"
+            for a in "xyz":
+                setattr(con, f"use_min_{a}", True)
+                setattr(con, f"use_max_{a}", True)
+                setattr(con, f"min_{a}", -0.1)
+                setattr(con, f"max_{a}", 0.1)
+        for axis in axes:
+            ch = brig.bone_channel(arm, bone, kind, axis)
+            chans.append(ch)
+            pose_lo.append(-0.2 if kind == "rotation" else ch.lo)
+            pose_hi.append(0.2 if kind == "rotation" else ch.hi)
+    bpy.context.view_layer.update()
+    return Rig(ob, arm, brig.control_set(chans), "rigify", np.array(pose_lo), np.array(pose_hi))
+
+
+def pin_vertices(rig: Rig, count: int, rng) -> np.ndarray:
+    """``count`` distinct vertices spread over the channels: channel by channel in turn, one of the vertices
+    that channel alone moves most (among its top 20), so every channel is pinned down."""
+    rest = rig.world_points()
+    c0 = brig.read_controls(rig.controls)
+    far = rig.random_pose(rng, 1.0)
+    tops = []
+    for i in range(len(c0)):
+        c = c0.copy()
+        c[i] = far[i] if abs(far[i] - c0[i]) > 1e-3 else rig.controls.hi[i]
+        brig.apply_controls(rig.controls, c)
+        tops.append(list(np.argsort(np.linalg.norm(rig.world_points() - rest, axis=1))[::-1][:20]))
+    brig.apply_controls(rig.controls, c0)
+    chosen = []
+    while len(chosen) < count:
+        top = tops[len(chosen) % len(tops)]
+        free = [v for v in top if v not in chosen]
+        chosen.append(free[int(rng.integers(len(free)))])
+    return np.sort(np.array(chosen, dtype=np.int64))
+
+
+def diagonal(points) -> float:
+    return float(np.linalg.norm(points.max(0) - points.min(0)))
+
+
+__all__ = ["Rig", "driver_rig", "hybrid_rig", "load_head", "pin_vertices", "diagonal"]
