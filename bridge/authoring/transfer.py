@@ -104,6 +104,7 @@ def _plan(rig: SourceRig, tgt: TargetMesh, names: dict, existing: str, target_ob
                               f"the source keys): choose to skip or overwrite existing keys", ErrorCode.DUPLICATE_NAME)
     return write, replace, sorted(skip, key=rig.names.index), groups_clash
 
+
 def _fill_group(group, weights: np.ndarray) -> None:
     rounded = np.round(weights / _WEIGHT_STEP) * _WEIGHT_STEP
     for w in np.unique(rounded[rounded > 0]):
@@ -215,6 +216,7 @@ def _undo_write(target, old_keys: set, groups: list, made_key: bool, old_meta) -
         if g is not None:
             target.vertex_groups.remove(g)
 
+
 def _with_part_objects(target, source, tgt: TargetMesh, parts) -> TargetMesh:
     """``tgt`` with the part objects appended (their rows after the target's own)."""
     verts, tris, objects = part_objects.read_part_objects(target, source, parts, len(tgt.neutral), triangles,
@@ -266,6 +268,7 @@ def read_transfer(source, target, naming: str = "source", existing: str = "refus
                         write=write, replace=replace, skipped=skipped, groups_clash=groups_clash, existing=existing,
                         unmatched_parts=unmatched_parts, signature=target_signature(target, parts), started=start,
                         part_plans=part_plans, openings=carried)
+
 
 def _write_part_objects(outcome: TransferOutcome, report: TransferReport) -> None:
     """Each part object gets its keys (its rows of the result, in its own object space), after the head."""
