@@ -7,8 +7,9 @@
 
 The source rig is appended from its .blend, used, and removed again: the saved file holds the target with its
 new keys only (plus the landmark pairs used, stored on the target for the next run).  stdout carries only the
-JSON report; progress goes to stderr.  Exit codes: 0 done; 1 bad input or a registration that stopped at its
-iteration limit (the result is saved all the same and the report says so); 2 usage.
+JSON report; progress goes to stderr.  Exit codes (:func:`core.result.exit_code`, one rule for every subcommand):
+0 done; 1 bad input, a registration that stopped at its iteration limit or a key that failed its checks (the
+result is saved all the same and the report says so); 2 usage.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ import bpy
 
 from ..core.authoring.named import load_landmark_file
 from ..core.errors import ErrorCode
-from ..core.result import ShapeSpaceError
+from ..core.result import ShapeSpaceError, exit_code
 from .outputs import check_outputs, same_file
 
 HELP = "give a head a source rig's shape keys by model transfer (landmarks, registration, deformation transfer)"
@@ -215,7 +216,7 @@ def transfer(args, inputs: list) -> tuple:
         _say(f"warning: {warning}")
     _say(f"{len(rep.created)} shape keys onto {target.name} in {rep.seconds:.1f} s "
          f"(registration residual {rep.registration_residual_mm:.2f} mm)")
-    code = 1 if rep.registration_status == "not_converged" or rep.status != "ok" else 0
+    code = exit_code(rep)
     payload = {**rep.to_json(), "source_file": src_file or None, "landmarks_from": landmarks,
                "saved": out.path if out is not None else None, "ok": code == 0}
     text = json.dumps(payload, indent=2)

@@ -224,7 +224,7 @@ def transfer_pictures(bpy, np, out_dir: str, size_px: int = 512) -> dict:
     return {"shapes": list(TRANSFER_SHAPES), "landmarks": int(proposed.value),
             "landmark_status": str(proposed.status), "created": len(report.created),
             "registration_residual_mm": report.registration_residual_mm,
-            "registration_status": report.registration_status, "seconds": round(report.seconds, 2),
+            "registration_status": report.registration_status.name.lower(), "seconds": round(report.seconds, 2),
             "render": grid}
 
 

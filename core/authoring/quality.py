@@ -18,7 +18,7 @@ For every transferred key:
   (feature-normalised by the head size); fails outside [1/:data:`MAX_SIZE_RATIO`, :data:`MAX_SIZE_RATIO`];
 - ``parts``: the parts each key moves and the parts kept still, with the reason (:mod:`.parts`).
 
-A failed check makes the status WARNING (the command line then exits 1).
+A failed check is an ``error`` issue and makes the status WARNING (the command line then exits 1).
 """
 from __future__ import annotations
 
@@ -103,7 +103,8 @@ def check_keys(src_verts: np.ndarray, src_deltas: np.ndarray, names: Sequence[st
         Per key: ``name``, ``size_ratio``, ``gap_left`` / ``source_gap_left`` (eye keys), ``crossings``,
         ``asymmetry`` (sided keys), ``parts_moved``, ``failed`` (names of the failed checks).
     issues : list of Issue
-        One warning per failed check, naming the key.
+        One ``error`` issue per failed check, naming the key (a refused quality check: the key is usable but
+        must be looked at; :class:`~core.authoring.report.TransferReport` then exits 1).
     status : Status
         WARNING when any check failed, else OK.
     """
@@ -122,7 +123,7 @@ def check_keys(src_verts: np.ndarray, src_deltas: np.ndarray, names: Sequence[st
     _check_symmetry(keys, canon, names, src_verts, src_deltas, dst_verts, deltas, src_tris, dst_tris)
     if plan is not None:
         _parts(keys, plan, deltas, dt)
-    issues = [Issue("warning", f"transfer_{c}", f"{key['name']}: {_MESSAGES[c](key)}", (key["name"],))
+    issues = [Issue("error", f"transfer_{c}", f"{key['name']}: {_MESSAGES[c](key)}", (key["name"],))
               for key in keys for c in key["failed"]]
     return keys, issues, Status.WARNING if issues else Status.OK
 

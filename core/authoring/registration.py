@@ -51,7 +51,7 @@ from .mesh import (
     vertex_normals,
 )
 
-__all__ = ["Correspondence", "similarity", "register", "warp_points"]
+__all__ = ["Correspondence", "Registration", "similarity", "register", "warp_points"]
 
 
 @dataclass
@@ -295,104 +295,154 @@ def register(src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, ds
         ``coverage`` (fraction of source vertices with an accepted pair), ``seconds``, ``unmatched_parts``,
         ``level_iterations`` (steps per level), ``levels_capped`` (the α of levels that hit the cap).
     """
-    t0 = time.perf_counter()
-    S, ST = check_mesh(src_verts, src_tris, "source")
-    T, TT = check_mesh(dst_verts, dst_tris, "target")
-    check_landmarks(landmarks, S, T)
-    diag = bbox_diagonal(T)
-    if not diag > 0:
-        raise ShapeSpaceError("the target mesh has zero size", ErrorCode.DEGENERATE)
-    mm = mm_per_unit(T)
+    return Registration(src_verts, src_tris, dst_verts, dst_tris, landmarks, stiffness=stiffness, inner=inner,
+                        iterations=iterations, landmark_weight=landmark_weight, max_distance=max_distance,
+                        part_tolerance=part_tolerance, tol=tol, warp_smoothing=warp_smoothing, anderson=anderson,
+                        progress=progress).run()
 
-    Y0, sim = warp_points(landmarks, S, warp_smoothing)
-    s_part, _ = triangle_parts(S.shape[0], ST)
-    t_part, _ = triangle_parts(T.shape[0], TT)
-    part_map = _match_parts(Y0, s_part, ST, T, t_part, part_tolerance * diag)
-    if not any(q >= 0 for q in part_map.values()):
-        return Result(None, status=Status.FAILED, diagnostics={"part_map": part_map},
-                      message="no part of the target lies on the source after the landmark warp: check the landmark "
-                              "pairs (left/right swapped, or on the wrong mesh)")
-    # target triangles each source part may be pulled onto
-    t_face_part = t_part[TT[:, 0]]
-    t_bnd = boundary_vertices(T.shape[0], TT)
-    _, t_area = face_normals(T, TT)
-    t_fn, _ = face_normals(T, TT)
-    targets_of = {}
-    for p, q in part_map.items():
-        if q >= 0:
-            targets_of.setdefault(q, []).append(p)
-    groups = []
-    for q, ps in targets_of.items():
-        faces = np.flatnonzero(np.isin(t_face_part, ps) & (t_area > 0))
-        verts = np.flatnonzero(s_part == q)
-        if faces.size and verts.size:
-            groups.append((verts, faces, cKDTree(T[TT[faces]].mean(axis=1) / diag)))
-    # landmark rows: the source vertex of each landmark, or the barycentric combination of the source
-    # triangle a free surface point lies on
-    lm_idx = np.asarray(landmarks.source_index, dtype=np.int64)
-    m = lm_idx.size
-    cols = np.repeat(lm_idx[:, None], 3, axis=1)
-    vals = np.tile([1.0, 0.0, 0.0], (m, 1))
-    free = lm_idx < 0
-    if free.any():
-        ftri, fbary, _, _ = closest_on_triangles(np.asarray(landmarks.source, float)[free], S, ST)
-        cols[free] = ST[ftri]
-        vals[free] = fbary
-    lm_dst = np.asarray(landmarks.target, dtype=np.float64) / diag
-    n = S.shape[0]
-    L = _laplacian(n, ST)
-    LtL = (L.T @ L).tocsc()
-    P = sp.csr_matrix((vals.ravel(), (np.repeat(np.arange(m), 3), cols.ravel())), shape=(m, n))
-    PtP = (P.T @ P).tocsc()
-    eps = 1e-4
-    Yn0 = Y0 / diag
-    Y = Yn0.copy()
-    Tn = T / diag
-    lm_rhs = (landmark_weight ** 2) * (P.T @ lm_dst)
-    lm_A = (landmark_weight ** 2) * PtP
-    cap = max(1, int(iterations))
-    n_levels = len(stiffness)
-    w = np.zeros(n)
-    c = np.zeros((n, 3))
 
-    def pairs(Y, accept):
+class Registration:
+    """One run of :func:`register`, one method per step of its pipeline (the module docstring's 1–5).
+
+    The constructor checks the input (the parameters are :func:`register`'s); :meth:`run` does the rest and
+    returns the :class:`Result`.  Coordinates inside are divided by the target's bounding-box diagonal.
+    """
+
+    def __init__(self, src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, dst_tris: ArrayLike,
+                 landmarks: LandmarkPairs, *, stiffness: tuple, inner: int, iterations: int, landmark_weight: float,
+                 max_distance: float, part_tolerance: float, tol: float, warp_smoothing: float, anderson: int,
+                 progress: ProgressFn | None) -> None:
+        self.t0 = time.perf_counter()
+        self.S, self.ST = check_mesh(src_verts, src_tris, "source")
+        self.T, self.TT = check_mesh(dst_verts, dst_tris, "target")
+        check_landmarks(landmarks, self.S, self.T)
+        self.diag = bbox_diagonal(self.T)
+        if not self.diag > 0:
+            raise ShapeSpaceError("the target mesh has zero size", ErrorCode.DEGENERATE)
+        self.mm = mm_per_unit(self.T)
+        self.landmarks, self.stiffness, self.inner, self.iterations = landmarks, stiffness, inner, iterations
+        self.landmark_weight, self.max_distance, self.part_tolerance = landmark_weight, max_distance, part_tolerance
+        self.tol, self.warp_smoothing, self.anderson, self.progress = tol, warp_smoothing, anderson, progress
+
+    def run(self) -> Result:
+        """Every step in order; a FAILED result when no target part lies on the warped source."""
+        self.warp()
+        if not any(q >= 0 for q in self.part_map.values()):
+            return Result(None, status=Status.FAILED, diagnostics={"part_map": self.part_map},
+                          message="no part of the target lies on the source after the landmark warp: check the "
+                                  "landmark pairs (left/right swapped, or on the wrong mesh)")
+        self.surface_groups()
+        self.system()
+        for li, alpha in enumerate(self.stiffness):
+            self.level(li, float(alpha))
+        registered = self.Y * self.diag
+        res = self.residuals()
+        residual = float(np.sqrt(np.mean(res ** 2))) * self.mm if res.size else float("nan")
+        tri, bary, dist, face_tri = self.dense_map(registered)
+        corr = Correspondence(registered, tri, bary, dist, face_tri, self.sim, self.t_part, self.part_map, residual,
+                              self.mm)
+        return self.result(corr, res)
+
+    # ---- steps 1–3: similarity, warp, parts
+    def warp(self) -> None:
+        """Similarity + RBF warp of the source (``Y0``); each target part matched to a source part."""
+        self.Y0, self.sim = warp_points(self.landmarks, self.S, self.warp_smoothing)
+        self.s_part, _ = triangle_parts(self.S.shape[0], self.ST)
+        self.t_part, _ = triangle_parts(self.T.shape[0], self.TT)
+        self.part_map = _match_parts(self.Y0, self.s_part, self.ST, self.T, self.t_part,
+                                     self.part_tolerance * self.diag)
+
+    def surface_groups(self) -> None:
+        """The target triangles each source part may be pulled onto: ``groups`` of (source vertices, target
+        faces, tree of their centroids); the target's face parts, boundary and face normals."""
+        T, TT = self.T, self.TT
+        self.t_face_part = self.t_part[TT[:, 0]]
+        self.t_bnd = boundary_vertices(T.shape[0], TT)
+        _, t_area = face_normals(T, TT)
+        self.t_fn, _ = face_normals(T, TT)
+        targets_of = {}
+        for p, q in self.part_map.items():
+            if q >= 0:
+                targets_of.setdefault(q, []).append(p)
+        self.groups = []
+        for q, ps in targets_of.items():
+            faces = np.flatnonzero(np.isin(self.t_face_part, ps) & (t_area > 0))
+            verts = np.flatnonzero(self.s_part == q)
+            if faces.size and verts.size:
+                self.groups.append((verts, faces, cKDTree(T[TT[faces]].mean(axis=1) / self.diag)))
+
+    # ---- step 4: non-rigid ICP
+    def system(self) -> None:
+        """The fixed parts of the sparse system: Laplacian, landmark rows (the source vertex of each landmark,
+        or the barycentric combination of the source triangle a free surface point lies on), right-hand sides."""
+        S, ST, diag, landmarks = self.S, self.ST, self.diag, self.landmarks
+        lm_idx = np.asarray(landmarks.source_index, dtype=np.int64)
+        m = lm_idx.size
+        cols = np.repeat(lm_idx[:, None], 3, axis=1)
+        vals = np.tile([1.0, 0.0, 0.0], (m, 1))
+        free = lm_idx < 0
+        if free.any():
+            ftri, fbary, _, _ = closest_on_triangles(np.asarray(landmarks.source, float)[free], S, ST)
+            cols[free] = ST[ftri]
+            vals[free] = fbary
+        self.lm_dst = np.asarray(landmarks.target, dtype=np.float64) / diag
+        n = S.shape[0]
+        self.L = _laplacian(n, ST)
+        self.LtL = (self.L.T @ self.L).tocsc()
+        self.P = sp.csr_matrix((vals.ravel(), (np.repeat(np.arange(m), 3), cols.ravel())), shape=(m, n))
+        PtP = (self.P.T @ self.P).tocsc()
+        self.eps = 1e-4
+        self.Yn0 = self.Y0 / diag
+        self.Y = self.Yn0.copy()
+        self.Tn = self.T / diag
+        self.lm_rhs = (self.landmark_weight ** 2) * (self.P.T @ self.lm_dst)
+        self.lm_A = (self.landmark_weight ** 2) * PtP
+        self.cap = max(1, int(self.iterations))
+        self.w = np.zeros(n)
+        self.c = np.zeros((n, 3))
+        self.it, self.move = 0, np.inf
+        self.capped = []                          # levels that hit their iteration cap: (alpha, last move)
+        self.level_iterations = []
+
+    def pairs(self, Y: np.ndarray, accept: bool) -> tuple:
         """Closest target points ``c`` of every source vertex, and (``accept``) which pairs pass the tests."""
+        n = self.S.shape[0]
         ok_all = np.zeros(n, dtype=bool)
         cc = Y.copy()
-        vn = vertex_normals(Y, ST) if accept else None
-        for verts, faces, tree in groups:
-            tri, bary, pt, dist = closest_on_triangles(Y[verts], Tn, TT[faces], candidates=6, tree=tree)
+        vn = vertex_normals(Y, self.ST) if accept else None
+        for verts, faces, tree in self.groups:
+            tri, bary, pt, dist = closest_on_triangles(Y[verts], self.Tn, self.TT[faces], candidates=6, tree=tree)
             cc[verts] = pt
             if accept:
                 f = faces[tri]
-                ok = dist <= max_distance
-                ok &= np.einsum("ij,ij->i", vn[verts], t_fn[f]) > 0.3
-                corner = TT[f, np.argmax(bary, axis=1)]
-                ok &= ~t_bnd[corner]
+                ok = dist <= self.max_distance
+                ok &= np.einsum("ij,ij->i", vn[verts], self.t_fn[f]) > 0.3
+                corner = self.TT[f, np.argmax(bary, axis=1)]
+                ok &= ~self.t_bnd[corner]
                 ok_all[verts[ok]] = True
         return cc, ok_all
 
-    def energy(Y, alpha):
-        d = L @ (Y - Yn0)
-        r = P @ Y - lm_dst
-        return float((alpha * alpha) * np.sum(d * d) + np.sum(w[:, None] * (Y - c) ** 2)
-                     + (landmark_weight ** 2) * np.sum(r * r) + eps * np.sum((Y - Yn0) ** 2))
+    def energy(self, Y: np.ndarray, alpha: float) -> float:
+        """The energy of the module docstring at ``Y`` with the current pairs ``w``, ``c``."""
+        d = self.L @ (Y - self.Yn0)
+        r = self.P @ Y - self.lm_dst
+        return float((alpha * alpha) * np.sum(d * d) + np.sum(self.w[:, None] * (Y - self.c) ** 2)
+                     + (self.landmark_weight ** 2) * np.sum(r * r) + self.eps * np.sum((Y - self.Yn0) ** 2))
 
-    it, move, rel_change = 0, np.inf, np.inf
-    capped = []                                   # levels that hit their iteration cap: (alpha, last move)
-    level_iterations = []
-    for li, alpha in enumerate(stiffness):
-        alpha = float(alpha)
+    def level(self, li: int, alpha: float) -> None:
+        """One stiffness level ``alpha``: re-estimate the pair set until it is stable (or for ``inner`` steps),
+        then freeze it and iterate (Anderson-accelerated) until the move or the energy decrease is below ``tol``."""
         lu, mask, frozen = None, None, False
         converged = False
         e_prev = np.inf
         hist_G, hist_F = [], []                   # Anderson history: plain iterates G(Y_j), residuals G(Y_j) − Y_j
         plain = None                              # the plain iterate, when Y is an accelerated one
-        for k in range(1, cap + 1):
-            it += 1
-            c_new, ok = pairs(Y, accept=not frozen)
+        Y, w, c = self.Y, self.w, self.c
+        for k in range(1, self.cap + 1):
+            self.it += 1
+            c_new, ok = self.pairs(Y, accept=not frozen)
             if not frozen:
-                if mask is not None and (np.array_equal(ok, mask) or k > max(1, inner)):
+                if mask is not None and (np.array_equal(ok, mask) or k > max(1, self.inner)):
                     frozen = True                 # the pair set is stable (or re-estimated enough): keep it
                     ok = mask
                 if mask is None or not np.array_equal(ok, mask):
@@ -406,92 +456,117 @@ def register(src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, ds
                 c_new = np.where(nearer[:, None], c_new, c)
             c[:] = np.where(mask[:, None], c_new, Y)
             # with the pair set frozen the energy E(Y_k, c_k) then decreases monotonically (alternating minimisation)
-            e_now = energy(Y, alpha)
+            e_now = self.energy(Y, alpha)
             if plain is not None and e_now > e_prev:
                 # the accelerated step raised the energy: take the plain step instead and restart the history
-                Y, plain = plain, None
+                Y, e_now = self.plain_step(plain, mask, alpha)
                 hist_G.clear()
                 hist_F.clear()
-                c_new, _ = pairs(Y, accept=False)
-                nearer = np.sum((c_new - Y) ** 2, axis=1) <= np.sum((c - Y) ** 2, axis=1)
-                c[:] = np.where((mask & nearer)[:, None], c_new, c)
-                e_now = energy(Y, alpha)
             plain = None
             rel_change = (e_prev - e_now) / max(e_now, 1e-300) if (lu is not None and np.isfinite(e_prev)) else np.inf
             e_prev = e_now
             if lu is None:
-                A = (alpha * alpha) * LtL + sp.diags(w + eps) + lm_A
-                lu = _spd_lu(A)
-            rhs = (alpha * alpha) * (LtL @ Yn0) + w[:, None] * c + eps * Yn0 + lm_rhs
-            Y_new = lu.solve(rhs)
-            move = float(np.abs(Y_new - Y).max())
-            notify(progress, 0.8 * min(1.0, (li + k / cap) / n_levels))
-            if frozen and (move < tol or abs(rel_change) < tol):
+                lu = _spd_lu((alpha * alpha) * self.LtL + sp.diags(w + self.eps) + self.lm_A)
+            Y_new = lu.solve((alpha * alpha) * (self.LtL @ self.Yn0) + w[:, None] * c + self.eps * self.Yn0
+                             + self.lm_rhs)
+            self.move = float(np.abs(Y_new - Y).max())
+            notify(self.progress, 0.8 * min(1.0, (li + k / self.cap) / len(self.stiffness)))
+            if frozen and (self.move < self.tol or abs(rel_change) < self.tol):
                 Y = Y_new
                 converged = True
                 break
             Y_next = Y_new
-            if frozen and anderson > 0:
-                hist_G.append(Y_new.ravel())
-                hist_F.append((Y_new - Y).ravel())
-                del hist_G[:-(anderson + 1)], hist_F[:-(anderson + 1)]
-                if len(hist_F) >= 2:
-                    dF = np.diff(np.asarray(hist_F), axis=0)
-                    dG = np.diff(np.asarray(hist_G), axis=0)
-                    gamma = np.linalg.lstsq(dF.T, hist_F[-1], rcond=None)[0]
-                    Y_acc = (Y_new.ravel() - dG.T @ gamma).reshape(Y.shape)
-                    if np.all(np.isfinite(Y_acc)):
-                        Y_next, plain = Y_acc, Y_new
+            if frozen and self.anderson > 0:
+                Y_acc = self.accelerate(hist_G, hist_F, Y_new, Y)
+                if Y_acc is not None:
+                    Y_next, plain = Y_acc, Y_new
             Y = Y_next
-        level_iterations.append(k)
+        self.Y = Y
+        self.level_iterations.append(k)
         if not converged:
-            capped.append((alpha, move))
-    status = Status.OK if not capped else Status.NOT_CONVERGED
-    registered = Y * diag
-    # residual: accepted pairs after the last solve
-    res = []
-    for verts, faces, tree in groups:
-        _, _, _, dist = closest_on_triangles(Y[verts], Tn, TT[faces], candidates=6, tree=tree)
-        acc = w[verts] > 0
-        res.append(dist[acc] * diag)
-    res = np.concatenate(res) if res else np.zeros(0)
-    residual = float(np.sqrt(np.mean(res ** 2))) * mm if res.size else float("nan")
-    # dense map, per matched part
-    tri = np.full(T.shape[0], -1, dtype=np.int64)
-    bary = np.zeros((T.shape[0], 3))
-    dist = np.full(T.shape[0], np.inf)
-    face_tri = np.full(TT.shape[0], -1, dtype=np.int64)
-    s_face_part = s_part[ST[:, 0]]
-    _, s_area = face_normals(registered, ST)
-    centroids = T[TT].mean(axis=1)
-    matched_src_faces = np.flatnonzero(np.isin(s_face_part, [q for q in part_map.values() if q >= 0]) & (s_area > 0))
-    for p in sorted(set(part_map) | {-1}):
-        q = part_map.get(p, -1)
-        if p >= 0 and q < 0:
-            continue
-        faces = np.flatnonzero((s_face_part == q) & (s_area > 0)) if p >= 0 else matched_src_faces
-        if faces.size == 0:
-            continue
-        tree = cKDTree(registered[ST[faces]].mean(axis=1))
-        vi = np.flatnonzero(t_part == p)
-        if vi.size:
-            k, b, _, d = closest_on_triangles(T[vi], registered, ST[faces], candidates=8, tree=tree)
-            tri[vi], bary[vi], dist[vi] = faces[k], b, d
-        fi = np.flatnonzero(t_face_part == p) if p >= 0 else np.zeros(0, dtype=int)
-        if fi.size:
-            k, _, _, _ = closest_on_triangles(centroids[fi], registered, ST[faces], candidates=8, tree=tree)
-            face_tri[fi] = faces[k]
-    corr = Correspondence(registered, tri, bary, dist, face_tri, sim, t_part, part_map, residual, mm)
-    unmatched = corr.unmatched_parts()
-    diagnostics = {"residual_mm": residual, "residual_max_mm": float(res.max() * mm) if res.size else float("nan"),
-                   "coverage": float((w > 0).mean()), "seconds": time.perf_counter() - t0,
-                   "last_move": move * diag, "unmatched_parts": unmatched, "level_iterations": level_iterations,
-                   "levels_capped": [a for a, _ in capped]}
-    msg = (f"registered: residual {residual:.2f} mm RMS over {100 * (w > 0).mean():.0f}% of the source"
-           + (f"; {len(unmatched)} target part(s) without a counterpart" if unmatched else ""))
-    if status == Status.NOT_CONVERGED:
-        a, mv = capped[0]
-        msg += (f"; stiffness {a:g} stopped at {cap} iterations (the last still moved a vertex "
-                f"{mv * diag * mm:.2g} mm)" + (f", {len(capped) - 1} more level(s) too" if len(capped) > 1 else ""))
-    notify(progress, 1.0)
-    return Result(corr, status=status, message=msg, iterations=it, diagnostics=diagnostics)
+            self.capped.append((alpha, self.move))
+
+    def plain_step(self, plain: np.ndarray, mask: np.ndarray, alpha: float) -> tuple:
+        """Back to the plain iterate ``plain`` (the accelerated one raised the energy): its closest points
+        where nearer, and its energy; returns ``(Y, energy)``."""
+        c = self.c
+        c_new, _ = self.pairs(plain, accept=False)
+        nearer = np.sum((c_new - plain) ** 2, axis=1) <= np.sum((c - plain) ** 2, axis=1)
+        c[:] = np.where((mask & nearer)[:, None], c_new, c)
+        return plain, self.energy(plain, alpha)
+
+    def accelerate(self, hist_G: list, hist_F: list, Y_new: np.ndarray, Y: np.ndarray) -> np.ndarray | None:
+        """Anderson extrapolation from the last ``anderson`` + 1 steps (the histories are updated in place);
+        None while the history is too short or when it is not finite."""
+        hist_G.append(Y_new.ravel())
+        hist_F.append((Y_new - Y).ravel())
+        del hist_G[:-(self.anderson + 1)], hist_F[:-(self.anderson + 1)]
+        if len(hist_F) < 2:
+            return None
+        dF = np.diff(np.asarray(hist_F), axis=0)
+        dG = np.diff(np.asarray(hist_G), axis=0)
+        gamma = np.linalg.lstsq(dF.T, hist_F[-1], rcond=None)[0]
+        Y_acc = (Y_new.ravel() - dG.T @ gamma).reshape(Y.shape)
+        return Y_acc if np.all(np.isfinite(Y_acc)) else None
+
+    def residuals(self) -> np.ndarray:
+        """Registered-source → target-surface distances (target units) of the accepted pairs after the last solve."""
+        res = []
+        for verts, faces, tree in self.groups:
+            _, _, _, dist = closest_on_triangles(self.Y[verts], self.Tn, self.TT[faces], candidates=6, tree=tree)
+            acc = self.w[verts] > 0
+            res.append(dist[acc] * self.diag)
+        return np.concatenate(res) if res else np.zeros(0)
+
+    # ---- step 5: the dense map
+    def dense_map(self, registered: np.ndarray) -> tuple:
+        """Per matched part: each target vertex's and each target triangle centroid's closest point on the
+        registered source surface; returns ``(tri, bary, distance, face_tri)``."""
+        T, TT, ST, part_map = self.T, self.TT, self.ST, self.part_map
+        tri = np.full(T.shape[0], -1, dtype=np.int64)
+        bary = np.zeros((T.shape[0], 3))
+        dist = np.full(T.shape[0], np.inf)
+        face_tri = np.full(TT.shape[0], -1, dtype=np.int64)
+        s_face_part = self.s_part[ST[:, 0]]
+        _, s_area = face_normals(registered, ST)
+        centroids = T[TT].mean(axis=1)
+        matched_src_faces = np.flatnonzero(np.isin(s_face_part, [q for q in part_map.values() if q >= 0])
+                                           & (s_area > 0))
+        for p in sorted(set(part_map) | {-1}):
+            q = part_map.get(p, -1)
+            if p >= 0 and q < 0:
+                continue
+            faces = np.flatnonzero((s_face_part == q) & (s_area > 0)) if p >= 0 else matched_src_faces
+            if faces.size == 0:
+                continue
+            tree = cKDTree(registered[ST[faces]].mean(axis=1))
+            vi = np.flatnonzero(self.t_part == p)
+            if vi.size:
+                k, b, _, d = closest_on_triangles(T[vi], registered, ST[faces], candidates=8, tree=tree)
+                tri[vi], bary[vi], dist[vi] = faces[k], b, d
+            fi = np.flatnonzero(self.t_face_part == p) if p >= 0 else np.zeros(0, dtype=int)
+            if fi.size:
+                k, _, _, _ = closest_on_triangles(centroids[fi], registered, ST[faces], candidates=8, tree=tree)
+                face_tri[fi] = faces[k]
+        return tri, bary, dist, face_tri
+
+    def result(self, corr: Correspondence, res: np.ndarray) -> Result:
+        """The :class:`Result` of :func:`register` (status, message and diagnostics)."""
+        capped, diag, mm, w = self.capped, self.diag, self.mm, self.w
+        status = Status.OK if not capped else Status.NOT_CONVERGED
+        residual = corr.residual_mm
+        unmatched = corr.unmatched_parts()
+        diagnostics = {"residual_mm": residual,
+                       "residual_max_mm": float(res.max() * mm) if res.size else float("nan"),
+                       "coverage": float((w > 0).mean()), "seconds": time.perf_counter() - self.t0,
+                       "last_move": self.move * diag, "unmatched_parts": unmatched,
+                       "level_iterations": self.level_iterations, "levels_capped": [a for a, _ in capped]}
+        msg = (f"registered: residual {residual:.2f} mm RMS over {100 * (w > 0).mean():.0f}% of the source"
+               + (f"; {len(unmatched)} target part(s) without a counterpart" if unmatched else ""))
+        if status == Status.NOT_CONVERGED:
+            a, mv = capped[0]
+            msg += (f"; stiffness {a:g} stopped at {self.cap} iterations (the last still moved a vertex "
+                    f"{mv * diag * mm:.2g} mm)" + (f", {len(capped) - 1} more level(s) too" if len(capped) > 1
+                                                   else ""))
+        notify(self.progress, 1.0)
+        return Result(corr, status=status, message=msg, iterations=self.it, diagnostics=diagnostics)

@@ -4,21 +4,33 @@ The source is the shared FBHead rig (Live Link Face) with a vertex-group mask, a
 in-between and a driven combination added; the target is the same head decimated (another topology and vertex
 count), scaled, rotated and moved.  What Blender evaluates (depsgraph) at slider = 1 must be what
 ``core.authoring`` computes; the drivers must play back in a Blender without the add-on.
+
+Also here: progress and Esc cancel (read on the main thread → register and transfer in a worker → write on the main
+thread, the same modal job as Retarget, ``operators.progress.JobModal``; as in ``test_retarget_progress_cancel.py``
+the modal path is driven step by step through the bridge job functions its handler calls: no window in these
+tests, Esc is ``job.cancel()``, the timer is polling; the scripted operator call is the synchronous path), and
+eye and mouth openings (issue #22 §2: the named landmarks placed on both heads give the lid and inner-lip
+contours, and the transfer carries the source's lid closure onto the target's own gap; source FBHead, target
+Face Cap's head without its keys, the 26 named landmarks of each from ``tools/landmarks/<head>.json``).
 """
 import json
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
 from support import ROOT, shared
-from blender_support import blend_fingerprint, bpy, evaluated, import_file, rel_error
-from shapespace.bridge import authoring, driven, shapekeys
+from blender_support import blend_fingerprint, bpy, esc_mid_way, evaluated, import_file, rel_error
+from shapespace.bridge import authoring, driven, named_landmarks, shapekeys
+from shapespace.bridge.meshes import triangles
 from shapespace.core import authoring as core
-from shapespace.core.result import ShapeSpaceError
+from shapespace.core.authoring import contacts, named
+from shapespace.core.progress import Cancelled
+from shapespace.core.result import ShapeSpaceError, Status
 
 RUN_CLI = os.path.join(ROOT, "tools", "run_cli.py")
 MASK_KEY, MASK_GROUP = "BrowDownLeft", "BrowMaskL"
@@ -284,7 +296,7 @@ def test_a_failure_while_writing_leaves_the_file_as_it_was(registered, monkeypat
 
     def broken(*args, **kwargs):
         raise ShapeSpaceError("injected failure", "invalid")
-    monkeypatch.setattr(authoring.driven, "add_combination", broken)
+    monkeypatch.setattr(driven, "add_combination", broken)
     with pytest.raises(RuntimeError, match="injected failure"):
         bpy.ops.shapespace.transfer_shapes()
     assert blend_fingerprint() == before                    # keys, their data, ranges and group weights
@@ -463,7 +475,7 @@ def test_target_parts_move_as_rigged_and_every_key_is_checked(registered):
     assert {"eye", "skull", "follow"} <= set(kinds.values()) and "source" not in kinds.values()
     assert all(p["unsure"] == (p["confidence"] < core.parts.UNSURE) for p in rep.parts)
     assert {k["name"] for k in rep.keys} == set(rep.created)
-    assert rep.status == ("warning" if any(k["failed"] for k in rep.keys) else "ok")
+    assert rep.status == (Status.WARNING if any(k["failed"] for k in rep.keys) else Status.OK)
     part, _ = core.triangle_parts(len(tm.neutral), tm.triangles)
     size = float(np.ptp(tm.neutral))
     jaw, look = _values(tgt, jawOpen=1.0), _values(tgt, eyeLookUp_L=1.0)
@@ -623,3 +635,151 @@ def test_command_line_transfer_end_to_end(registered, tmp_path):
     code, _, stderr = _cli("-b", tgt_path, "--command", "shapespace", "transfer",
                            "--source-rig", f"{src_path}:Nope", "--object", "Head", "--out", again)
     assert code == 1 and "no object named 'Nope'" in stderr and not os.path.exists(again)
+
+
+# ------------------------------------------------------------------ progress and Esc cancel
+def _dense_target(src, name="Target", levels=2, **placement):
+    """A keyless copy of ``src`` subdivided (``levels`` = 2: ~9× the vertices, so registration takes seconds and a
+    cancel lands mid-way), rotated, scaled and moved; returns (object, transform)."""
+    return _retopologised(src, "SUBSURF", {"levels": levels}, name=name, **placement)
+
+
+def _scene(levels=2):
+    src = _fbhead_rig()
+    tgt, transform = _dense_target(src, levels=levels)
+    sv, tv = _landmark_pairs(src, tgt, transform)
+    _place_landmarks(src, tgt, sv, tv)
+    return src, tgt
+
+
+def _state(tgt):
+    """What the fingerprint leaves out and a transfer could change: objects and meshes (the registration
+    preview), the target's keys, groups and stored landmarks, the driven-key blob."""
+    key = tgt.data.shape_keys
+    return (sorted(bpy.data.objects.keys()), sorted(bpy.data.meshes.keys()), len(bpy.data.shape_keys),
+            None if key is None else [kb.name for kb in key.key_blocks], [g.name for g in tgt.vertex_groups],
+            authoring.landmark_list(tgt), None if key is None else key.get("shapespace_driven"),
+            authoring.preview_object(tgt) is not None)
+
+
+def test_esc_mid_way_leaves_the_file_exactly_as_before(registered):
+    """Esc while the worker registers: the job stops at its next progress call and nothing is written — no
+    shape key, no mask group, no half data; the registration preview the artist had is still there."""
+    src, tgt = _scene()
+    assert len(tgt.data.vertices) > 8 * len(src.data.vertices)
+    bpy.context.view_layer.objects.active = tgt
+    assert bpy.ops.shapespace.preview_registration() == {"FINISHED"}
+    before, state = blend_fingerprint(), _state(tgt)
+    assert tgt.data.shape_keys is None and state[-1]
+    plan = authoring.read_transfer(src, tgt)                                     # invoke: main thread
+    assert blend_fingerprint() == before and _state(tgt) == state              # reading changed nothing
+    job = authoring.start_transfer_job(plan)
+    assert esc_mid_way(job, 0.1, 300)
+    assert 0.1 <= max(job.reported) < 0.6                                       # stopped inside the registration
+    with pytest.raises(Cancelled):
+        authoring.finish_transfer_job(job)
+    assert blend_fingerprint() == before and _state(tgt) == state
+    assert tgt.data.shape_keys is None and authoring.preview_object(tgt) is not None
+
+
+def test_job_run_writes_what_the_core_computes_and_progress_reaches_one(registered):
+    """The job driven to completion (the modal path) writes every key, and Blender's evaluation of them is the
+    core's own registration + deformation transfer; the progress it reported rises monotonically to 1."""
+    src, tgt = _scene(levels=1)
+    rig, tm, _, full = _expected(src, tgt)
+    job = authoring.start_transfer_job(authoring.read_transfer(src, tgt))
+    while not job.done:                                                          # the timer ticks
+        time.sleep(0.01)
+    rep = authoring.finish_transfer_job(job)
+    assert job.reported and all(b >= a for a, b in zip(job.reported, job.reported[1:]))
+    assert job.reported[-1] == 1.0 and job.fraction == 1.0 and len(job.reported) > 10
+    assert len(rep.created) == len(rig.names) and rep.landmarks == 12
+    names = [kb.name for kb in tgt.data.shape_keys.key_blocks]
+    assert set(rig.names) <= set(names) and len(names) == len(rig.names) + 1
+    for name in ("JawOpen", "EyeBlinkLeft", "MouthSmileRight"):
+        assert rel_error(_values(tgt, **{name: 1.0}), tm.neutral + full[name]) < 1e-5, name
+    assert rel_error(_values(tgt, JawOpen=0.5), tm.neutral + full["JawOpen@0.5"]) < 1e-5
+
+
+def test_target_changed_while_computing_is_refused_and_nothing_written(registered):
+    src, tgt = _scene(levels=1)
+    job = authoring.start_transfer_job(authoring.read_transfer(src, tgt))
+    assert job.wait(300)
+    tgt.data.vertices[0].co.x += 0.01                                            # the artist edits the target
+    before, state = blend_fingerprint(), _state(tgt)
+    with pytest.raises(ShapeSpaceError, match="changed while the transfer computed") as info:
+        authoring.finish_transfer_job(job)
+    assert info.value.code == "rig_changed"
+    assert blend_fingerprint() == before and _state(tgt) == state
+
+
+def test_a_cancelled_synchronous_transfer_writes_nothing(registered):
+    """The scripted path: ``progress`` raising Cancelled (core.progress protocol) half-way through the shape
+    solves stops the transfer before the write."""
+    src, tgt = _scene(levels=1)
+    before, state = blend_fingerprint(), _state(tgt)
+    seen = []
+
+    def progress(fraction):
+        seen.append(fraction)
+        if fraction >= 0.8:
+            raise Cancelled()
+    with pytest.raises(Cancelled):
+        authoring.transfer_shapes(src, tgt, progress=progress)
+    assert 0.8 <= seen[-1] < 1.0 and all(b >= a for a, b in zip(seen, seen[1:]))
+    assert blend_fingerprint() == before and _state(tgt) == state
+
+
+def test_invoke_without_a_window_runs_in_one_go(registered):
+    """INVOKE_DEFAULT with no window (background, scripts) has no event loop to poll from: it runs like
+    EXEC_DEFAULT and writes the keys at once."""
+    src, tgt = _scene(levels=1)
+    bpy.context.view_layer.objects.active = tgt
+    assert bpy.ops.shapespace.transfer_shapes("INVOKE_DEFAULT") == {"FINISHED"}
+    assert len(tgt.data.shape_keys.key_blocks) == len(authoring.read_source_rig(src).names) + 1
+
+
+# ------------------------------------------------------------------ eye and mouth openings
+MARKS = os.path.join(ROOT, "tools", "landmarks")
+
+
+def _heads():
+    import_file(shared("llf_fbhead", "Live_Link_Face.blend"))
+    import_file(shared("facecap", "facecap_decoded.glb"))
+    src = bpy.data.objects["FBHead"]
+    tgt = bpy.data.objects["Mesh_2"]
+    tgt.data.shape_keys.animation_data_clear()
+    tgt.shape_key_clear()
+    for ob, tag in ((src, "fbhead"), (tgt, "facecap")):
+        for name, vertex in named.load_head_file(os.path.join(MARKS, f"{tag}.json"), len(ob.data.vertices)).items():
+            named_landmarks.place(ob, name, vertex)
+    tgt.shapespace_authoring.source = src
+    assert authoring.use_named_landmarks(tgt, src) == len(named.NAMES)
+    return src, tgt
+
+
+def _gap_left(ob, key):
+    names = shapekeys.slider_names(ob)
+    shapekeys.write_slider_values(ob, names, [0.0] * len(names))
+    rest = evaluated(ob)
+    shapekeys.write_slider_values(ob, names, [1.0 if n == key else 0.0 for n in names])
+    moved = evaluated(ob)
+    paths = named.contour_paths(rest, triangles(ob.data), named_landmarks.named_landmarks(ob))
+    pairs, _ = contacts.facing_pairs(rest, paths["lid_upper_L"], paths["lid_lower_L"])
+    return float(contacts.gap_left(rest, (moved - rest)[None], pairs)[0])
+
+
+def test_named_openings_close_the_targets_lids(registered):
+    """With the openings the transferred blink closes Face Cap's lids (gap left ≤ 20 % of the open gap,
+    the issue's goal); the same transfer without them leaves them further open."""
+    src, tgt = _heads()
+    rep = authoring.transfer_shapes(src, tgt, unmatched_parts="move")
+    assert rep.openings == ["eye_L", "eye_R", "mouth"]
+    closed = _gap_left(tgt, "EyeBlinkLeft")
+    blink = next(k for k in rep.keys if k["name"] == "EyeBlinkLeft")
+    assert closed <= 0.2 and abs(blink["gap_left"] - closed) < 1e-3 and "gap" not in blink["failed"]
+    # the same heads without the source's named landmarks: no openings
+    named_landmarks.clear_named(src)
+    tgt.shape_key_clear()
+    rep = authoring.transfer_shapes(src, tgt, unmatched_parts="move")
+    assert rep.openings == [] and _gap_left(tgt, "EyeBlinkLeft") > closed + 0.05

@@ -17,6 +17,7 @@ import pytest
 from support import ROOT, shared
 from blender_support import bpy, import_file
 from shapespace.bridge import authoring, named_landmarks, shapekeys
+from shapespace.bridge.meshes import triangles
 from shapespace.core.authoring.named import NAMES, load_head_file
 from shapespace.core.result import ShapeSpaceError
 
@@ -162,7 +163,7 @@ def test_command_line_transfer_with_a_named_landmark_file(registered, tmp_path):
     k = got.index("JawOpen")
     expected = s * model.deltas[model.index("JawOpen")] @ R.T           # the same mesh moved: s R δ exactly
     used = np.zeros(len(expected), dtype=bool)
-    used[authoring.triangles(head.data).ravel()] = True                # (FBHead's loose vertices are no surface)
+    used[triangles(head.data).ravel()] = True                # (FBHead's loose vertices are no surface)
     assert np.linalg.norm((got.deltas[k] - expected)[used]) < 1e-4 * np.linalg.norm(expected[used])
     # a bad entry: one line naming it, nothing saved
     lm_path.write_text(json.dumps({"version": 1, "source": {**placed, "eye_corner_L": 3}, "target": placed}))
@@ -221,7 +222,7 @@ def test_contours_on_fbhead_run_along_its_eye_and_mouth_openings(registered):
     from shapespace.core.authoring.named import CONTOURS, contour_paths
     ob = _fbhead()
     V = shapekeys.read_blendshape_model(ob).neutral
-    T = authoring.triangles(ob.data)
+    T = triangles(ob.data)
     placed = load_head_file(PLACED, len(V))
     names = ("lid_upper_L", "lid_lower_L", "lid_upper_R", "lid_lower_R", "lip_upper_inner", "lip_lower_inner")
     paths = contour_paths(V, T, placed, names)

@@ -11,7 +11,7 @@ import pytest
 from support import shared
 from blender_support import blend_fingerprint, bpy, evaluated, import_file
 from shapespace.bridge import authoring, part_objects, shapekeys
-from shapespace.core.result import ShapeSpaceError
+from shapespace.core.result import ShapeSpaceError, Status
 from test_authoring_transfer import _landmark_pairs, _place_landmarks
 
 PARTS = ("EyeLeft", "EyeRight", "Wolf3D_Teeth")
@@ -145,7 +145,7 @@ def test_the_panel_shows_the_last_transfers_checks_and_names_a_damaged_verdict(r
     bpy.context.view_layer.objects.active = tgt
     drawn = labels()
     failed = [k["name"] for k in rep.keys if k["failed"]]
-    head = ("every key passed its checks" if rep.status == "ok" else f"{len(failed)} keys failed a check")
+    head = ("every key passed its checks" if rep.status == Status.OK else f"{len(failed)} keys failed a check")
     assert f"Last transfer from Wolf3D_Head: {head}" in drawn
     assert any(text.startswith("Parts: ") and "eye" in text for text in drawn)
     assert all(any(text.startswith(f"{name}: ") for text in drawn) for name in failed[:12])

@@ -1,7 +1,7 @@
 """Preview Registration in the background (issue #13; the same modal job as Transfer Shapes and Retarget): read
 on the main thread → register in a worker → show the preview on the main thread; Esc leaves the file as it was.
 
-As in ``test_transfer_progress_cancel.py`` the modal path is driven through the bridge job functions its handler
+As in ``test_authoring_transfer.py`` the modal path is driven through the bridge job functions its handler
 calls (no window here: Esc is ``job.cancel()``).  The preview is checked against the core's own registration of
 the same inputs (an independent call), not against numbers the preview code reports.
 """
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from blender_support import blend_fingerprint, bpy, esc_mid_way
-from test_transfer_progress_cancel import _scene, _state
+from test_authoring_transfer import _scene, _state
 from shapespace.bridge import authoring
 from shapespace.core import authoring as core
 from shapespace.core.progress import Cancelled
