@@ -1,6 +1,8 @@
 """Face-space tools hardened (issue #10): the whole-face copy exact for any slider sum (judged by Blender's own
 evaluation on the shipped Live Link Face take), NaN keys and keyframes refused naming the culprit, damaged
 face-space metadata named in one line everywhere (operators, the panel), and progress on the long operators."""
+import contextlib
+import importlib
 import json
 import os
 
@@ -8,7 +10,7 @@ import numpy as np
 import pytest
 
 from support import ASSETS, shared
-from blender_support import bpy, classify_operator_call, evaluated, import_file, sphere_rig
+from blender_support import bpy, classify_operator_call, draw_panel, evaluated, import_file, sphere_rig
 from shapespace.bridge import actions, facespace, retarget, shapekeys
 from shapespace.core.blendshape import bounding_box_diagonal
 from shapespace.core.result import ShapeSpaceError
@@ -337,27 +339,9 @@ def test_analyse_rig_never_overwrites_what_is_not_its_png(registered, tmp_path):
 
 
 # --------------------------------------------------------------------------- damaged face-space metadata
-class _Recorder:
-    """Stands in for a panel layout and records every label's text."""
-
-    def __init__(self, labels):
-        object.__setattr__(self, "labels", labels)
-
-    def label(self, text="", **kwargs):
-        self.labels.append(text)
-
-    def __getattr__(self, name):
-        return lambda *args, **kwargs: _Recorder(self.labels)
-
-    def __setattr__(self, name, value):
-        pass
-
-
 def _draw_face_panel():
     from shapespace.panels.facespace import SHAPESPACE_PT_face_space
-    labels = []
-    SHAPESPACE_PT_face_space.draw(type("PanelCall", (), {"layout": _Recorder(labels)})(), bpy.context)
-    return labels
+    return draw_panel(SHAPESPACE_PT_face_space, strict=False).labels
 
 
 def _prior_blob(ob):
@@ -460,12 +444,19 @@ def test_a_whole_face_copy_with_damaged_or_missing_neutral_keys_is_named(registe
     ("find_implausible_frames", {}), ("inpaint_gap", {"data_path": 'key_blocks["K0"].value', "frame_start": 5,
                                                       "frame_end": 9})])
 def test_long_operators_show_progress_and_always_end_it(registered, monkeypatch, op_name, kwargs):
-    from shapespace.operators.facespace import _progress
+    from shapespace.operators.progress import window_progress
     seen, ended = [], []
-    monkeypatch.setattr(_progress.WindowProgress, "__call__", lambda self, fraction: seen.append(fraction))
-    original_exit = _progress.WindowProgress.__exit__
-    monkeypatch.setattr(_progress.WindowProgress, "__exit__", lambda self, *exc: ended.append(1) or original_exit(
-        self, *exc))
+
+    @contextlib.contextmanager
+    def recorded(context, steps=100):
+        with window_progress(context, steps):
+            try:
+                yield seen.append
+            finally:
+                ended.append(1)
+
+    monkeypatch.setattr(importlib.import_module(f"shapespace.operators.facespace.{op_name}"), "window_progress",
+                        recorded)
     _sphere()
     if op_name == "find_implausible_frames":
         assert bpy.ops.shapespace.learn_face_prior() == {"FINISHED"}
