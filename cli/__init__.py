@@ -4,9 +4,19 @@ The handler is registered with ``bpy.utils.register_cli_command`` when the
 extension is enabled; ``tools/run_cli.py`` calls the same :func:`main` with
 the ``bpy`` module.  stdout carries only the JSON (Blender's and the importers'
 log lines go to stderr while a command runs); errors are one
-``shapespace: error: …`` line on stderr and a non-zero exit code (2 for usage).
+``shapespace: error: …`` line on stderr.
+
+Exit rule — the same for every subcommand (:data:`EXIT_RULE`, printed by ``--help``;
+each command returns :func:`core.result.exit_code` of the reports it made)::
+
+    0  done: every report OK or WARNING
+    1  any report FAILED or NOT_CONVERGED, or a refused quality check (an error
+       issue); bad input or a failed write (one ``shapespace: error:`` line)
+    2  usage: bad or missing arguments (before any work)
 
 - :mod:`.commands` — ``info`` and ``retarget``;
+- :mod:`.export` — ``export`` and ``merge-reports``;
+- :mod:`.transfer` — ``transfer``;
 - :mod:`.outputs` — output checks (before any work) and safe writing.
 """
 from __future__ import annotations
@@ -24,6 +34,11 @@ from ..core.version import version
 COMMAND = "shapespace"
 
 _registered = []  # the handle returned by register_cli_command, for unregister
+
+EXIT_RULE = """\
+Exit code (every subcommand): 0 done (every report ok or with warnings); 1 any report failed or did not
+converge, a refused quality check, bad input or a failed write (one "shapespace: error:" line on stderr);
+2 usage (bad or missing arguments)."""
 
 RETARGET_EPILOG = """\
 Saving: every retargeted action gets a fake user, so a batch keeps all of them in --out; an action a
@@ -61,7 +76,8 @@ def _number(positive: bool):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=f"blender --command {COMMAND}",
-                     description="ShapeSpace example-based deformation tools.")
+                     description="ShapeSpace example-based deformation tools.", epilog=EXIT_RULE,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"ShapeSpace {version()}",
                         help="print ShapeSpace's version (from its blender_manifest.toml) and exit")
     sub = parser.add_subparsers(dest="command", required=True)

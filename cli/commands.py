@@ -1,7 +1,8 @@
 """The command-line commands: ``info`` and ``retarget``.
 
 Each takes the parsed arguments and the files already opened for it (``tools/run_cli.py FILE``), checks
-every output before any work (:mod:`.outputs`), and returns ``(exit code, JSON text for stdout or None)``.
+every output before any work (:mod:`.outputs`), and returns ``(exit code, JSON text for stdout or None)``,
+the exit code by the one rule of :mod:`core.result` (``exit_code`` of its reports).
 """
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ import time
 import bpy
 
 from ..core.errors import ErrorCode
-from ..core.result import ShapeSpaceError
+from ..core.inventory import CaptureInfo, FileInventory
+from ..core.result import ShapeSpaceError, exit_code
 from .outputs import check_outputs
 
 __all__ = ["info", "retarget", "COMMANDS"]
@@ -23,10 +25,10 @@ def _say(text: str) -> None:
     print(f"shapespace: {text}", file=sys.stderr, flush=True)
 
 
-def _capture_info(path: str) -> dict:
+def _capture_info(path: str) -> CaptureInfo:
     """A capture recording described: kind, channels, rate, duration, head / eye channels present."""
     from ..core.retarget import describe_stream, read_capture
-    return {"file": path, **describe_stream(read_capture(path))}
+    return CaptureInfo.of(path, describe_stream(read_capture(path)))
 
 
 def info(args, inputs: list) -> tuple:
@@ -47,16 +49,16 @@ def info(args, inputs: list) -> tuple:
     else:
         reports.append(inventory.describe_file())
     for rep in reports:
-        if not isinstance(rep, dict):
+        if isinstance(rep, FileInventory):
             rep.require_rigs()
-    payload = [rep if isinstance(rep, dict) else rep.to_json() for rep in reports]
+    payload = [rep.to_json() for rep in reports]
     payload = payload[0] if len(payload) == 1 else payload
     text = json.dumps(payload, indent=2)
     if out is None:
-        return 0, text
+        return exit_code(reports), text
     out.stage_text(text + "\n")
     out.commit()
-    return 0, None
+    return exit_code(reports), None
 
 
 def _target_object(name, where: str):

@@ -4,8 +4,9 @@
         [--objects NAME …] [--frame-range A B] [--report FILE]
     blender -b --command shapespace merge-reports --reports-dir DIR --out merged.json --takes TAKE …
 
-Exit codes: 0 done; 1 bad input or a failed export (one ``shapespace: error:`` line on stderr) — for
-``merge-reports``: at least one take failed (the merged report is written all the same); 2 usage.
+Exit codes: the one rule of every subcommand (:mod:`cli`): 0 done (with or without notes); 1 bad input or a
+failed export (one ``shapespace: error:`` line on stderr) — for ``merge-reports``: a take failed or did not
+converge (the merged report is written all the same); 2 usage.
 """
 from __future__ import annotations
 
@@ -17,11 +18,11 @@ import bpy
 
 from ..core.errors import ErrorCode
 from ..core.export.formats import FORMATS, check_format, format_of
-from ..core.result import ShapeSpaceError
+from ..core.result import ShapeSpaceError, exit_code
 from .outputs import check_outputs
 
 EXPORT_HELP = "bake drivers and pose-space correctives, then write glTF, FBX or Alembic with Blender's exporter"
-MERGE_HELP = "merge the per-take reports of a farm batch into one (exit 1 if any take failed)"
+MERGE_HELP = "merge the per-take reports of a farm batch into one (exit 1 if any take failed or did not converge)"
 
 
 def add_parsers(sub) -> None:
@@ -51,7 +52,7 @@ def cmd_export(args, inputs: list) -> tuple:
     rep = export.export(fmt.name, args.out, names=args.objects, frame_range=args.frame_range, whole_scene=True)
     what = f"frames {rep.frame_start}–{rep.frame_end}" if rep.animated else f"frame {rep.frame_start} (a still)"
     print(f"shapespace: exported {', '.join(rep.objects)}, {what}, to {rep.path}", file=sys.stderr)
-    return 0, _emit({**rep.to_json(), "frames": rep.frames}, report)
+    return exit_code(rep), _emit({**rep.to_json(), "frames": rep.frames}, report)
 
 
 def cmd_merge_reports(args, inputs: list) -> tuple:
@@ -66,9 +67,12 @@ def cmd_merge_reports(args, inputs: list) -> tuple:
     _emit({**summary.to_json(), "ok": summary.ok}, out)
     for failure in summary.failed:
         print(f"shapespace: error: {failure['take']}: {failure['error']}", file=sys.stderr)
+    for res in summary.unconverged:
+        print(f"shapespace: error: {res['take']}: {res.get('source', '')}: the fit stopped before converging",
+              file=sys.stderr)
     print(f"shapespace: {len(summary.succeeded)} of {summary.takes} takes retargeted; report {args.out}",
           file=sys.stderr)
-    return (0 if summary.ok else 1), None
+    return exit_code(summary), None
 
 
 def _emit(payload: dict, out=None):

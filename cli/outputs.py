@@ -21,6 +21,7 @@ import stat
 import tempfile
 
 from ..core.errors import ErrorCode
+from ..core.paths import check_output_file, same_file
 from ..core.result import ShapeSpaceError
 
 __all__ = ["Output", "check_output", "check_outputs", "same_file"]
@@ -28,12 +29,8 @@ __all__ = ["Output", "check_output", "check_outputs", "same_file"]
 _BLEND_MAGIC = (b"BLENDER", b"\x28\xb5\x2f\xfd", b"\x1f\x8b")     # plain, zstd- and gzip-compressed
 
 
-def same_file(a: str, b: str) -> bool:
-    """Whether two paths name the same file (or the same absolute path when either does not exist)."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return os.path.normcase(os.path.abspath(a)) == os.path.normcase(os.path.abspath(b))
+#: What each kind of output is, for messages.
+_KINDS = {"json": "a JSON report", "blend": "a .blend file", "export": "an exported file"}
 
 
 def _looks_like(path: str, kind: str) -> bool:
@@ -63,20 +60,6 @@ class Output:
 
     def fail(self, what: str, code: ErrorCode = ErrorCode.UNWRITABLE) -> ShapeSpaceError:
         return ShapeSpaceError(f"{self.flag} {self.path}: {what}", code)
-
-    def probe(self) -> None:
-        """Prove the destination writable now, before any work: create and remove a file beside it (or open
-        a device for appending)."""
-        try:
-            if self.regular:
-                fd, tmp = tempfile.mkstemp(dir=os.path.dirname(self.abspath), prefix=".shapespace-", suffix=".tmp")
-                os.close(fd)
-                os.remove(tmp)
-            else:
-                with open(self.abspath, "ab"):
-                    pass
-        except OSError as exc:
-            raise self.fail(f"cannot be written ({exc.strerror or exc})") from None
 
     def stage_text(self, text: str) -> None:
         """Write ``text`` to a temporary file beside the destination (a device is written at :meth:`commit`)."""
@@ -131,25 +114,15 @@ def check_output(flag: str, path: str | None, kind: str, inputs: list, overwrite
     """
     if path is None:
         return None
-    if not path:
-        raise ShapeSpaceError(f"{flag}: give a file name", ErrorCode.USAGE)
-    out = Output(flag, path, kind)
-    if os.path.isdir(out.abspath):
-        raise out.fail("is a folder; give a file name")
-    folder = os.path.dirname(out.abspath)
-    if not os.path.isdir(folder):
-        raise out.fail(f"the folder {folder} does not exist")
-    for source in inputs:
-        if source and same_file(out.abspath, source):
-            in_place = overwrite and kind == "blend" and opened_blend and same_file(source, opened_blend)
-            if not in_place:
-                hint = " (give --overwrite to save into it)" if kind == "blend" and source == opened_blend else ""
-                raise out.fail(f"would overwrite the input {source}{hint}", ErrorCode.OVERWRITE)
-    if out.regular and os.path.exists(out.abspath) and not overwrite and not _looks_like(out.abspath, kind):
-        what = "a JSON report" if kind == "json" else "a .blend file"
-        raise out.fail(f"exists and is not {what}; give --overwrite to replace it", ErrorCode.OVERWRITE)
-    out.probe()
-    return out
+    if kind == "blend" and opened_blend and not overwrite and path and same_file(path, opened_blend):
+        raise ShapeSpaceError(f"{flag} {path}: would overwrite the input {opened_blend} (give --overwrite to save "
+                              "into it)", ErrorCode.OVERWRITE)
+    in_place = kind == "blend" and overwrite and opened_blend
+    read = [p for p in inputs if not (in_place and p and same_file(p, opened_blend))]
+    check_output_file(path, flag=flag, what=_KINDS[kind], blend_ok=True, inputs=read, overwrite=overwrite,
+                      replaceable=lambda full: _looks_like(full, kind), replace_hint="give --overwrite to replace it",
+                      devices=True)
+    return Output(flag, path, kind)
 
 
 def check_outputs(outputs, inputs: list, overwrite: bool = False, opened_blend: str = "") -> list:

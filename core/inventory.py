@@ -8,10 +8,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .errors import ErrorCode
-from .result import Issue, Report, ShapeSpaceError
+from .result import Issue, Report, ShapeSpaceError, Status, to_jsonable
 
 __all__ = ["IssueInfo", "ShapeKeyMeshInfo", "ArmatureModifierInfo", "SkinnedMeshInfo", "ArmatureInfo",
-           "ActionInfo", "SceneInfo", "FileInventory"]
+           "ActionInfo", "SceneInfo", "FileInventory", "CaptureInfo"]
 
 
 @dataclass
@@ -106,3 +106,21 @@ class FileInventory(Report):
         """Refuse a file with nothing ShapeSpace can work on."""
         if not (self.shape_key_meshes or self.skinned_meshes or self.armatures):
             raise ShapeSpaceError("no meshes with shape keys, armatures or skinned meshes found", ErrorCode.NO_RIGS)
+
+
+@dataclass
+class CaptureInfo(Report):
+    """What ``shapespace info`` reports about one capture recording: ``file`` and its ``take`` description
+    (kind, channels, rate, duration, head / eye channels, ``issues`` as one-line messages), printed flat beside
+    ``status`` (``WARNING`` when the take has issues: the reader had to skip or repair something)."""
+
+    file: str = ""
+    take: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, file: str, take: dict) -> CaptureInfo:
+        """The report of recording ``file`` described as ``take`` (its status from the take's issues)."""
+        return cls(file=file, take=take, status=Status.WARNING if take.get("issues") else Status.OK)
+
+    def to_json(self) -> dict:
+        return {"file": self.file, **to_jsonable(self.take), "status": self.status.name.lower()}

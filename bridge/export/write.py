@@ -32,7 +32,7 @@ from ...core.errors import ErrorCode
 from ...core.export.formats import check_format, check_output_path
 from ...core.export.frames import export_range
 from ...core.export.report import BakedObject, ExportReport
-from ...core.result import ShapeSpaceError
+from ...core.result import ShapeSpaceError, Status
 from .. import actions
 from .collect import animating_actions, resolve_objects, with_dependencies
 from .copy import ExportScene
@@ -87,6 +87,7 @@ def export(fmt: str, path: str, names=None, frame_range=None, scene=None, whole_
                 report.baked.append(_bake_mesh(tmp, name, smp, frames, animated, export_format))
             _write(export_format.name, tmp, path, start, end, animated)
     report.seconds = time.perf_counter() - t0
+    report.status = Status.WARNING if report.notes else Status.OK      # a note: something was left out or changed
     return report
 
 

@@ -2,12 +2,12 @@
 image, near-duplicate and empty targets, sparsity), both stored on the rig for the panel."""
 from __future__ import annotations
 
-import os
 
 import bpy
 import numpy as np
 
 from ...core.errors import ErrorCode
+from ...core.paths import check_output_file
 from ...core.facespace.job import coherence_step, compression_step
 from ...core.facespace.report import CoherenceReport, CompressionReport
 from ...core.result import ShapeSpaceError
@@ -40,29 +40,21 @@ def compression_relative(obj, tolerance: float, progress=None) -> CompressionRep
     return compression(obj, None, tolerance * linear_model(obj).scale, progress)
 
 
+def _is_png(path: str) -> bool:
+    """Whether the existing file ``path`` is a PNG image (its 8-byte signature): the only file a coherence image
+    may replace."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(8) == b"\x89PNG\r\n\x1a\n"
+    except OSError:
+        return False
+
+
 def _png_target(path: str) -> str:
-    """The absolute path to write the coherence PNG to, refused when that would overwrite something else:
-    a .blend file, a folder, a missing folder, a non-regular file or an existing file that is not a PNG."""
-    path = os.path.normpath(os.path.abspath(path))
-    blend = bpy.data.filepath and os.path.normpath(os.path.abspath(bpy.data.filepath))
-    if path == blend or path.lower().endswith((".blend", ".blend1")):
-        raise ShapeSpaceError(f"{path!r} is a .blend file: give a .png file path", ErrorCode.OVERWRITE)
-    if os.path.isdir(path):
-        raise ShapeSpaceError(f"{path!r} is a folder: give a .png file path", ErrorCode.NOT_A_FILE)
-    if not os.path.isdir(os.path.dirname(path)):
-        raise ShapeSpaceError(f"the folder of {path!r} does not exist", ErrorCode.UNWRITABLE)
-    if os.path.lexists(path):
-        if not os.path.isfile(path):
-            raise ShapeSpaceError(f"{path!r} is not a regular file", ErrorCode.NOT_A_FILE)
-        try:
-            with open(path, "rb") as fh:
-                head = fh.read(8)
-        except OSError as exc:
-            raise ShapeSpaceError(f"cannot read {path!r} ({exc.strerror})", ErrorCode.UNWRITABLE) from None
-        if head != b"\x89PNG\r\n\x1a\n":
-            raise ShapeSpaceError(f"{path!r} exists and is not a PNG image: choose another file",
-                                  ErrorCode.OVERWRITE)
-    return path
+    """The absolute path to write the coherence PNG to, refused when that would overwrite something else
+    (:func:`core.paths.check_output_file`: a .blend file, a folder, a missing folder, a non-regular file, the open
+    .blend or an existing file that is not a PNG)."""
+    return check_output_file(path, what="a PNG image", inputs=(bpy.data.filepath,), replaceable=_is_png)
 
 
 def _coherence_image(name: str, image: np.ndarray, png_path: str = None):

@@ -13,6 +13,7 @@ import bpy
 import numpy as np
 
 from ...core.errors import ErrorCode
+from ...core.paths import check_output_file
 from ...core.pointcache import write_pc2
 from ...core.result import ShapeSpaceError
 from .. import actions, shapekeys
@@ -131,23 +132,13 @@ def cache_path(obj, filepath: str = "", overwrite: bool = False) -> str:
             raise ShapeSpaceError("save the file first or give a PC2 file path", ErrorCode.MISSING_FILE)
         filepath = os.path.join(os.path.dirname(bpy.data.filepath), default_cache_name(obj))
     path = os.path.normpath(os.path.abspath(bpy.path.abspath(filepath)))
-    blend = bpy.data.filepath and os.path.normpath(os.path.abspath(bpy.data.filepath))
-    if path == blend or path.lower().endswith((".blend", ".blend1")):
-        raise ShapeSpaceError(f"{path!r} is a .blend file: give a .pc2 file path", ErrorCode.OVERWRITE)
-    if os.path.isdir(path):
-        raise ShapeSpaceError(f"{path!r} is a folder: give a .pc2 file path", ErrorCode.NOT_A_FILE)
-    if not os.path.isdir(os.path.dirname(path)):
-        raise ShapeSpaceError(f"the folder of {path!r} does not exist", ErrorCode.UNWRITABLE)
-    if os.path.lexists(path) and not overwrite:
-        if not os.path.isfile(path):
-            raise ShapeSpaceError(f"{path!r} is not a regular file", ErrorCode.NOT_A_FILE)
-        if chosen and not _is_point_cache(path):
-            raise ShapeSpaceError(f"{path!r} exists and is not a point cache: choose another file or tick "
-                                  "Overwrite", ErrorCode.OVERWRITE)
-        if not chosen and not _own_cache(obj, path):
-            raise ShapeSpaceError(f"{path!r} already exists and is not this mesh's point cache: give a file "
-                                  "path or tick Overwrite", ErrorCode.OVERWRITE)
-    return path
+    if chosen:
+        accept, what, hint = _is_point_cache, "a point cache", "choose another file or tick Overwrite"
+    else:
+        accept, what, hint = (lambda p: _own_cache(obj, p)), "this mesh's point cache", \
+            "the default file name already exists: give a file path or tick Overwrite"
+    return check_output_file(path, what=what, inputs=(bpy.data.filepath,), replaceable=accept, replace_hint=hint,
+                             overwrite=overwrite)
 
 
 def _sample_meshes(obj, scene, deformer, frames, progress=None) -> np.ndarray:

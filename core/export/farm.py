@@ -13,10 +13,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from ..errors import ErrorCode
-from ..result import Report, ShapeSpaceError
+from ..result import Report, ShapeSpaceError, Status
 
-__all__ = ["FarmSummary", "check_stems", "chunk", "load_take_report", "merge_take_reports", "read_take_report",
-           "take_outputs", "take_stem"]
+__all__ = ["FarmSummary", "batch_status", "check_stems", "chunk", "did_not_converge", "load_take_report",
+           "merge_take_reports",
+           "read_take_report", "take_outputs", "take_stem"]
 
 
 def take_stem(take: str) -> str:
@@ -104,6 +105,10 @@ class FarmSummary(Report):
         Every per-take result, ``take`` and ``blend`` (the task's output file) added.
     target, method : str
         From the first report that names them.
+    status : Status
+        ``FAILED`` when a take failed or left no report; else ``NOT_CONVERGED`` when a take's fit stopped
+        before converging, ``WARNING`` when a take's result carries a warning, ``OK`` otherwise
+        (:func:`batch_status`).
     """
 
     takes: int = 0
@@ -117,6 +122,11 @@ class FarmSummary(Report):
     def ok(self) -> bool:
         """Every take succeeded."""
         return not self.failed
+
+    @property
+    def unconverged(self) -> list:
+        """The ``results`` whose fit stopped before converging (:func:`did_not_converge`)."""
+        return [r for r in self.results if did_not_converge(r)]
 
 
 def merge_take_reports(takes: Sequence[str], report_dir: str) -> FarmSummary:
@@ -152,4 +162,29 @@ def merge_take_reports(takes: Sequence[str], report_dir: str) -> FarmSummary:
             summary.succeeded.append(take)
         elif not rep["results"]:
             summary.failed.append({"take": take, "error": "the report lists no result"})
+    summary.status = batch_status(summary.failed, summary.results)
     return summary
+
+
+def batch_status(failed: Sequence, results: Sequence[dict]) -> Status:
+    """The status of a batch: the worst of its takes'.
+
+    Parameters
+    ----------
+    failed : sequence
+        The takes that failed (any entry: ``FAILED``).
+    results : sequence of dict
+        Every per-take result as its report wrote it (``status`` a lower-case :class:`Status` name; a result
+        with ``converged`` false did not converge either).
+    """
+    if failed:
+        return Status.FAILED
+    if any(did_not_converge(r) for r in results):
+        return Status.NOT_CONVERGED
+    return Status.WARNING if any(str(r.get("status") or "").lower() == "warning" for r in results) else Status.OK
+
+
+def did_not_converge(result: dict) -> bool:
+    """Whether a per-take result (as its report wrote it) stopped before converging: status ``not_converged``,
+    or ``converged`` false."""
+    return str(result.get("status") or "").lower() == "not_converged" or result.get("converged") is False

@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass
 
 from ..errors import ErrorCode
+from ..paths import check_output_file
 from ..result import ShapeSpaceError
 
 __all__ = ["FORMATS", "ExportFormat", "check_format", "check_output_path", "format_of"]
@@ -62,48 +62,9 @@ def format_of(path: str) -> ExportFormat:
 
 
 def check_output_path(path: str, fmt: ExportFormat, inputs: tuple = ()) -> str:
-    """The absolute output path, checked before anything is baked.
+    """The absolute output path of an export in ``fmt``, checked before anything is baked.
 
-    Refused (one line naming the path): an empty path; an extension that does not match ``fmt``
-    (code ``format``); a folder that does not exist or cannot be written (``unwritable``); a directory
-    (``not_a_file``); an existing file that cannot be replaced (``unwritable``); one of ``inputs`` (the
-    open .blend, a source file: ``overwrite``).
+    :func:`core.paths.check_output_file` with the format's extensions (code ``format`` for another one):
+    any existing file that is not one of ``inputs`` (the open .blend, a source file) is replaced.
     """
-    if not path:
-        raise ShapeSpaceError("no output file given", ErrorCode.USAGE)
-    path = os.path.abspath(os.path.expanduser(path))
-    ext = os.path.splitext(path)[1].lower()
-    if ext not in fmt.extensions:
-        raise ShapeSpaceError(f"{path}: a {fmt.name} file must end in {' or '.join(fmt.extensions)}",
-                              ErrorCode.FORMAT)
-    folder = os.path.dirname(path)
-    if not os.path.isdir(folder):
-        raise ShapeSpaceError(f"cannot write {path}: the folder {folder} does not exist", ErrorCode.UNWRITABLE)
-    if os.path.isdir(path):
-        raise ShapeSpaceError(f"cannot write {path}: it is a folder", ErrorCode.NOT_A_FILE)
-    if _read_only(folder) or not _can_create_in(folder):
-        raise ShapeSpaceError(f"cannot write {path}: the folder {folder} is read-only", ErrorCode.UNWRITABLE)
-    if os.path.exists(path) and _read_only(path):
-        raise ShapeSpaceError(f"cannot write {path}: the file is read-only", ErrorCode.UNWRITABLE)
-    for other in inputs:
-        if other and os.path.exists(other) and os.path.exists(path) and os.path.samefile(other, path):
-            raise ShapeSpaceError(f"{path} is an input of this export; choose another output file",
-                                  ErrorCode.OVERWRITE)
-    return path
-
-
-def _read_only(path: str) -> bool:
-    """Marked read-only: no write permission for its owner, group or others (honoured even for root, who
-    could write anyway), or not writable for this user."""
-    return not (os.stat(path).st_mode & 0o222) or not os.access(path, os.W_OK)
-
-
-def _can_create_in(folder: str) -> bool:
-    """A file can really be created in ``folder`` (a read-only file system fails here)."""
-    try:
-        fd, probe = tempfile.mkstemp(prefix=".shapespace-probe-", dir=folder)
-    except OSError:
-        return False
-    os.close(fd)
-    os.remove(probe)
-    return True
+    return check_output_file(path, what=f"a {fmt.name} file", extensions=fmt.extensions, inputs=inputs)

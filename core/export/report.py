@@ -59,6 +59,9 @@ class ExportReport(Report):
         What the format could not carry, duplicates ignored, and the like (one line each).
     seconds : float
         Bake + export wall time.
+    status : Status
+        ``WARNING`` when there are ``notes`` (something was left out, or could not be carried), else ``OK``
+        (a failed export raises instead of returning a report).
     """
 
     format: str = ""

@@ -1,7 +1,7 @@
 import bpy
 
 from ...bridge import authoring
-from ...core.result import ShapeSpaceError
+from ..reporting import FAILED, attempt
 from ._polls import transfer_target
 
 
@@ -31,10 +31,8 @@ class SHAPESPACE_OT_add_landmark_pair(bpy.types.Operator):
             if index is None:
                 self.report({"ERROR"}, f"select exactly one vertex of {mesh.name!r} (or give its index)")
                 return {"CANCELLED"}
-        try:
-            count = authoring.add_landmark(ob, src, a, b)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        count = attempt(self, authoring.add_landmark, ob, src, a, b)
+        if count is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"landmark pair {src.name}:{a} ↔ {ob.name}:{b} ({count} pairs)")
         return {"FINISHED"}

@@ -6,8 +6,8 @@ import bpy
 from ...bridge import authoring
 from ...bridge import named_landmarks as named
 from ...core.authoring.named import NAMES
-from ...core.result import ShapeSpaceError
 from ..polls import active_mesh
+from ..reporting import FAILED, attempt
 from ._polls import transfer_target
 
 
@@ -41,19 +41,21 @@ class SHAPESPACE_OT_place_named_landmark(bpy.types.Operator):
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            name = self.name or named.next_name(ob)
-            if name is None:
-                self.report({"ERROR"}, f"all {len(NAMES)} named landmarks of {ob.name!r} are placed: give a name "
-                                       f"to move one")
-                return {"CANCELLED"}
-            v = self.vertex if self.vertex >= 0 else authoring.selected_vertex(ob)
-            if v is None:
-                self.report({"ERROR"}, f"select exactly one vertex of {ob.name!r} for {name} (or give its index)")
-                return {"CANCELLED"}
-            marks = named.place(ob, name, v)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        name = self.name or attempt(self, named.next_name, ob)
+        if name is FAILED:
+            return {"CANCELLED"}
+        if name is None:
+            self.report({"ERROR"}, f"all {len(NAMES)} named landmarks of {ob.name!r} are placed: give a name "
+                                   f"to move one")
+            return {"CANCELLED"}
+        v = self.vertex if self.vertex >= 0 else attempt(self, authoring.selected_vertex, ob)
+        if v is FAILED:
+            return {"CANCELLED"}
+        if v is None:
+            self.report({"ERROR"}, f"select exactly one vertex of {ob.name!r} for {name} (or give its index)")
+            return {"CANCELLED"}
+        marks = attempt(self, named.place, ob, name, v)
+        if marks is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"{name} at vertex {v} ({len(marks)} of {len(NAMES)} placed)")
         return {"FINISHED"}
@@ -77,10 +79,8 @@ symmetry map (the stored mirror map, else one across local X = 0)"""
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            filled = named.mirror_complete(ob)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        filled = attempt(self, named.mirror_complete, ob)
+        if filled is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"mirrored {len(filled)}: {', '.join(filled)}" if filled else "nothing to mirror")
         return {"FINISHED"}
@@ -119,10 +119,8 @@ class SHAPESPACE_OT_use_named_landmarks(bpy.types.Operator):
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            count = authoring.use_named_landmarks(ob, ob.shapespace_authoring.source)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        count = attempt(self, authoring.use_named_landmarks, ob, ob.shapespace_authoring.source)
+        if count is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"{count} landmark pairs from the named landmarks")
         return {"FINISHED"}

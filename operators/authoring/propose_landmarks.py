@@ -1,7 +1,7 @@
 import bpy
 
 from ...bridge import authoring
-from ...core.result import ShapeSpaceError
+from ..reporting import FAILED, attempt
 from ._polls import transfer_target
 
 METHODS = [("auto", "Automatic", "From the shapes both meshes share when the target has shapes, else from the "
@@ -29,10 +29,8 @@ correct any of them with Add/Remove Landmark Pair"""
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            result = authoring.propose_landmarks(ob.shapespace_authoring.source, ob, self.method)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        result = attempt(self, authoring.propose_landmarks, ob.shapespace_authoring.source, ob, self.method)
+        if result is FAILED:
             return {"CANCELLED"}
         if result.message and result.status != 0:
             self.report({"WARNING"}, result.message)

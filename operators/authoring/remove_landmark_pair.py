@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import authoring
-from ...core.result import ShapeSpaceError
 from ..polls import active_mesh
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_remove_landmark_pair(bpy.types.Operator):
@@ -27,10 +27,8 @@ class SHAPESPACE_OT_remove_landmark_pair(bpy.types.Operator):
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            count = authoring.remove_landmark(ob, self.index)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        count = attempt(self, authoring.remove_landmark, ob, self.index)
+        if count is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"removed landmark pair {self.index} ({count} left)" if self.index >= 0 else
                               f"removed the last landmark pair ({count} left)")

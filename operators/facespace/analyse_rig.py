@@ -2,8 +2,8 @@ import bpy
 
 from ...bridge import facespace
 from ..polls import active_rig
+from ..progress import window_progress
 from ..reporting import FAILED, attempt
-from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_analyse_rig(bpy.types.Operator):
@@ -26,7 +26,7 @@ animation in blendshape vs PCA form (thesis 3.7)"""
     def execute(self, context):
         ob = context.active_object
         path = bpy.path.abspath(self.filepath) if self.filepath else None
-        with WindowProgress(context) as progress:
+        with window_progress(context) as progress:
             rep = attempt(self, facespace.analyse, ob, None, path, self.threshold, progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}

@@ -2,8 +2,8 @@ import bpy
 
 from ...bridge import facespace
 from ..polls import animated_object, active_rig
+from ..progress import window_progress
 from ..reporting import FAILED, attempt
-from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_compression_report(bpy.types.Operator):
@@ -21,7 +21,7 @@ class SHAPESPACE_OT_compression_report(bpy.types.Operator):
         return active_rig(cls, context) is not None and animated_object(cls, context) is not None
 
     def execute(self, context):
-        with WindowProgress(context) as progress:
+        with window_progress(context) as progress:
             rep = attempt(self, facespace.compression_relative, context.active_object, self.tolerance,
                           progress=progress)
         if rep is FAILED:

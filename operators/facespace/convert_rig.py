@@ -2,8 +2,8 @@ import bpy
 
 from ...bridge import facespace
 from ..polls import active_mesh
+from ..progress import window_progress
 from ..reporting import FAILED, attempt
-from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_convert_rig(bpy.types.Operator):
@@ -39,7 +39,7 @@ is left untouched)"""
         return ob is not None
 
     def execute(self, context):
-        with WindowProgress(context) as progress:
+        with window_progress(context) as progress:
             new = attempt(self, facespace.convert_rig, context.active_object, self.form, self.convex,
                           self.from_animation, self.tolerance, progress=progress)
         if new is FAILED:

@@ -2,8 +2,8 @@ import bpy
 
 from ...bridge import facespace
 from ..polls import prior_rig
+from ..progress import window_progress
 from ..reporting import FAILED, attempt
-from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_find_implausible_frames(bpy.types.Operator):
@@ -22,7 +22,7 @@ or too close to the average face)"""
         return prior_rig(cls, context) is not None
 
     def execute(self, context):
-        with WindowProgress(context) as progress:
+        with window_progress(context) as progress:
             found = attempt(self, facespace.flag_implausible_frames, context.active_object, None, self.alpha,
                             progress=progress)
         if found is FAILED:

@@ -2,8 +2,8 @@ import bpy
 
 from ...bridge import facespace
 from ..polls import animated_object
+from ..progress import window_progress
 from ..reporting import FAILED, attempt
-from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_inpaint_gap(bpy.types.Operator):
@@ -28,7 +28,7 @@ inpainting, thesis 9.3): known frames stay exact, the gap gets one key per frame
         return animated_object(cls, context) is not None
 
     def execute(self, context):
-        with WindowProgress(context) as progress:
+        with window_progress(context) as progress:
             rep = attempt(self, facespace.inpaint_gap, context.active_object, self.data_path, self.index,
                           self.frame_start, self.frame_end, self.use_other_channels, progress=progress)
         if rep is FAILED:

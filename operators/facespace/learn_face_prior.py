@@ -2,8 +2,8 @@ import bpy
 
 from ...bridge import facespace
 from ..polls import animated_object, active_rig
+from ..progress import window_progress
 from ..reporting import FAILED, attempt
-from ._progress import WindowProgress
 
 
 class SHAPESPACE_OT_learn_face_prior(bpy.types.Operator):
@@ -19,7 +19,7 @@ probability meter and shell in-betweens (thesis ch. 6)"""
         return active_rig(cls, context) is not None and animated_object(cls, context) is not None
 
     def execute(self, context):
-        with WindowProgress(context) as progress:
+        with window_progress(context) as progress:
             rep = attempt(self, facespace.learn_prior, context.active_object, progress=progress)
         if rep is FAILED:
             return {"CANCELLED"}

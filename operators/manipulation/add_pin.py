@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import manipulation
-from ...core.result import ShapeSpaceError
 from ..polls import active_rig
+from ..reporting import FAILED, attempt
 
 SPACE_ITEMS = [
     ("WORLD", "World", "World coordinates of where the point should appear (the 3D cursor, an empty): through "
@@ -36,12 +36,10 @@ class SHAPESPACE_OT_add_pin(bpy.types.Operator):
         ob = context.active_object
         pin = manipulation.stored_pin(self.vertices, self.weights)
         target = self.target if self.use_target else None
-        try:
-            model = manipulation.rig_model(ob)
-            index = manipulation.add_pin(ob, pin, target, self.stationary, model=model, space=self.space,
-                                         depsgraph=context.evaluated_depsgraph_get())
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        index = attempt(self, lambda: manipulation.add_pin(ob, pin, target, self.stationary,
+                                                           model=manipulation.rig_model(ob), space=self.space,
+                                                           depsgraph=context.evaluated_depsgraph_get()))
+        if index is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"Added pin {index}")
         return {"FINISHED"}

@@ -3,8 +3,8 @@ import numpy as np
 from bpy_extras import view3d_utils
 
 from ...bridge import manipulation, meshes
-from ...core.result import ShapeSpaceError
 from ..polls import pinnable_rig
+from ..reporting import FAILED, attempt
 
 PICK_RADIUS_PX = 12.0
 
@@ -30,35 +30,39 @@ With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follow
         return True
 
     def invoke(self, context, event):
-        ob = context.active_object
-        region, rv3d = context.region, context.region_data
-        mouse = (event.mouse_region_x, event.mouse_region_y)
-        depsgraph = context.evaluated_depsgraph_get()
-        try:
-            self.drag = manipulation.Drag(ob)       # the rig from the cache, the prior, the sliders to go back to
-            index = self._pick(ob, depsgraph, region, rv3d, mouse)
-            created = index is None
-            if created:
-                origin = view3d_utils.region_2d_to_origin_3d(region, rv3d, mouse)
-                direction = view3d_utils.region_2d_to_vector_3d(region, rv3d, mouse)
-                hit = manipulation.surface_pin(ob, depsgraph, origin, direction)
-                if hit is None:
-                    return {"CANCELLED", "PASS_THROUGH"}
-                pin, self.anchor_world = hit
-                index = manipulation.add_pin(ob, pin, None, self.stationary, model=self.drag.model)
-                if self.stationary:
-                    return {"FINISHED"}
-            else:
-                here = manipulation.deformed_pin_positions(ob, depsgraph)[index]
-                self.anchor_world = meshes.to_world(ob, here[None])[0]
-            manipulation.set_active_pin(ob, index)
-            self.drag.grab(ob, index, created)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        grabbed = attempt(self, self._grab, context, (event.mouse_region_x, event.mouse_region_y))
+        if grabbed is FAILED:
             return {"CANCELLED"}
+        if grabbed is not None:
+            return grabbed
         context.window_manager.modal_handler_add(self)
         context.workspace.status_text_set("Drag: move the pin · release to set · right-click/Esc to cancel")
         return {"RUNNING_MODAL"}
+
+    def _grab(self, context, mouse):
+        """Grab the pin under the mouse (one made there if none): ``None`` to start dragging, else the result."""
+        ob = context.active_object
+        region, rv3d = context.region, context.region_data
+        depsgraph = context.evaluated_depsgraph_get()
+        self.drag = manipulation.Drag(ob)       # the rig from the cache, the prior, the sliders to go back to
+        index = self._pick(ob, depsgraph, region, rv3d, mouse)
+        created = index is None
+        if created:
+            origin = view3d_utils.region_2d_to_origin_3d(region, rv3d, mouse)
+            direction = view3d_utils.region_2d_to_vector_3d(region, rv3d, mouse)
+            hit = manipulation.surface_pin(ob, depsgraph, origin, direction)
+            if hit is None:
+                return {"CANCELLED", "PASS_THROUGH"}
+            pin, self.anchor_world = hit
+            index = manipulation.add_pin(ob, pin, None, self.stationary, model=self.drag.model)
+            if self.stationary:
+                return {"FINISHED"}
+        else:
+            here = manipulation.deformed_pin_positions(ob, depsgraph)[index]
+            self.anchor_world = meshes.to_world(ob, here[None])[0]
+        manipulation.set_active_pin(ob, index)
+        self.drag.grab(ob, index, created)
+        return None
 
     def _pick(self, ob, depsgraph, region, rv3d, mouse):
         if not len(ob.shapespace.pins):
@@ -79,10 +83,7 @@ With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follow
             self.drag.cancel(ob)
             return self._end(context, {"CANCELLED"})
         if event.type == "MOUSEMOVE":
-            try:
-                self._update(context, ob, (event.mouse_region_x, event.mouse_region_y))
-            except ShapeSpaceError as exc:
-                self.report({"ERROR"}, str(exc))
+            if attempt(self, self._update, context, ob, (event.mouse_region_x, event.mouse_region_y)) is FAILED:
                 self.drag.cancel(ob)
                 return self._end(context, {"CANCELLED"})
             return {"RUNNING_MODAL"}

@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import manipulation
-from ...core.result import ShapeSpaceError
 from ..polls import active_rig
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_mirror_pins(bpy.types.Operator):
@@ -23,10 +23,8 @@ point with the mirrored target; a pin on the centre line is its own mirror"""
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            counts = manipulation.mirror_pins(ob, manipulation.rig_model(ob))
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        counts = attempt(self, lambda: manipulation.mirror_pins(ob, manipulation.rig_model(ob)))
+        if counts is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"Mirror Pins: {counts['added']} added, {counts['linked']} linked to an existing "
                               f"mirror pin, {counts['centre']} on the centre line")

@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import manipulation
-from ...core.result import ShapeSpaceError
 from ..polls import mesh_with_pins
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_remove_pin(bpy.types.Operator):
@@ -19,9 +19,6 @@ class SHAPESPACE_OT_remove_pin(bpy.types.Operator):
         return mesh_with_pins(cls, context) is not None
 
     def execute(self, context):
-        try:
-            manipulation.remove_pin(context.active_object, self.index)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        if attempt(self, manipulation.remove_pin, context.active_object, self.index) is FAILED:
             return {"CANCELLED"}
         return {"FINISHED"}

@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import manipulation
-from ...core.result import ShapeSpaceError
 from ..polls import pinned_rig
+from ..reporting import FAILED, attempt
 from .add_pin import SPACE_ITEMS
 
 
@@ -27,11 +27,9 @@ The scriptable form of a viewport drag"""
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            result = manipulation.solve_to_target(ob, context.evaluated_depsgraph_get(), self.pin, self.target,
-                                                  self.space, context.scene.frame_current if self.key else None)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        result = attempt(self, manipulation.solve_to_target, ob, context.evaluated_depsgraph_get(), self.pin,
+                         self.target, self.space, context.scene.frame_current if self.key else None)
+        if result is FAILED:
             return {"CANCELLED"}
         level, text = manipulation.report_text(result, ob, self.space if self.pin >= 0 else None)
         self.report({level}, text)

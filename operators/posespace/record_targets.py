@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import posespace
-from ...core.result import ShapeSpaceError
 from ..polls import psd_mesh
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_psd_record_targets(bpy.types.Operator):
@@ -25,10 +25,8 @@ class SHAPESPACE_OT_psd_record_targets(bpy.types.Operator):
     def execute(self, context):
         ob = context.active_object
         st = ob.shapespace_psd
-        try:
-            values = posespace.record_targets(ob, st.examples[st.active_example].name)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        values = attempt(self, posespace.record_targets, ob, st.examples[st.active_example].name)
+        if values is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"Recorded {len(values)} target values")
         return {"FINISHED"}

@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import driven
-from ...core.result import ShapeSpaceError
 from ..polls import sculpted_key
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_add_combination(bpy.types.Operator):
@@ -34,10 +34,9 @@ their weights (driven natively: no Python at playback)"""
     def execute(self, context):
         ob = context.active_object
         inputs = [n for n in (self.first, self.second, self.third) if n]
-        try:
-            name = driven.add_combination(ob, inputs, ob.active_shape_key.name, keep_source=self.keep_source)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        name = attempt(self, driven.add_combination, ob, inputs, ob.active_shape_key.name,
+                       keep_source=self.keep_source)
+        if name is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"Added combination {name}")
         return {"FINISHED"}

@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import driven
-from ...core.result import ShapeSpaceError
 from ..polls import sculpted_key
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_add_inbetween(bpy.types.Operator):
@@ -31,11 +31,9 @@ class SHAPESPACE_OT_add_inbetween(bpy.types.Operator):
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            name = driven.add_inbetween(ob, self.primary, ob.active_shape_key.name, self.weight,
-                                        keep_source=self.keep_source)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        name = attempt(self, driven.add_inbetween, ob, self.primary, ob.active_shape_key.name, self.weight,
+                       keep_source=self.keep_source)
+        if name is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"Added in-between {name}")
         return {"FINISHED"}

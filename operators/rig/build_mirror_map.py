@@ -1,9 +1,9 @@
 import bpy
 
 from ...bridge import symmetry
-from ...core.result import ShapeSpaceError
 from ..polls import active_mesh
 from ..progress import window_progress
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_build_mirror_map(bpy.types.Operator):
@@ -40,14 +40,12 @@ or asymmetrically sculpted mesh) and store the table on the mesh for the symmetr
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            with window_progress(context, 2) as progress:
-                mmap = symmetry.build_map(ob, self.method, self.axis, self.centre, self.tolerance, self.edge)
-                progress(0.5)
-                symmetry.store_map(ob, mmap)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+        with window_progress(context, 2) as progress:
+            mmap = attempt(self, symmetry.build_map, ob, self.method, self.axis, self.centre, self.tolerance,
+                           self.edge)
+            progress(0.5)
+            if mmap is FAILED or attempt(self, symmetry.store_map, ob, mmap) is FAILED:
+                return {"CANCELLED"}
         text = f"Mirror map of {ob.name}: {100 * mmap.coverage:.2f} % of {len(mmap.mirror)} vertices mapped " \
                f"({mmap.method})"
         if mmap.coverage < 1.0:

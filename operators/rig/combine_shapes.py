@@ -2,8 +2,8 @@ import bpy
 
 from ...bridge import symmetry
 from ...core import symmetry as core_symmetry
-from ...core.result import ShapeSpaceError
 from ..polls import sculpted_key
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_combine_shapes(bpy.types.Operator):
@@ -30,10 +30,8 @@ the halves are kept"""
         if not other:
             self.report({"ERROR"}, f"{first!r} has no side in its name: set Other Side")
             return {"CANCELLED"}
-        try:
-            name = symmetry.combine_shapes(ob, first, other, self.name)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        name = attempt(self, symmetry.combine_shapes, ob, first, other, self.name)
+        if name is FAILED:
             return {"CANCELLED"}
         self.report({"INFO"}, f"Combined {first} + {other} into {name} (at value 0; the halves are kept)")
         return {"FINISHED"}

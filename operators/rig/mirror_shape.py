@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import symmetry
-from ...core.result import ShapeSpaceError
 from ..polls import sculpted_key
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_mirror_shape(bpy.types.Operator):
@@ -19,12 +19,14 @@ class SHAPESPACE_OT_mirror_shape(bpy.types.Operator):
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            mmap, stored = symmetry.map_for(ob)
-            name, res = symmetry.mirror_shape(ob, ob.active_shape_key.name, mmap)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        found = attempt(self, symmetry.map_for, ob)
+        if found is FAILED:
             return {"CANCELLED"}
+        mmap, stored = found
+        mirrored = attempt(self, symmetry.mirror_shape, ob, ob.active_shape_key.name, mmap)
+        if mirrored is FAILED:
+            return {"CANCELLED"}
+        name, res = mirrored
         note = "" if stored else " (no stored mirror map: used an automatic one)"
         if res.status != 0:
             self.report({"WARNING"}, f"Created {name}{note}; {res.message}")

@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import symmetry
-from ...core.result import ShapeSpaceError
 from ..polls import sculpted_key
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_split_shape(bpy.types.Operator):
@@ -23,11 +23,10 @@ halves add up exactly to the original, which is kept (muted)"""
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            mmap, _ = symmetry.map_for(ob)
-            left, right = symmetry.split_shape(ob, ob.active_shape_key.name, mmap, self.falloff)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        halves = attempt(self, lambda: symmetry.split_shape(ob, ob.active_shape_key.name, symmetry.map_for(ob)[0],
+                                                             self.falloff))
+        if halves is FAILED:
             return {"CANCELLED"}
+        left, right = halves
         self.report({"INFO"}, f"Split into {left} and {right} (original muted, kept)")
         return {"FINISHED"}

@@ -1,8 +1,8 @@
 import bpy
 
 from ...bridge import symmetry
-from ...core.result import ShapeSpaceError
 from ..polls import sculpted_key
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_update_mirrored(bpy.types.Operator):
@@ -25,12 +25,11 @@ or, for a middle shape, mirror its sculpted side onto the other side"""
 
     def execute(self, context):
         ob = context.active_object
-        try:
-            mmap, _ = symmetry.map_for(ob)
-            name, res = symmetry.update_mirrored(ob, ob.active_shape_key.name, mmap, self.source)
-        except ShapeSpaceError as exc:
-            self.report({"ERROR"}, str(exc))
+        updated = attempt(self, lambda: symmetry.update_mirrored(ob, ob.active_shape_key.name,
+                                                                 symmetry.map_for(ob)[0], self.source))
+        if updated is FAILED:
             return {"CANCELLED"}
+        name, res = updated
         if res.status != 0:
             self.report({"WARNING"}, f"Updated {name}; {res.message}")
         else:

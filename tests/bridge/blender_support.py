@@ -32,6 +32,96 @@ def sphere_rig(keys: int = 3, name: str = "Face"):
     return ob
 
 
+class _OperatorProps:
+    """What ``layout.operator`` returns: setting a property checks it exists (and an enum value is allowed)."""
+
+    def __init__(self, idname):
+        group, name = idname.split(".")
+        self._rna = getattr(getattr(bpy.ops, group), name).get_rna_type()
+        self._idname = idname
+
+    def __setattr__(self, name, value):
+        if not name.startswith("_"):
+            prop = self._rna.properties.get(name)
+            assert prop is not None, f"{self._idname} has no property {name!r}"
+            if prop.type == "ENUM":
+                assert value in {e.identifier for e in prop.enum_items}, f"{self._idname}.{name} = {value!r}"
+        object.__setattr__(self, name, value)
+
+
+class RecordingLayout:
+    """Stands in for a panel's ``layout`` (panels only draw in a window redraw, which headless ``bpy`` cannot run).
+
+    Records the calls in ``log`` (``("label", text)``, ``("prop", name)``, ``("operator", idname)``,
+    ``("icon", id)``, ``("list", prop)``; :attr:`labels` the label texts) and checks the names a panel gives
+    against the real RNA definitions (a renamed property, a typo in an operator name, an operator property
+    or enum value that does not exist fail here, not in the artist's sidebar).  ``strict``: a layout call
+    not listed here fails (an attribute error) and an icon must be a real one; else the call is accepted and
+    returns a child layout (for drawing damaged or old data, where only the labels matter).  Children share
+    the log.
+    """
+
+    def __init__(self, log=None, strict=True):
+        self.log = [] if log is None else log
+        self.strict = strict
+        self.enabled = self.active = self.alert = True
+        self.use_property_split = self.use_property_decorate = False
+        self.scale_x = self.scale_y = 1.0
+
+    @property
+    def labels(self) -> list:
+        """The texts of every label drawn, in order."""
+        return [text for kind, text in self.log if kind == "label"]
+
+    def _child(self, *args, **kwargs):
+        return RecordingLayout(self.log, self.strict)
+
+    row = column = box = split = column_flow = grid_flow = _child
+
+    def __getattr__(self, name):
+        if self.__dict__.get("strict", True) or name.startswith("__"):
+            raise AttributeError(f"the recording layout has no {name!r}")
+        return self._child
+
+    def label(self, text="", icon="NONE", **kwargs):
+        self.log.append(("label", text))
+
+    def separator(self, **kwargs):
+        pass
+
+    def prop(self, data, name, **kwargs):
+        assert name in data.bl_rna.properties, f"{data.bl_rna.identifier} has no property {name!r}"
+        self.log.append(("prop", name))
+
+    def prop_search(self, data, name, *args, **kwargs):
+        assert name in data.bl_rna.properties, f"{data.bl_rna.identifier} has no property {name!r}"
+        self.log.append(("prop", name))
+
+    def operator(self, idname, **kwargs):
+        group, name = idname.split(".")
+        assert hasattr(getattr(bpy.ops, group), name), f"no operator {idname}"
+        self.log.append(("operator", idname))
+        return _OperatorProps(idname)
+
+    def template_icon(self, icon_value=0, scale=1.0):
+        assert icon_value > 0 or not self.strict, "template_icon needs a real icon id"
+        self.log.append(("icon", icon_value))
+
+    def template_list(self, list_type, list_id, data, prop, active_data, active_prop, **kwargs):
+        assert hasattr(bpy.types, list_type), f"no UIList {list_type}"
+        assert prop in data.bl_rna.properties and active_prop in active_data.bl_rna.properties
+        self.log.append(("list", prop))
+
+
+def draw_panel(cls, context=None, strict=True, bl_idname=None) -> RecordingLayout:
+    """Run panel class ``cls``'s ``draw`` on a :class:`RecordingLayout`; returns the layout (its ``log``)."""
+    layout = RecordingLayout(strict=strict)
+    call = type("PanelCall", (), {"layout": layout, "bl_idname": bl_idname or getattr(cls, "bl_idname", "")
+                                  or cls.__name__})()
+    cls.draw(call, context if context is not None else bpy.context)
+    return layout
+
+
 def import_file(path):
     """Import with Blender's own importer through the bridge; returns new object names."""
     from shapespace.bridge import assets

@@ -2,7 +2,7 @@
 import os
 
 import numpy as np
-from blender_support import bpy, classify_operator_call, import_file, sphere_rig
+from blender_support import bpy, classify_operator_call, draw_panel, import_file, sphere_rig
 from shapespace.bridge import actions, shapekeys
 from support import ASSETS
 
@@ -61,24 +61,6 @@ def damage_keyframe(ob, name="K1", frame=10, value=float("nan")):
 
 
 # --------------------------------------------------------------------------- damaged face-space metadata
-class Recorder:
-    """Stands in for a panel layout and records every label's text."""
-
-    def __init__(self, labels):
-        object.__setattr__(self, "labels", labels)
-
-    def label(self, text="", **kwargs):
-        self.labels.append(text)
-
-    def __getattr__(self, name):
-        return lambda *args, **kwargs: Recorder(self.labels)
-
-    def __setattr__(self, name, value):
-        pass
-
-
 def draw_face_panel():
     from shapespace.panels.facespace import SHAPESPACE_PT_face_space
-    labels = []
-    SHAPESPACE_PT_face_space.draw(type("PanelCall", (), {"layout": Recorder(labels)})(), bpy.context)
-    return labels
+    return draw_panel(SHAPESPACE_PT_face_space, strict=False).labels

@@ -558,7 +558,7 @@ def test_a_head_without_shapes_gets_landmarks_proposed_then_a_rig(registered):
 
 def test_panel_draws_settings_landmarks_and_every_operator(registered):
     from shapespace.panels.authoring import SHAPESPACE_PT_transfer_shapes as Panel
-    from test_panels import Layout
+    from blender_support import RecordingLayout as Layout
     src, tgt = _rig_and_target()
     bpy.context.view_layer.objects.active = tgt
     assert Panel.poll(bpy.context)

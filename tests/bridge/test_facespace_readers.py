@@ -1,6 +1,9 @@
 """The face-space verbs' shared readers (bridge.facespace.readers): NaN coordinates, NaN keyframes and keys on NaN
 frames refused naming the key, curve and frame, one-frame actions and meshes without vertices refused, and the
 progress the long operators show (always ended)."""
+import contextlib
+import importlib
+
 import numpy as np
 import pytest
 from blender_support import bpy
@@ -86,12 +89,19 @@ def test_face_space_operators_refuse_a_mesh_without_vertices(registered):
     ("find_implausible_frames", {}), ("inpaint_gap", {"data_path": 'key_blocks["K0"].value', "frame_start": 5,
                                                       "frame_end": 9})])
 def test_long_operators_show_progress_and_always_end_it(registered, monkeypatch, op_name, kwargs):
-    from shapespace.operators.facespace import _progress
+    from shapespace.operators.progress import window_progress
     seen, ended = [], []
-    monkeypatch.setattr(_progress.WindowProgress, "__call__", lambda self, fraction: seen.append(fraction))
-    original_exit = _progress.WindowProgress.__exit__
-    monkeypatch.setattr(_progress.WindowProgress, "__exit__", lambda self, *exc: ended.append(1) or original_exit(
-        self, *exc))
+
+    @contextlib.contextmanager
+    def recorded(context, steps=100):
+        with window_progress(context, steps):
+            try:
+                yield seen.append
+            finally:
+                ended.append(1)
+
+    monkeypatch.setattr(importlib.import_module(f"shapespace.operators.facespace.{op_name}"), "window_progress",
+                        recorded)
     face_sphere()
     if op_name == "find_implausible_frames":
         assert bpy.ops.shapespace.learn_face_prior() == {"FINISHED"}

@@ -21,6 +21,7 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
+from blender_support import draw_panel  # noqa: E402
 from shapespace.bridge import posespace  # noqa: E402
 from shapespace.bridge.posespace import stored as posespace_stored  # noqa: E402
 
@@ -114,23 +115,6 @@ def _without_version(blob: dict) -> dict:
     return {k: v for k, v in blob.items() if k != "schema_version"}
 
 
-class _Layout:
-    """Stands in for a panel's layout: records labels, accepts every other call and attribute."""
-
-    def __init__(self, labels):
-        object.__setattr__(self, "labels", labels)
-
-    def label(self, text="", **kwargs):
-        self.labels.append(text)
-        return _Layout(self.labels)
-
-    def __getattr__(self, name):
-        return lambda *args, **kwargs: _Layout(self.labels)
-
-    def __setattr__(self, name, value):
-        pass
-
-
 def _draw_panels(context) -> dict:
     """``{panel idname: [label texts]}`` for every ShapeSpace sidebar panel whose poll passes."""
     drawn, classes, stack = {}, [], list(bpy.types.Panel.__subclasses__())
@@ -142,9 +126,7 @@ def _draw_panels(context) -> dict:
         idname = getattr(cls, "bl_idname", "") or cls.__name__
         if not idname.startswith("SHAPESPACE_PT") or (hasattr(cls, "poll") and not cls.poll(context)):
             continue
-        labels = []
-        cls.draw(type("PanelCall", (), {"layout": _Layout(labels), "bl_idname": idname})(), context)
-        drawn[idname] = labels
+        drawn[idname] = draw_panel(cls, context, strict=False, bl_idname=idname).labels
     return drawn
 
 

@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from blender_support import SS, bpy, import_file
+from blender_support import SS, bpy, draw_panel, import_file
 from live_support import CSV, HOST, configure, drive, frames_received, raw_sender, replay_and_drain, sender
 from shapespace.bridge import actions, retarget
 from shapespace.bridge.live import recording, session
@@ -351,30 +351,8 @@ def test_clean_on_stop_keeps_the_raw_take(registered):
 def test_live_panel_draws_in_every_state(registered):
     from shapespace.panels.live import SHAPESPACE_PT_live
 
-    class Layout:
-        def __init__(self, log):
-            self.log = log
-
-        def __getattr__(self, name):
-            def call(*args, **kwargs):
-                if name in ("prop", "prop_search"):
-                    assert args[1] in args[0].bl_rna.properties, args[1]
-                if name == "operator":
-                    group, op = args[0].split(".")
-                    assert hasattr(getattr(bpy.ops, group), op), args[0]
-                if name == "label":
-                    self.log.append(kwargs.get("text", ""))
-                return Layout(self.log)
-            return call
-
-        def __setattr__(self, name, value):
-            object.__setattr__(self, name, value) if name == "log" else None
-
     def draw():
-        log = []
-        SHAPESPACE_PT_live.draw(type("P", (), {"layout": Layout(log), "bl_idname": "SHAPESPACE_PT_live"})(),
-                                bpy.context)
-        return log
+        return draw_panel(SHAPESPACE_PT_live, strict=False, bl_idname="SHAPESPACE_PT_live").labels
 
     ob = _fbhead()
     assert "stopped" in draw()

@@ -115,7 +115,7 @@ def test_use_named_landmarks_sets_the_transfer_pairs(registered):
 
 
 def test_named_landmarks_panel_draws_the_next_name(registered):
-    from test_panels import Layout
+    from blender_support import RecordingLayout as Layout
     from shapespace.panels.named_landmarks import SHAPESPACE_PT_named_landmarks as Panel
     ob = _fbhead()
     named_landmarks.place(ob, "eye_inner_L", 10)

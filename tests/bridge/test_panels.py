@@ -10,62 +10,7 @@ import bpy
 import pytest
 
 from support import ASSETS
-from blender_support import import_file
-
-
-class _OperatorProps:
-    def __init__(self, idname):
-        group, name = idname.split(".")
-        self._rna = getattr(getattr(bpy.ops, group), name).get_rna_type()
-        self._idname = idname
-
-    def __setattr__(self, name, value):
-        if not name.startswith("_"):
-            prop = self._rna.properties.get(name)
-            assert prop is not None, f"{self._idname} has no property {name!r}"
-            if prop.type == "ENUM":
-                assert value in {e.identifier for e in prop.enum_items}, f"{self._idname}.{name} = {value!r}"
-        object.__setattr__(self, name, value)
-
-
-class Layout:
-    """Records a panel's layout calls; validates names against RNA."""
-
-    def __init__(self, log):
-        self.log = log
-        self.enabled = self.active = self.alert = True
-        self.use_property_split = self.use_property_decorate = False
-        self.scale_x = self.scale_y = 1.0
-
-    def _child(self, *args, **kwargs):
-        return Layout(self.log)
-
-    row = column = box = split = column_flow = grid_flow = _child
-
-    def label(self, text="", icon="NONE", **kwargs):
-        self.log.append(("label", text))
-
-    def separator(self, **kwargs):
-        pass
-
-    def prop(self, data, name, **kwargs):
-        assert name in data.bl_rna.properties, f"{data.bl_rna.identifier} has no property {name!r}"
-        self.log.append(("prop", name))
-
-    def operator(self, idname, **kwargs):
-        group, name = idname.split(".")
-        assert hasattr(getattr(bpy.ops, group), name), f"no operator {idname}"
-        self.log.append(("operator", idname))
-        return _OperatorProps(idname)
-
-    def template_icon(self, icon_value=0, scale=1.0):
-        assert icon_value > 0, "template_icon needs a real icon id"
-        self.log.append(("icon", icon_value))
-
-    def template_list(self, list_type, list_id, data, prop, active_data, active_prop, **kwargs):
-        assert hasattr(bpy.types, list_type), f"no UIList {list_type}"
-        assert prop in data.bl_rna.properties and active_prop in active_data.bl_rna.properties
-        self.log.append(("list", prop))
+from blender_support import draw_panel, import_file
 
 
 PANELS = ("SHAPESPACE_PT_rig", "SHAPESPACE_PT_direct", "SHAPESPACE_PT_correctives", "SHAPESPACE_PT_retarget",
@@ -78,10 +23,7 @@ def _draw_all(context):
     for cls in classes:
         if cls.__name__ not in PANELS or (hasattr(cls, "poll") and not cls.poll(context)):
             continue
-        log = []
-        call = type("PanelCall", (), {"layout": Layout(log), "bl_idname": cls.__name__})()
-        cls.draw(call, context)
-        drawn[cls.__name__] = log
+        drawn[cls.__name__] = draw_panel(cls, context, bl_idname=cls.__name__).log
     return drawn
 
 

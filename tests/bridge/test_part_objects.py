@@ -130,7 +130,7 @@ def test_command_line_parts_collection(registered, tmp_path):
 def test_the_panel_shows_the_last_transfers_checks_and_names_a_damaged_verdict(registered):
     """After a transfer the Transfer Shapes panel shows its verdict (status, failed keys, parts); a damaged
     stored verdict is one line in the panel (no exception) and Check Rig's damage list names it."""
-    from test_panels import Layout
+    from blender_support import RecordingLayout as Layout
     from shapespace.bridge import storage
     from shapespace.panels.authoring import SHAPESPACE_PT_transfer_shapes as Panel
 

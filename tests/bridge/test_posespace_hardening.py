@@ -12,7 +12,7 @@ import pytest
 
 from support import shared
 from blender_support import OPERATOR_CALLS, blend_fingerprint, bpy, classify_operator_call, evaluated, import_file
-from test_panels import Layout
+from blender_support import RecordingLayout as Layout
 from shapespace.bridge import meshes, posespace
 from shapespace.core.blendshape import bounding_box_diagonal
 from shapespace.core.pointcache import read_pc2

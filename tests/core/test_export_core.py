@@ -9,7 +9,8 @@ import pytest
 from core.export import (FORMATS, NEGATIVE_SUFFIX, chunk, check_format, check_output_path, export_range,
                          format_of, match_vertices, merge_take_reports, recombine, roundtrip_error,
                          sample_frames, split_weights, take_stem)
-from core.result import ShapeSpaceError
+from core.export.farm import batch_status
+from core.result import ShapeSpaceError, Status
 
 
 # -- weights ---------------------------------------------------------------------------------------------------
@@ -169,3 +170,14 @@ def test_chunks_and_duplicate_stems():
     assert "a.json" in str(err.value)
     with pytest.raises(ShapeSpaceError):
         chunk(["a.csv"], 0)
+
+
+# -- the status of a merged farm batch (the one exit rule: FAILED / NOT_CONVERGED exit 1) --------------------------
+
+def test_batch_status_is_the_worst_take():
+    ok = {"source": "a.csv", "ok": True, "converged": True, "status": "ok"}
+    assert batch_status([], [ok]) == Status.OK
+    assert batch_status([], [ok, {**ok, "status": "warning"}]) == Status.WARNING
+    assert batch_status([], [ok, {**ok, "converged": False}]) == Status.NOT_CONVERGED
+    assert batch_status([], [{**ok, "status": "not_converged"}, {**ok, "status": "warning"}]) == Status.NOT_CONVERGED
+    assert batch_status([{"take": "b", "error": "no report"}], [{**ok, "converged": False}]) == Status.FAILED
