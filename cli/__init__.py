@@ -48,6 +48,8 @@ Safety: outputs are checked before any work. --out/--report never overwrite an i
 .blend, a --source file) and replace an existing file only if it is of the same kind (a .blend, a JSON
 report); --overwrite allows replacing a file of another kind and saving into the opened .blend (Blender keeps
 the old one as .blend1). A source that fails is reported (one line) and the batch goes on; exit code 1.
+Exit code: 0 when every source is retargeted (status "ok" or "warning"), 1 when any failed or its space-time
+fit did not converge (status "not_converged": the result is written, its last iterate), 2 for bad arguments.
 Scene range: the scene's frame range is widened to include every frame a result keys (saved with --out), so
 playback and exporters see the whole take; --keep-scene-range leaves it as it is. Each report gives the
 frame_range written and the clipped_frames (scene frames where the source leaves the slider ranges) as

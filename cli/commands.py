@@ -15,7 +15,7 @@ import bpy
 
 from ..core.errors import ErrorCode
 from ..core.inventory import CaptureInfo, FileInventory
-from ..core.result import ShapeSpaceError, exit_code
+from ..core.result import ShapeSpaceError, Status, exit_code
 from .outputs import check_outputs
 
 __all__ = ["info", "retarget", "COMMANDS"]
@@ -79,9 +79,11 @@ def _target_object(name, where: str):
     return meshes[0]
 
 
-def _one_source(obj, src: str, args, bones=None) -> dict:
-    """Retarget one source; its report as JSON (``ok`` true), or its one-line error (``ok`` false)."""
+def _one_source(obj, src: str, args, bones=None) -> tuple:
+    """Retarget one source: ``(its report, JSON)`` — the report's JSON with ``ok`` true, or, when it failed, a
+    ``FAILED`` report and its one-line error (``ok`` false)."""
     from ..bridge import retarget as bridge
+    from ..core.retarget import RetargetReport
     try:
         name = f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}"
         source_obj = bpy.data.objects.get(src)
@@ -92,8 +94,11 @@ def _one_source(obj, src: str, args, bones=None) -> dict:
         else:
             rep = bridge.retarget(obj, src, args.method, key_pose_action=args.key_poses, bones=bones, **settings)
         for issue in rep.issues:
-            _say(f"warning: {src}: {issue}")
-        return {**rep.to_json(), "ok": True}
+            _say(f"warning: {src}: {issue.message}")
+        if rep.status == Status.NOT_CONVERGED:
+            _say(f"warning: {src}: the space-time solver did not converge ({rep.solver_message}); "
+                 "the result is its last iterate")
+        return rep, {**rep.to_json(), "ok": True}
     except MemoryError:
         message = "not enough memory for this source (split the take, or use --method copy)"
     except ShapeSpaceError as exc:
@@ -105,7 +110,8 @@ def _one_source(obj, src: str, args, bones=None) -> dict:
     if not message.startswith(src):
         message = f"{src}: {message}"
     print(f"shapespace: error: {message}", file=sys.stderr, flush=True)
-    return {"source": src, "ok": False, "error": message}
+    return RetargetReport(source=src, method=args.method, status=Status.FAILED), \
+        {"source": src, "ok": False, "error": message}
 
 
 def _head_eye_bones(args):
@@ -163,11 +169,13 @@ def retarget(args, inputs: list) -> tuple:
         assets.load(args.target)
     obj = _target_object(args.object, opened)
     bones = _head_eye_bones(args)
-    results = []
+    reports, results = [], []
     for k, src in enumerate(args.source, start=1):
         _say(f"[{k}/{len(args.source)}] {src} → {obj.name} ({args.method})")
         start = time.perf_counter()
-        results.append(_one_source(obj, src, args, bones))
+        rep, result = _one_source(obj, src, args, bones)
+        reports.append(rep)
+        results.append(result)
         if results[-1]["ok"]:
             _say(_progress_line(src, results[-1].get("frames"), time.perf_counter() - start))
     done = sum(r["ok"] for r in results)
@@ -186,7 +194,7 @@ def retarget(args, inputs: list) -> tuple:
             report.discard()
     if out is not None and not done:
         _say(f"nothing retargeted: {out.path} not written")
-    return (1 if done < len(results) else 0), (text if report is None else None)
+    return exit_code(reports), (text if report is None else None)
 
 
 def _save(out) -> None:

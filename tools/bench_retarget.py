@@ -391,7 +391,7 @@ def longtake(quick):
     from shapespace.bridge import retarget, shapekeys
     from shapespace.core.animation import hermite, reduce_keys_bezier_curves
     from shapespace.core.blendshape import bounding_box_diagonal
-    from shapespace.core.retarget import performance
+    from shapespace.core.retarget import copy_weights, performance, split_mapping
     out = {}
     folder = tempfile.mkdtemp(prefix="shapespace_longtake_")
     fbhead = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")
@@ -429,8 +429,8 @@ def longtake(quick):
     model = shapekeys.read_blendshape_model(ob)
     model.slider_min[:], model.slider_max[:] = -10.0, 10.0                 # nothing clips
     mapping, _ = retarget.resolve_mapping(ob, names, model.names)
-    pairs, gain, offset = retarget.split_mapping(mapping, model.n_targets)
-    raw = retarget.copy_weights(src, pairs, model.n_targets, gain, offset)
+    pairs, gain, offset = split_mapping(mapping, model.n_targets)
+    raw = copy_weights(src, pairs, model.n_targets, gain, offset)
     diag = bounding_box_diagonal(model.neutral)
     for method in ("perframe", "spacetime"):
         fit = performance.retarget_weights(model, raw, method)
@@ -562,12 +562,12 @@ def _bounded_longtake(quick):
     """Bounded over unbounded space-time on the 1,640-frame take onto FBHead (sliders [0, 1]): the retarget's
     own solve (``performance.retarget_weights``), timed with and without the bounds, best of 2 (1 in quick)."""
     from shapespace.bridge import retarget, shapekeys
-    from shapespace.core.retarget import performance
+    from shapespace.core.retarget import copy_weights, performance, split_mapping
     ob, names, frames, src, issues = _tiled_llf(1640)
     model = shapekeys.read_blendshape_model(ob)
     mapping, _ = retarget.resolve_mapping(ob, names, model.names)
-    pairs, gain, offset = retarget.split_mapping(mapping, model.n_targets)
-    raw = retarget.copy_weights(src, pairs, model.n_targets, gain, offset)
+    pairs, gain, offset = split_mapping(mapping, model.n_targets)
+    raw = copy_weights(src, pairs, model.n_targets, gain, offset)
     timed, original = {}, performance.spacetime
     reps = 1 if quick else 2
 

@@ -21,6 +21,7 @@ def stages(method: str, csv: str) -> dict:
     import bpy
     from shapespace.bridge import assets, retarget
     from shapespace.core.retarget import copy_weights, retarget_weights
+    from shapespace.core.retarget.job import plan_curves
     from bench_support import ASSETS
     assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
     ob = bpy.data.objects["FBHead"]
@@ -30,8 +31,8 @@ def stages(method: str, csv: str) -> dict:
     raw = copy_weights(plan.source_weights, plan.pairs, plan.model.n_targets, plan.gain, plan.offset)
     fit = retarget_weights(plan.model, raw, plan.method, plan.lam)
     t2 = time.perf_counter()
-    curves, kept = retarget._plan_curves(plan.model.names, plan.paths, plan.frames, fit.weights, plan.key_tolerance,
-                                         plan.key_shape)
+    curves, kept = plan_curves(plan.model.names, plan.paths, plan.frames, fit.weights, plan.key_tolerance,
+                               plan.key_shape)
     t3 = time.perf_counter()
     plan.report.record(fit, plan.frames)
     retarget.write_retarget(retarget.RetargetOutcome(plan, fit.weights, curves, plan.report))

@@ -9,16 +9,17 @@
 - :mod:`.transfer` — dense performances onto the target's vertices;
 - :mod:`.performance` — a whole performance through one method, with its errors;
 - :mod:`.metrics` — position / velocity error, clipping, slider scales;
-- :mod:`.report` — the per-source report.
+- :mod:`.report` — the per-source report;
+- :mod:`.job` — the middle step of a retarget job: from the plan read out of Blender to the curves to write.
 
 Key reduction (F-curve maths) lives in the foundation module :mod:`core.animation`.
 """
 from .capture import ROTATION_CHANNELS, WeightStream, parse_timecode, read_live_link_csv, resample
-from .cloning import (LearnedCloning, cloning_matrix, copy_weights, key_frames_in_span, key_poses,
-                      learned_cloning, moving_channels, split_mapping, suggest_key_frames)
+from .cloning import (MAX_MAPPING_VALUE, LearnedCloning, cloning_matrix, copy_weights, key_frames_in_span, key_poses,
+                      learned_cloning, moving_channels, resolve_channel_mapping, split_mapping, suggest_key_frames)
 from .formats import KINDS, describe_stream, detect_kind, parse_capture, read_capture
 from .landmarks import check_landmarks, closest_points, landmark_layout, landmark_warp, peak_landmarks, procrustes
-from .metrics import clipping_frames, per_vertex_mm, position_error_rms, slider_scales, velocity_error_rms
+from .metrics import clipped_mask, per_vertex_mm, position_error_rms, slider_scales, velocity_error_rms
 from .perframe import fit_frames
 from .performance import (GEOMETRIC_METHODS, METHODS, PerformanceFit, normalised_basis, retarget_positions,
                           retarget_weights)
@@ -32,7 +33,7 @@ __all__ = [
     "KINDS", "detect_kind", "read_capture", "parse_capture", "describe_stream",
     # cloning (3.5.3)
     "copy_weights", "split_mapping", "cloning_matrix", "key_poses", "moving_channels", "suggest_key_frames",
-    "key_frames_in_span", "LearnedCloning", "learned_cloning",
+    "key_frames_in_span", "LearnedCloning", "learned_cloning", "resolve_channel_mapping", "MAX_MAPPING_VALUE",
     # per-frame and space-time fits (ch. 5)
     "fit_frames", "spacetime", "SpacetimeResult", "SpacetimeSystem", "GreenTables",
     # landmarks and dense transfer (3.5.4)
@@ -40,5 +41,5 @@ __all__ = [
     "stabilise", "transfer_motion", "moving_vertices",
     # whole performances, metrics, report
     "METHODS", "GEOMETRIC_METHODS", "PerformanceFit", "normalised_basis", "retarget_weights", "retarget_positions",
-    "position_error_rms", "velocity_error_rms", "per_vertex_mm", "clipping_frames", "slider_scales", "RetargetReport",
+    "position_error_rms", "velocity_error_rms", "per_vertex_mm", "clipped_mask", "slider_scales", "RetargetReport",
 ]

@@ -1,7 +1,8 @@
 """Expression cloning between slider rigs (thesis 3.5.3).
 
 - :func:`copy_weights` — corresponding parameterisation: mapped channels
-  copied with per-channel gain and offset, ``w_t[:, j] = g_j w_s[:, i] + o_j``.
+  copied with per-channel gain and offset, ``w_t[:, j] = g_j w_s[:, i] + o_j``;
+  :func:`resolve_channel_mapping` — which channels: the artist's overrides, then name matching.
 - :func:`cloning_matrix` — linear expression cloning ``W_t ≈ W_s E`` from
   c ≥ n corresponding pose pairs; :func:`learned_cloning` applies it to a
   performance given the artist's key poses.
@@ -12,21 +13,28 @@
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..errors import ErrorCode
+from ..names import match_channels
 from ..progress import ProgressFn, notify
 from ..result import ShapeSpaceError
 from ..validate import array
 
-__all__ = ["copy_weights", "split_mapping", "cloning_matrix", "key_poses", "moving_channels",
-           "suggest_key_frames", "key_frames_in_span", "LearnedCloning", "learned_cloning"]
+__all__ = ["copy_weights", "split_mapping", "resolve_channel_mapping", "MAX_MAPPING_VALUE", "cloning_matrix",
+           "key_poses", "moving_channels", "suggest_key_frames", "key_frames_in_span", "LearnedCloning",
+           "learned_cloning"]
 
 #: Peak-to-peak range below which a source channel counts as not moving.
 MOVING_TOL = 1e-6
+
+#: Largest magnitude of a mapping override's gain or offset.
+MAX_MAPPING_VALUE = 100.0
 
 
 def copy_weights(source: ArrayLike, mapping: Sequence, n_target: int, gain: ArrayLike | None = None,
@@ -74,6 +82,60 @@ def split_mapping(mapping: Sequence, n_target: int) -> tuple:
     for _, j, g, o in mapping:
         gain[j], offset[j] = g, o
     return [(i, j) for i, j, _, _ in mapping], gain, offset
+
+
+def resolve_channel_mapping(overrides: Mapping, source_names: Sequence[str], target_names: Sequence[str],
+                            rig: str = "") -> tuple:
+    """The channel mapping of a source onto a rig: the artist's overrides first, then name matching.
+
+    Overrides win over name matching (a target an override claims is not matched by name).  An override whose
+    target is not among ``target_names`` (stale: the key was deleted or renamed) is reported by name, and its
+    channel is matched by name when that is possible; an override with a non-finite gain or offset, or one
+    beyond ±:data:`MAX_MAPPING_VALUE`, is refused naming the channel.
+
+    Parameters
+    ----------
+    overrides : mapping
+        ``{source name: {"target": str, "gain": float, "offset": float}}`` (gain 1, offset 0 when absent).
+    source_names, target_names : sequence of str
+    rig : str
+        The target's name, for the warnings.
+
+    Returns
+    -------
+    mapping : list of (int, int, float, float)
+        ``(source index, target index, gain, offset)``, in source order.
+    warnings : list of str
+        One per stale override.
+    """
+    auto, _, _ = match_channels(source_names, target_names)
+    live, stale = {}, {}
+    for name, entry in overrides.items():
+        if name not in source_names:
+            continue
+        gain, offset = float(entry.get("gain", 1.0)), float(entry.get("offset", 0.0))
+        if not all(math.isfinite(v) and abs(v) <= MAX_MAPPING_VALUE for v in (gain, offset)):
+            raise ShapeSpaceError(f"the channel mapping of {name!r} has a non-finite or out-of-range gain or offset "
+                                  f"({gain:g}, {offset:g}): fix it with Set Channel Mapping", ErrorCode.NON_FINITE)
+        (live if entry.get("target") in target_names else stale)[name] = (entry.get("target"), gain, offset)
+    claimed = {target for target, _, _ in live.values()}           # overrides win
+    out, warnings = [], []
+    for i, s in enumerate(source_names):
+        if s in live:
+            target, gain, offset = live[s]
+            out.append((i, list(target_names).index(target), gain, offset))
+            continue
+        by_name = auto.get(s) if auto.get(s) not in claimed else None
+        if s in stale:
+            what = (f"{s} was matched by name to {by_name}" if by_name is not None
+                    else f"{s} is not retargeted (fix or remove the override)")
+            warnings.append(f"the channel mapping {s} → {stale[s][0]} names no shape key of {rig!r}: {what}")
+        if by_name is not None:
+            out.append((i, list(target_names).index(by_name), 1.0, 0.0))
+    if not out:
+        raise ShapeSpaceError("the source and the target share no channels (check the names or the mapping)",
+                              "no_mapping")
+    return out, warnings
 
 
 def cloning_matrix(source_poses: ArrayLike, target_poses: ArrayLike, ridge: float = 1e-8) -> np.ndarray:

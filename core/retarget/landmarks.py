@@ -16,6 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..rbf import fit_rbf
 from ..result import ShapeSpaceError
 
 __all__ = ["procrustes", "landmark_layout", "check_landmarks", "landmark_warp", "peak_landmarks",
@@ -116,7 +117,6 @@ def landmark_warp(source_landmarks: ArrayLike, target_landmarks: ArrayLike, poin
     -------
     ndarray (p, 3)
     """
-    from ..rbf import fit_rbf
     src, dst, layouts = check_landmarks(source_landmarks, target_landmarks)
     s, R, t = procrustes(src, dst)
     aligned = s * src @ R.T + t

@@ -10,7 +10,7 @@ One definition of each, used by every retarget path (weights or dense meshes):
 - :func:`weight_errors` — both, for a weight difference on a rig, without forming the dense residual;
 - :func:`per_vertex_mm` — either one as the RMS per vertex in mm with the head scaled to a 30 cm
   bounding-box diagonal (the unit of every other ShapeSpace distance; what the report shows);
-- :func:`clipping_frames` — frames whose ideal weights leave the slider ranges;
+- :func:`clipped_mask` — frames whose ideal weights leave the slider ranges;
 - :func:`slider_scales` — the per-slider scales σ of the space-time regulariser.
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-__all__ = ["position_error_rms", "velocity_error_rms", "weight_errors", "per_vertex_mm", "clipping_frames",
+__all__ = ["position_error_rms", "velocity_error_rms", "weight_errors", "per_vertex_mm", "clipped_mask",
            "slider_scales", "HEAD_MM"]
 
 #: Floor of the slider scales σ_k, as a fraction of the slider's range.
@@ -126,8 +126,11 @@ def weight_errors(dW: ArrayLike, delta_matrix: ArrayLike, size: float) -> tuple:
     return rms(dW), rms(np.diff(dW, axis=0))
 
 
-def clipping_frames(ideal: ArrayLike, lo: ArrayLike, hi: ArrayLike, tol: float = 1e-9) -> int:
-    """Frames where some ideal (unbounded) weight lies beyond its slider range by more than ``tol``.
+def clipped_mask(ideal: ArrayLike, lo: ArrayLike, hi: ArrayLike, tol: float = 1e-9) -> np.ndarray:
+    """Frames whose ideal (unbounded) weights leave the slider ranges: bool (f,) — the one clipping count
+    (the report's ``clipping_frames`` is its sum, ``clipped_frames`` its runs).
+
+    Frame f clips when ``∃k: w_fk < lo_k − tol  or  w_fk > hi_k + tol``.
 
     Parameters
     ----------
@@ -138,10 +141,12 @@ def clipping_frames(ideal: ArrayLike, lo: ArrayLike, hi: ArrayLike, tol: float =
 
     Returns
     -------
-    int
+    ndarray of bool (f,)
     """
     W = np.asarray(ideal, dtype=np.float64)
-    return int(np.sum(np.any((W < lo - tol) | (W > hi + tol), axis=1)))
+    if W.ndim != 2:
+        raise ValueError(f"ideal weights must be (frames, sliders), got shape {W.shape}")
+    return np.any((W < np.asarray(lo) - tol) | (W > np.asarray(hi) + tol), axis=1)
 
 
 def slider_scales(ideal: ArrayLike, lo: ArrayLike, hi: ArrayLike, floor: float = SIGMA_FLOOR) -> np.ndarray:

@@ -33,10 +33,8 @@ from ..errors import ErrorCode
 from ..progress import ProgressFn, notify, scaled
 from ..result import ShapeSpaceError
 from ..validate import array, choice, positive
-from .metrics import (clipping_frames, per_vertex_mm, position_error_rms, slider_scales, velocity_error_rms,
-                      weight_errors)
+from .metrics import clipped_mask, per_vertex_mm, position_error_rms, slider_scales, velocity_error_rms, weight_errors
 from .perframe import fit_frames
-from .report import clipped_mask
 from .spacetime_solver import SpacetimeResult, spacetime
 
 __all__ = ["METHODS", "GEOMETRIC_METHODS", "PerformanceFit", "normalised_basis", "retarget_weights",
@@ -69,11 +67,10 @@ class PerformanceFit:
         The unlimited performance the errors are measured against.
     position_error_rms, velocity_error_rms : float
         :mod:`.metrics`.
-    clipping_frames : int
+    clipped : ndarray of bool (f,)
+        Which frames clip (their ideal weights leave the slider ranges), :func:`~.metrics.clipped_mask`.
     solver : SpacetimeResult or None
         The space-time solve, for the ``spacetime`` method.
-    clipped : ndarray of bool (f,) or None
-        Which frames clip (``clipping_frames`` of them), :func:`~.report.clipped_mask`.
     vertices : int
         The target's vertex count (the errors per vertex, :attr:`position_error_mm`).
     """
@@ -82,10 +79,14 @@ class PerformanceFit:
     ideal: np.ndarray
     position_error_rms: float
     velocity_error_rms: float
-    clipping_frames: int
+    clipped: np.ndarray
     solver: SpacetimeResult | None = None
-    clipped: np.ndarray | None = None
     vertices: int = 0
+
+    @property
+    def clipping_frames(self) -> int:
+        """How many frames clip (:attr:`clipped`)."""
+        return int(np.count_nonzero(self.clipped))
 
     @property
     def position_error_mm(self) -> float:
@@ -238,8 +239,7 @@ def retarget_weights(model: BlendshapeModel, ideal: ArrayLike, method: str, lam:
     check_finite_weights(W, model.names, f"the {method} fit")
     pos, vel = weight_errors(W - raw, model.delta_matrix, model.scale)
     notify(progress, 1.0)
-    clipped = clipped_mask(raw, lo, hi)
-    return PerformanceFit(W, raw, pos, vel, clipping_frames(raw, lo, hi), solver, clipped, model.n_vertices)
+    return PerformanceFit(W, raw, pos, vel, clipped_mask(raw, lo, hi), solver, model.n_vertices)
 
 
 def retarget_positions(model: BlendshapeModel, positions: ArrayLike, method: str,
@@ -288,5 +288,5 @@ def retarget_positions(model: BlendshapeModel, positions: ArrayLike, method: str
     residual = (b0 + W @ B.T) * unit - S
     notify(progress, 1.0)
     return PerformanceFit(W, ideal, position_error_rms(residual, model.scale),
-                          velocity_error_rms(residual, model.scale), clipping_frames(ideal, lo, hi, 1e-6), solver,
-                          clipped_mask(ideal, lo, hi, 1e-6), model.n_vertices)
+                          velocity_error_rms(residual, model.scale), clipped_mask(ideal, lo, hi, 1e-6), solver,
+                          model.n_vertices)

@@ -1,41 +1,26 @@
-"""The per-source retarget report: what the command line prints, the panel shows and the file keeps."""
+"""The per-source retarget report: what the command line prints, the panel shows and the file keeps.
+
+:class:`RetargetReport` follows the one report contract of :class:`core.result.Report`: ``status`` is a
+:class:`~core.result.Status` (``NOT_CONVERGED`` when the space-time solver stopped before converging,
+``WARNING`` when reading the source noticed something or frames clip, else ``OK``), ``issues`` are
+:class:`~core.result.Issue` findings, and the command line's exit code follows from them
+(:func:`core.result.exit_code`).
+"""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..result import Report, Status
+from ..result import Issue, Report, Status
+from .performance import PerformanceFit
 
-if TYPE_CHECKING:
-    from .performance import PerformanceFit
+__all__ = ["RetargetReport", "frame_ranges", "format_ranges", "ISSUE_CODE"]
 
-__all__ = ["RetargetReport", "clipped_mask", "frame_ranges", "format_ranges"]
-
-
-def clipped_mask(ideal: ArrayLike, lo: ArrayLike, hi: ArrayLike, tol: float = 1e-9) -> np.ndarray:
-    """Frames whose ideal (unbounded) weights leave the slider ranges: bool (f,).
-
-    Frame f clips when ``∃k: w_fk < lo_k − tol  or  w_fk > hi_k + tol`` (the frames
-    :func:`~.metrics.clipping_frames` counts).
-
-    Parameters
-    ----------
-    ideal : ndarray (f, n)
-    lo, hi : ndarray (n,)
-    tol : float
-        Slack for weights that are themselves the result of a numerical fit.
-
-    Returns
-    -------
-    ndarray of bool (f,)
-    """
-    W = np.asarray(ideal, dtype=np.float64)
-    if W.ndim != 2:
-        raise ValueError(f"ideal weights must be (frames, sliders), got shape {W.shape}")
-    return np.any((W < np.asarray(lo) - tol) | (W > np.asarray(hi) + tol), axis=1)
+#: Code of an issue given as plain text (a report read from the JSON of ShapeSpace 0.1).
+ISSUE_CODE = "retarget"
 
 
 def frame_ranges(frames: ArrayLike, mask: ArrayLike) -> list:
@@ -93,8 +78,12 @@ class RetargetReport(Report):
     method : str
         ``copy``, ``learned``, ``perframe`` or ``spacetime``.
     frames : int
-    issues : list of str
-        What reading the source repaired or noticed.
+    status : Status
+        ``NOT_CONVERGED`` when the space-time solver stopped before converging; ``WARNING`` when there are
+        ``issues`` or clipped frames; else ``OK`` (:meth:`settle_status`).  In JSON its lower-case name.
+    issues : list of Issue
+        What reading the source repaired or noticed, stale channel mappings, unused head / eye channels
+        (``{"severity", "code", "message", "items"}`` in JSON).
     mapped_channels : int or None
         Source channels used (weights sources).
     key_poses : int or None
@@ -103,10 +92,10 @@ class RetargetReport(Report):
         Learned method: RMS misfit of the map at the key poses (slider units).
     solver_iterations : int or None
         Space-time: outer iterations of the bounded solver.
-    status : str or None
-        Space-time: the solver's message.
+    solver_message : str or None
+        Space-time: the solver's message (``"converged"``, ``"iteration limit reached"`` …).
     converged : bool or None
-        Space-time: the solver met its tolerance.
+        Space-time: the solver met its tolerance (``status`` is ``NOT_CONVERGED`` when false).
     position_error_mm, velocity_error_mm : float or None
         How far the result is from the unlimited source motion: RMS over frames and vertices of one vertex's
         distance (of its frame-to-frame motion), mm with the head scaled to a 30 cm bounding-box diagonal
@@ -147,12 +136,11 @@ class RetargetReport(Report):
     source: str = ""
     method: str = ""
     frames: int = 0
-    issues: list = field(default_factory=list)
     mapped_channels: int | None = None
     key_poses: int | None = None
     learned_fit_rms: float | None = None
     solver_iterations: int | None = None
-    status: str | None = None
+    solver_message: str | None = None
     converged: bool | None = None
     position_error_mm: float | None = None
     velocity_error_mm: float | None = None
@@ -172,9 +160,25 @@ class RetargetReport(Report):
     previous_action: str = ""
     previous_fake_user: bool | None = None
 
+    def __post_init__(self):
+        self.status = _status(self.status)
+        self.issues = [_issue(i) for i in self.issues]
+
+    def settle_status(self) -> Status:
+        """Set (and return) :attr:`status` from the outcome: ``NOT_CONVERGED`` when the space-time solver did not
+        converge, ``WARNING`` when there are issues or clipped frames, else ``OK``."""
+        if self.converged is False:
+            self.status = Status.NOT_CONVERGED
+        elif self.issues or self.clipping_frames:
+            self.status = Status.WARNING
+        else:
+            self.status = Status.OK
+        return self.status
+
     def record(self, fit: PerformanceFit, frames: ArrayLike | None = None) -> None:
         """Take the errors, clipping and (space-time) solver outcome of a :class:`~.performance.PerformanceFit`;
-        with the scene ``frames`` (f,) of its rows, the clipped frames as runs and the frame range too."""
+        with the scene ``frames`` (f,) of its rows, the clipped frames as runs and the frame range too.  Settles
+        :attr:`status` (:meth:`settle_status`), so every issue is added before."""
         self.position_error_rms = fit.position_error_rms
         self.velocity_error_rms = fit.velocity_error_rms
         self.position_error_mm = fit.position_error_mm
@@ -182,26 +186,36 @@ class RetargetReport(Report):
         self.clipping_frames = fit.clipping_frames
         if frames is not None:
             frames = np.asarray(frames, dtype=np.float64)
-            if fit.clipped is not None:
-                self.clipped_frames = frame_ranges(frames, fit.clipped)
+            self.clipped_frames = frame_ranges(frames, fit.clipped)
             if frames.size:
                 self.frame_range = [_frame(frames[0]), _frame(frames[-1])]
         if fit.solver is not None:
             self.solver_iterations = fit.solver.iterations
-            self.status = fit.solver.message
+            self.solver_message = fit.solver.message
             self.converged = fit.solver.status == Status.OK
+        self.settle_status()
 
     def to_json(self) -> dict:
-        """JSON-ready dict of the fields that apply (``None`` fields left out; NaN → ``null``)."""
+        """JSON-ready dict of the fields that apply (``None`` fields left out; NaN → ``null``), ``status`` as its
+        lower-case name right after ``frames``."""
         data = super().to_json()
-        return {k: v for k, v in data.items() if getattr(self, k) is not None}
+        data = {k: v for k, v in data.items() if getattr(self, k) is not None}
+        head = ("source", "method", "frames", "status", "issues")
+        return {**{k: data[k] for k in head if k in data}, **{k: v for k, v in data.items() if k not in head}}
 
     @classmethod
     def from_json(cls, data: dict) -> RetargetReport:
-        """A report from a (possibly partial) dict of its JSON keys; unknown keys are ignored."""
+        """A report from a (possibly partial) dict of its JSON keys; unknown keys are ignored.  Without a
+        ``status`` (the report kept on a Key) it is settled from the fields (:meth:`settle_status`); a ``status``
+        that names no :class:`Status` is the solver's message of a ShapeSpace 0.1 report."""
         names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in data.items() if k in names})
-
+        kw = {k: v for k, v in data.items() if k in names}
+        if isinstance(kw.get("status"), str) and kw["status"].upper() not in Status.__members__:
+            kw.setdefault("solver_message", kw.pop("status"))
+        rep = cls(**kw)
+        if "status" not in kw:
+            rep.settle_status()
+        return rep
     # mapping-style reads of the JSON keys, for scripts written against the dict report
     def __getitem__(self, key: str) -> Any:
         value = getattr(self, key, None) if key in {f.name for f in fields(self)} else None
@@ -218,3 +232,23 @@ class RetargetReport(Report):
             return self[key]
         except KeyError:
             return default
+
+
+def _status(value) -> Status:
+    """A :class:`Status` from itself, its value or its lower-case JSON name."""
+    if isinstance(value, str):
+        try:
+            return Status[value.upper()]
+        except KeyError:
+            raise ValueError(f"unknown report status {value!r}") from None
+    return Status(int(value))
+
+
+def _issue(value) -> Issue:
+    """An :class:`Issue` from itself, its JSON dict, or plain text (a warning)."""
+    if isinstance(value, Issue):
+        return value
+    if isinstance(value, dict):
+        return Issue(str(value.get("severity", "warning")), str(value.get("code", ISSUE_CODE)),
+                     str(value.get("message", "")), tuple(value.get("items", ())))
+    return Issue("warning", ISSUE_CODE, str(value))

@@ -87,8 +87,8 @@ nothing is written then)"""
         """Report a written result (or a failure) and give the operator's return value."""
         if rep is FAILED:
             return {"CANCELLED"}
-        for msg in rep.issues:
-            self.report({"WARNING"}, msg)
+        for issue in rep.issues:
+            self.report({"WARNING"}, issue.message)
         self.report({"INFO"}, result_message(rep))
         return {"FINISHED"}
 

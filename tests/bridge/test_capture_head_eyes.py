@@ -81,7 +81,7 @@ def test_head_neck_eyes_keyed_as_blender_evaluates_them(scene_with_take):
     scene = bpy.context.scene
     rep = retarget.retarget(ob, path, "copy", bones=bones_setting(neck_share=0.4))
     assert rep["bones"] == ["head", "neck", "eye.L", "eye.R"]
-    assert not [i for i in rep.issues if "not used" in i]
+    assert not [i for i in rep.issues if "not used" in i.message]
     action = bpy.data.actions[rep["bones_action"]]
     assert actions.active_action(arm) == action
     if actions.LAYERED:
@@ -136,10 +136,10 @@ def test_offline_bone_curves_equal_the_live_path_for_the_same_packets(scene_with
 def test_unused_head_eye_channels_are_named(scene_with_take):
     ob, arm, path, _ = scene_with_take
     rep = retarget.retarget(ob, path, "copy")
-    assert any("HeadYaw" in i and "RightEyeRoll" in i and "not used" in i for i in rep.issues)
+    assert any("HeadYaw" in m and "RightEyeRoll" in m and "not used" in m for m in (i.message for i in rep.issues))
     assert "bones" not in rep
     rep = retarget.retarget(ob, path, "copy", bones=retarget.HeadEyeBones("Rig", head="head"))
-    unused = [i for i in rep.issues if "not used" in i]
+    unused = [i.message for i in rep.issues if "not used" in i.message]
     assert unused and "LeftEyeYaw" in unused[0] and "HeadYaw" not in unused[0]
 
 

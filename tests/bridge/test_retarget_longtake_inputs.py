@@ -14,6 +14,7 @@ from blender_support import bpy, import_file
 from shapespace.bridge import actions, retarget, shapekeys
 from shapespace.core.animation import reduce_keys_bezier, reduce_keys_bezier_curves
 from shapespace.core.result import ShapeSpaceError
+from shapespace.core.retarget import copy_weights, split_mapping
 from shapespace.core.retarget.capture import read_live_link_csv
 
 CSV = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
@@ -127,7 +128,7 @@ def test_every_frame_clipping_is_bounded_reported_and_agrees_across_fits(takes):
         rep = retarget.retarget(ob, takes["clip"], method)
         frames = np.arange(1, rep["frames"] + 1)
         assert rep["clipping_frames"] == rep["frames"]                 # every frame clips, and the report says so
-        assert any("leave the weight range" in i for i in rep.issues)
+        assert any("leave the weight range" in i.message for i in rep.issues)
         got = _curve_values(ob, rep["action"], frames[::50])
         W = np.column_stack([got[n] for n in model.names])
         assert np.all(W >= model.slider_min - 1e-6) and np.all(W <= model.slider_max + 1e-6)
@@ -139,8 +140,8 @@ def test_every_frame_clipping_is_bounded_reported_and_agrees_across_fits(takes):
     # weights may differ), far better than clipping the weights
     names, _, src, _ = retarget.read_source(takes["clip"], bpy.context.scene)
     mapping, _ = retarget.resolve_mapping(ob, names, model.names)
-    pairs, gain, offset = retarget.split_mapping(mapping, model.n_targets)
-    ideal = retarget.copy_weights(src[:1], pairs, model.n_targets, gain, offset)[0]
+    pairs, gain, offset = split_mapping(mapping, model.n_targets)
+    ideal = copy_weights(src[:1], pairs, model.n_targets, gain, offset)[0]
     err = {m: np.linalg.norm((W - ideal) @ model.delta_matrix.T, axis=1) for m, W in results.items()}
     assert np.all(err["perframe"] <= err["copy"] * (1 + 1e-9))
     assert np.all(err["spacetime"] <= err["perframe"] * 1.01 + 1e-9)

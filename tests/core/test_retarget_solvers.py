@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from core.blendshape import BlendshapeModel, normalised_unit
 from core.result import Result, ShapeSpaceError, Status
-from core.retarget import (RetargetReport, SpacetimeResult, SpacetimeSystem, clipping_frames, fit_frames,
+from core.retarget import (RetargetReport, SpacetimeResult, SpacetimeSystem, clipped_mask, fit_frames,
                            learned_cloning, position_error_rms, retarget_positions, retarget_weights, slider_scales,
                            spacetime, stabilise, suggest_key_frames, transfer_motion, velocity_error_rms)
 from core.retarget.spacetime_solver import banded_step, capacitance_step, cg_step
@@ -118,8 +118,8 @@ def test_metrics_are_per_frame_whole_mesh_norms():
     assert position_error_rms(R.reshape(12, -1), size) == pytest.approx(pos, rel=1e-14)
     assert velocity_error_rms(R, size) == pytest.approx(vel, rel=1e-14)
     W = np.array([[0.5, 0.5], [1.2, 0.0], [0.5, -1e-10], [0.5, -1e-8]])
-    assert clipping_frames(W, np.zeros(2), np.ones(2)) == 2
-    assert clipping_frames(W, np.zeros(2), np.ones(2), tol=1e-6) == 1
+    assert clipped_mask(W, np.zeros(2), np.ones(2)).sum() == 2
+    assert clipped_mask(W, np.zeros(2), np.ones(2), tol=1e-6).sum() == 1
     flat = np.column_stack([W[:, 0], np.full(4, 0.3)])                 # a still slider: σ at the floor
     np.testing.assert_allclose(slider_scales(flat, np.zeros(2), np.full(2, 2.0)), [W[:, 0].std(), 0.1], rtol=1e-14)
 
@@ -128,7 +128,7 @@ def test_report_json_keeps_only_the_fields_that_apply():
     rep = RetargetReport(source="a.csv", method="copy", frames=10, issues=["x"], mapped_channels=3,
                          position_error_rms=float("nan"), velocity_error_rms=0.1, clipping_frames=0, action="A")
     data = rep.to_json()
-    assert set(data) == {"source", "method", "frames", "issues", "mapped_channels", "position_error_rms",
+    assert set(data) == {"source", "method", "frames", "status", "issues", "mapped_channels", "position_error_rms",
                          "velocity_error_rms", "clipping_frames", "action", "previous_action"}
     assert data["position_error_rms"] is None                              # NaN → null
     assert rep["action"] == "A" and rep.get("converged") is None and "converged" not in rep
