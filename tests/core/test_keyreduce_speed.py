@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from core import animation
-from core.animation import (_chebyshev_batch, _hermite_basis, _valid_segments, curve_slopes, hermite,
+from core import keyreduce
+from core.keyreduce import (_chebyshev_batch, _hermite_basis, _valid_segments, curve_slopes, hermite,
                             reduce_keys_bezier, reduce_keys_bezier_curves)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -150,12 +150,12 @@ def test_long_take_keys_within_tolerance_at_todays_count_without_linprog(monkeyp
 
 def test_key_reduction_work_is_linear_in_the_take_length(monkeypatch):
     """Counted, not timed: the absorption tests (the work of stage 2) grow linearly with the take."""
-    batch = animation._absorb_batch
+    batch = keyreduce._absorb_batch
     frames, dense = _tiled_take(3280)
     work = []
     for count in (820, 3280):
         tests = []
-        monkeypatch.setattr(animation, "_absorb_batch", lambda t, V, b, *a: tests.append(len(b)) or batch(t, V, b, *a))
+        monkeypatch.setattr(keyreduce, "_absorb_batch", lambda t, V, b, *a: tests.append(len(b)) or batch(t, V, b, *a))
         reduce_keys_bezier_curves(frames[:count], dense[:count, :12], 0.01)
         work.append(sum(tests))
     assert work[1] < 8.0 * work[0] + 10     # 4× the frames: ~4× the tests (not 16×)
@@ -163,9 +163,9 @@ def test_key_reduction_work_is_linear_in_the_take_length(monkeypatch):
 
 def test_most_absorption_tests_are_batched(monkeypatch):
     calls, tests = [], []
-    one, batch = animation._absorb_one, animation._absorb_batch
-    monkeypatch.setattr(animation, "_absorb_one", lambda *a, **k: calls.append(1) or one(*a, **k))
-    monkeypatch.setattr(animation, "_absorb_batch", lambda t, V, b, *a: tests.append(len(b)) or batch(t, V, b, *a))
+    one, batch = keyreduce._absorb_one, keyreduce._absorb_batch
+    monkeypatch.setattr(keyreduce, "_absorb_one", lambda *a, **k: calls.append(1) or one(*a, **k))
+    monkeypatch.setattr(keyreduce, "_absorb_batch", lambda t, V, b, *a: tests.append(len(b)) or batch(t, V, b, *a))
     frames, dense = _tiled_take(400)
     reduce_keys_bezier_curves(frames, dense, 0.01)
     assert len(calls) < 0.05 * sum(tests)    # only the rare rank-deficient or 3-sample systems go one by one
