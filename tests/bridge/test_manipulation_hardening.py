@@ -9,6 +9,7 @@ import pytest
 from support import ASSETS, shared
 from blender_support import blend_fingerprint, bpy, classify_operator_call, evaluated, import_file, sphere_rig
 from shapespace.bridge import actions, manipulation, meshes, shapekeys, skin
+from shapespace.bridge.manipulation import drag
 from shapespace.core.manipulation import DragResult, DragSession, Pin, pin_positions
 from shapespace.core.result import ShapeSpaceError, Status
 
@@ -122,7 +123,7 @@ def test_the_slider_write_refuses_a_non_finite_value(registered, monkeypatch):
         w[2] = np.nan
         return DragResult(w, objective=0.0, residuals=np.zeros(len(pins)))
 
-    monkeypatch.setattr(manipulation, "solve_drag", nan_solver)
+    monkeypatch.setattr(drag, "solve_drag", nan_solver)
     before = blend_fingerprint()
     with pytest.raises(RuntimeError, match=r"refusing to write nan into shape key 'K2'"):
         bpy.ops.shapespace.solve_pins(pin=0, target=(0.0, 0.0, 1.0), key=True)
@@ -307,8 +308,8 @@ def test_solve_pins_at_the_iteration_limit_warns_not_converged(registered, monke
     full = manipulation.solve_pins(ob, w0=np.zeros(model.n_targets))
     assert full.status != Status.NOT_CONVERGED
     shapekeys.write_slider_values(ob, model.names, np.zeros(model.n_targets))
-    real = manipulation.solve_drag
-    monkeypatch.setattr(manipulation, "solve_drag", lambda *a, **k: real(*a, **k, gn_max_iter=1))
+    real = drag.solve_drag
+    monkeypatch.setattr(drag, "solve_drag", lambda *a, **k: real(*a, **k, gn_max_iter=1))
     capfd.readouterr()
     assert bpy.ops.shapespace.solve_pins() == {"FINISHED"}
     reports = _reports(capfd.readouterr().out)
