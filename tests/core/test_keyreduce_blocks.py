@@ -111,6 +111,7 @@ def test_lanes_give_the_sequential_keys_on_random_curves(monkeypatch, seed, lane
     _assert_same(reduce_keys_bezier_curves(t, V, tol), ref, t, V, tol)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lane", [4, 16, 128])
 def test_lanes_give_the_sequential_keys_on_the_live_link_take(monkeypatch, lane):
     t, V = _tiled_take(2600, [0, 3, 9, 17, 21, 24, 33, 40, 47, 50])
@@ -134,6 +135,7 @@ def test_lanes_handle_tiny_and_flat_curves(monkeypatch):
         assert all(k[0].tolist() == list(range(n)) for k in reduce_keys_bezier_curves(t[:n], V[:n], 0.01))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("uniform", [True, False])
 def test_stage_one_in_chunks_equals_one_piece(monkeypatch, uniform):
     rng = np.random.default_rng(11)
@@ -147,6 +149,7 @@ def test_stage_one_in_chunks_equals_one_piece(monkeypatch, uniform):
         np.testing.assert_array_equal(_valid_segments(t, V, M, 0.004, 60), whole)
 
 
+@pytest.mark.slow
 def test_long_take_in_chunks_and_lanes_keeps_the_tolerance_and_the_key_count(monkeypatch):
     """6,000 frames (chunked stage 1 at the default chunk size, many lanes): the sequential keys exactly."""
     t, V = _tiled_take(6000, [1, 14, 25, 44])

@@ -93,6 +93,7 @@ def _brute_force_valid(t, v, m, tol, max_span):
     return ok
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("uniform", [True, False])
 def test_pruned_segment_test_equals_brute_force(uniform):
     rng = np.random.default_rng(7)
@@ -133,6 +134,7 @@ def _tiled_take(count=1640):
     return frames[0] + np.arange(count, dtype=np.float64), np.clip(w[:, :51], 0, 1)
 
 
+@pytest.mark.slow
 def test_long_take_keys_within_tolerance_at_todays_count_without_linprog(monkeypatch):
     import scipy.optimize
 
@@ -148,6 +150,7 @@ def test_long_take_keys_within_tolerance_at_todays_count_without_linprog(monkeyp
     assert total < 0.10 * dense.size         # Blender's Decimate keeps 14 % at this error (docs/bench)
 
 
+@pytest.mark.slow
 def test_key_reduction_work_is_linear_in_the_take_length(monkeypatch):
     """Counted, not timed: the absorption tests (the work of stage 2) grow linearly with the take."""
     batch = keyreduce._absorb_batch
@@ -171,6 +174,7 @@ def test_most_absorption_tests_are_batched(monkeypatch):
     assert len(calls) < 0.05 * sum(tests)    # only the rare rank-deficient or 3-sample systems go one by one
 
 
+@pytest.mark.slow
 def test_long_take_csv_is_read_in_memory_linear_and_small(tmp_path):
     """36,000 rows of the shipped take (10 minutes at 60 fps): the reader streams the rows into one array of
     doubles, so its peak memory is a small multiple of the file, not of Python row lists."""
