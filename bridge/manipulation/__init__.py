@@ -2,10 +2,12 @@
 
 - :mod:`.pins` — pins in ``Object.shapespace.pins`` and every verb that writes them (:func:`add_pin`,
   :func:`remove_pin`, :func:`clear_pins`, :func:`set_pin_target`, :func:`set_active_pin`, :func:`undo_drag`),
-  read in bulk (:func:`read_pin_state`); targets in :data:`SPACES` (:func:`to_shape_space`);
+  read in bulk (:func:`read_pin_state`); targets in :data:`SPACES` (:func:`to_shape_space`); what the viewport
+  overlay draws (:func:`overlay_points`);
 - :mod:`.cache` — :data:`RIGS`, the rig cache: each mesh's blendshape model read once and kept while its
   shape keys stay the same (checked by fingerprint, checksum and the depsgraph; emptied by undo and file
-  loads), and :func:`write_sliders`, ShapeSpace's own slider write with its one depsgraph update;
+  loads; :func:`rig_model`), and :func:`write_sliders`, ShapeSpace's own slider write with its one depsgraph
+  update;
 - :mod:`.surface` — the evaluated surface: world ↔ shape-key space, crazy-space maps cached per pose,
   pin positions read from Blender's evaluated mesh, ray picking (:func:`surface_pin`);
 - :mod:`.drag` — the solves: :func:`solve_pins` (the core solve :func:`core.manipulation.solve_drag`, then the

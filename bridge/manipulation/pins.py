@@ -5,13 +5,13 @@ barycentric weights padded with zeros, a target in shape-key space and a
 stationary flag.  :func:`read_pin_state` reads all of them with four bulk
 reads (no Python loop over the pins), as every mouse move and every redraw
 does; every write of pins, pin targets and the active pin goes through the
-verbs here.
+verbs here.  :func:`overlay_points` is what the viewport overlay draws.
 
 Mirrored pins (issue #13): a pin's ``mirror_of`` names its mirror pin (both ways; the pin itself for a pin on
 the centre line; −1 for none; old files load with −1).  Mirror pins are found through the mesh's stored mirror
 map (:mod:`..symmetry`): a surface point ``Σ bᵢ vᵢ`` mirrors to ``Σ bᵢ m(vᵢ)``, and a target in shape-key space
 (the mesh's rest object space, where the map's plane ``x_axis = offset`` lives) mirrors to its reflection
-across that plane.
+across that plane (the pure geometry: :mod:`core.manipulation.geometry`).
 """
 from __future__ import annotations
 

@@ -2,7 +2,8 @@
 
 :class:`SpacetimeSystem` holds ``M = Σ BᵀB Σ`` and its eigendecomposition, the per-mode tridiagonal factors of
 ``μ_j T + λ I`` (the unbounded solve), applies ``𝓗 = DᵀD ⊗ M + λ I`` and gives its band; :class:`GreenTables`
-the entries of ``𝓗⁻¹`` the capacitance route looks up.  The problem is stated in :mod:`.` (the package).
+the entries of ``𝓗⁻¹`` the capacitance route looks up.  The problem is stated in the package docstring
+(:mod:`core.retarget.spacetime_solver`).
 """
 from __future__ import annotations
 
