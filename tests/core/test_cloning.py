@@ -1,4 +1,4 @@
-"""core.retarget (cloning, perframe, spacetime_solver, landmarks) and core.animation's key reduction: expression
+"""core.retarget (cloning, perframe, spacetime_solver, landmarks) and core.keyreduce: expression
 cloning, per-frame fits, space-time cloning (thesis ch. 5), key reduction, Procrustes and landmark warps (thesis 3.5).
 
 Every reference is built here independently of the code under test:
@@ -21,7 +21,7 @@ from scipy.optimize import lsq_linear
 from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
-from core.animation import curve_slopes, hermite, reduce_keys, reduce_keys_bezier
+from core.keyreduce import curve_slopes, hermite, reduce_keys, reduce_keys_bezier
 from core.retarget import (closest_points, cloning_matrix, copy_weights, fit_frames, key_poses, landmark_layout,
                            landmark_warp, peak_landmarks, procrustes, spacetime)
 from core.retarget.spacetime_solver import END_RIDGE
