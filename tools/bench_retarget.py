@@ -389,7 +389,7 @@ def longtake(quick):
     mapped curves of the take, all at once (as the batch command reduces them).  Plus the redundant rig."""
     import tempfile
     from shapespace.bridge import retarget, shapekeys
-    from shapespace.core.animation import hermite, reduce_keys_bezier_curves
+    from shapespace.core.keyreduce import hermite, reduce_keys_bezier_curves
     from shapespace.core.blendshape import bounding_box_diagonal
     from shapespace.core.retarget import copy_weights, performance, split_mapping
     out = {}

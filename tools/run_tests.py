@@ -8,7 +8,8 @@
 3. pytest, one run per line of ``RUNS``: the core tier on a plain Python without Blender, every tier on
    Blender 5.0, the Blender tiers on 4.2 LTS, 4.5 LTS and 5.2 LTS (Python 3.13), and the
    installed-extension test once more on 5.2 LTS in a venv WITHOUT SciPy, so the SciPy wheel the
-   extension bundles is what runs.
+   extension bundles is what runs.  Every run passes ``--run-slow`` (tests/conftest.py): the perf/scale tests
+   marked ``slow``, which a plain ``pytest tests/core`` skips for a fast inner loop, run here too.
 
 ``--env NAME`` (repeatable) runs only those environments' lines.  Creates the environments on first
 use (tools/env.py).  Blender always runs with a temporary user folder (tests/conftest.py), never the
@@ -66,8 +67,9 @@ def pytest_run(name: str, paths, extra_env: dict, argv) -> tuple[int, dict]:
     """Run pytest in one environment, echoing its output; its exit code and closing-line counts."""
     py = env.ensure(name)
     print(f"\n=== pytest on {name}: {' '.join(paths)} ===", flush=True)
-    proc = subprocess.Popen([py, "-m", "pytest", "-q", *paths, *argv], cwd=env.ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=dict(os.environ, **extra_env))
+    proc = subprocess.Popen([py, "-m", "pytest", "-q", "--run-slow", *paths, *argv], cwd=env.ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=dict(os.environ, **extra_env))
     last = ""
     for line in proc.stdout:
         sys.stdout.write(line)

@@ -19,7 +19,7 @@ import bpy
 import numpy as np
 
 from ...core import blobs
-from ...core.animation import reduce_keys_bezier
+from ...core.keyreduce import reduce_keys_bezier
 from ...core.errors import ErrorCode
 from ...core.result import ShapeSpaceError
 from ...core.retarget import retarget_weights

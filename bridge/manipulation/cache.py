@@ -64,7 +64,8 @@ import numpy as np
 from ...core.blendshape import BlendshapeModel
 from .. import driven, shapekeys
 
-__all__ = ["RigCache", "RigEntry", "RIGS", "EDITS_REPORTED", "structure", "coordinate_checksum", "write_sliders"]
+__all__ = ["RigCache", "RigEntry", "RIGS", "EDITS_REPORTED", "structure", "coordinate_checksum", "write_sliders",
+           "rig_model"]
 
 #: Whether this Blender reports every edit of key coordinates to the depsgraph: from 4.5 a ``foreach_set`` on
 #: ``ShapeKey.data``/``points`` tags the Key as a single-point edit always did; 4.2 tags nothing for it.
@@ -353,6 +354,11 @@ class RigCache:
         """Stop tracking and forget everything."""
         self.clear()
         self.tracking = False
+
+
+def rig_model(obj) -> BlendshapeModel:
+    """``obj``'s blendshape model from the rig cache (read once, verified; ``values``: the sliders now)."""
+    return RIGS.model(obj)
 
 
 def write_sliders(obj, names, values) -> None:

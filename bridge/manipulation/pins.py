@@ -5,13 +5,13 @@ barycentric weights padded with zeros, a target in shape-key space and a
 stationary flag.  :func:`read_pin_state` reads all of them with four bulk
 reads (no Python loop over the pins), as every mouse move and every redraw
 does; every write of pins, pin targets and the active pin goes through the
-verbs here.
+verbs here.  :func:`overlay_points` is what the viewport overlay draws.
 
 Mirrored pins (issue #13): a pin's ``mirror_of`` names its mirror pin (both ways; the pin itself for a pin on
 the centre line; −1 for none; old files load with −1).  Mirror pins are found through the mesh's stored mirror
 map (:mod:`..symmetry`): a surface point ``Σ bᵢ vᵢ`` mirrors to ``Σ bᵢ m(vᵢ)``, and a target in shape-key space
 (the mesh's rest object space, where the map's plane ``x_axis = offset`` lives) mirrors to its reflection
-across that plane.
+across that plane (the pure geometry: :mod:`core.manipulation.geometry`).
 """
 from __future__ import annotations
 
@@ -24,15 +24,16 @@ import numpy as np
 from ...core.blendshape import BlendshapeModel
 from ...core.errors import ErrorCode
 from ...core.manipulation import Pin, pin_positions
+from ...core.manipulation.geometry import mirror_pin, pin_surface_positions, reflect_point
 from ...core.result import ShapeSpaceError
 from .. import symmetry
 from .cache import RIGS, write_sliders
-from .surface import deform_map, evaluated_vertices, finite_point, pin_surface_positions, world_to_local
+from .surface import deform_map, evaluated_vertices, finite_point, world_to_local
 
 __all__ = ["PinState", "settings", "stored_pin", "read_pin_state", "read_pins", "check_pins", "pin_index", "add_pin",
            "remove_pin", "clear_pins", "set_pin_target", "set_active_pin", "pin_target", "undo_drag",
            "to_shape_space", "deformed_to_shape_space", "deformed_pin_positions", "SPACES", "mirror_links",
-           "mirror_partner", "mirror_plane", "mirror_pin", "reflect_point", "symmetric_target", "mirror_pins"]
+           "mirror_partner", "mirror_plane", "mirror_pins", "overlay_points"]
 
 #: Spaces a caller's target can be given in (see :func:`to_shape_space`).
 SPACES = ("WORLD", "LOCAL")
@@ -174,6 +175,35 @@ def deformed_pin_positions(obj, depsgraph, state: PinState | None = None) -> np.
         return np.zeros((0, 3))
     verts = np.unique(state.vertices)
     return pin_surface_positions(state.vertices, state.weights, evaluated_vertices(obj, depsgraph, verts), verts)
+
+
+def _overlay_goal(obj, depsgraph, state: PinState, verts: np.ndarray, ev: np.ndarray, current: np.ndarray):
+    """Targets shown on the deformed surface: ``current + Σ bᵢ Aᵢ (target − shape-key position now)``."""
+    dmap = deform_map(obj, depsgraph, verts, offsets=True)
+    if dmap is None:
+        return state.targets.copy()
+    r = dmap.rows(verts)
+    shape_v = np.einsum("mij,mj->mi", dmap.A_inv[r], ev - dmap.c[r])     # A s + c = deformed, per vertex
+    rows = np.searchsorted(verts, state.vertices)
+    shape_now = np.einsum("kc,kcx->kx", state.weights, shape_v[rows])
+    delta = state.targets - shape_now
+    return current + np.einsum("kc,kcij,kj->ki", state.weights, dmap.A[r][rows], delta)
+
+
+def overlay_points(obj, depsgraph, state: PinState | None = None):
+    """What the overlay draws: pins and targets on the evaluated surface (object space, (k, 3) each), and
+    the stationary flags (k,).
+
+    Read from Blender's evaluated mesh at the pinned vertices only, with the cached crazy-space map: no
+    model read, no copy of the mesh (the model is needed only to rebuild the map after a pose change).
+    """
+    state = check_pins(obj, state)
+    if not len(state):
+        return np.zeros((0, 3)), np.zeros((0, 3)), state.stationary
+    verts = np.unique(state.vertices)
+    ev = evaluated_vertices(obj, depsgraph, verts)
+    current = pin_surface_positions(state.vertices, state.weights, ev, verts)
+    return current, _overlay_goal(obj, depsgraph, state, verts, ev, current), state.stationary
 
 
 # ---------------------------------------------------------------------------- writes
@@ -323,54 +353,6 @@ def mirror_plane(obj) -> tuple:
     """``(axis, offset)`` of the object's stored mirror map (refused when there is none or it is stale)."""
     mmap = symmetry.load_map(obj)
     return mmap.axis, mmap.offset
-
-
-def reflect_point(point, plane: tuple) -> np.ndarray:
-    """The reflection (3,) of a point (shape-key / rest object space) across ``x_axis = offset``:
-    ``x_axis' = 2·offset − x_axis``."""
-    out = np.array(point, dtype=np.float64).reshape(3)
-    axis, offset = plane
-    out[axis] = 2.0 * offset - out[axis]
-    return out
-
-
-def symmetric_target(target, plane: tuple) -> np.ndarray:
-    """A centre-line pin's target in a symmetric drag: the closest point to both the target and its reflection
-    (``(t + R t) / 2``: the target moved onto the mirror plane)."""
-    out = np.array(target, dtype=np.float64).reshape(3)
-    out[plane[0]] = plane[1]
-    return out
-
-
-def mirror_pin(pin: Pin, mmap, what: str = "the pin") -> Pin | None:
-    """The mirror of a surface point: ``Σ bᵢ m(vᵢ)`` (the same weights on the mirror vertices).
-
-    Returns None when the point is its own mirror (on the centre line: the same vertices with the same
-    weights).  Refused (code ``no_mirror``) when one of its vertices has no mirror in ``mmap``.
-    """
-    mirror = mmap.mirror
-    verts = [int(v) for v in pin.vertices]
-    if any(v < 0 or v >= len(mirror) for v in verts):
-        raise ShapeSpaceError(f"{what} names a vertex outside the mirror map's {len(mirror)} vertices: rebuild the "
-                              "mirror map", ErrorCode.STALE_MIRROR_MAP)
-    unmapped = [v for v in verts if mirror[v] < 0]
-    if unmapped:
-        raise ShapeSpaceError(f"{what} sits on vertex {unmapped[0]}, which has no mirror in the mirror map: pin "
-                              "elsewhere, or rebuild the map (Topology from a centre edge, or a larger tolerance)",
-                              ErrorCode.NO_MIRROR)
-    twin = Pin(tuple(int(mirror[v]) for v in verts), tuple(float(b) for b in pin.weights))
-
-    def spread(p):
-        out = {}
-        for v, b in zip(p.vertices, p.weights):
-            if b != 0.0:
-                out[v] = out.get(v, 0.0) + b
-        return out
-
-    a, b = spread(pin), spread(twin)
-    if a.keys() == b.keys() and all(abs(a[v] - b[v]) <= 1e-6 for v in a):
-        return None
-    return twin
 
 
 def mirror_pins(obj, model: BlendshapeModel | None = None) -> dict:

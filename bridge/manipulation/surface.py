@@ -35,12 +35,13 @@ import numpy as np
 from ...core.blendshape import BlendshapeModel
 from ...core.errors import ErrorCode
 from ...core.manipulation import Pin, pin_positions
+from ...core.manipulation.geometry import ray_hit
 from ...core.result import ShapeSpaceError
 from .. import meshes, shapekeys
 from .cache import RIGS
 
 __all__ = ["DeformMap", "deform_state", "deform_map", "vertex_weights", "evaluated_mesh", "evaluated_vertices",
-           "world_to_local", "inverse_world", "finite_point", "pin_surface_positions", "ray_hit", "triangles"]
+           "world_to_local", "inverse_world", "finite_point", "triangles", "surface_pin"]
 
 _AXES = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 _PLAIN_TYPES = {"BOOLEAN", "INT", "FLOAT", "STRING", "ENUM"}
@@ -105,14 +106,6 @@ def evaluated_vertices(obj, depsgraph, vertices) -> np.ndarray:
     """Evaluated object-space positions (m, 3) of the given vertex indices, as Blender shows them."""
     verts = evaluated_mesh(obj, depsgraph).vertices
     return np.array([verts[int(v)].co for v in vertices], dtype=np.float64).reshape(-1, 3)
-
-
-def pin_surface_positions(idx: np.ndarray, bary: np.ndarray, vertex_positions: np.ndarray,
-                          verts: np.ndarray | None = None) -> np.ndarray:
-    """Pin positions ``Σ bary · position[idx]`` (k, 3) from the positions (m, 3) of the sorted vertices ``verts``."""
-    pos = np.asarray(vertex_positions, dtype=np.float64)
-    rows = idx if verts is None else np.searchsorted(verts, idx)
-    return np.einsum("kc,kcx->kx", bary, pos[rows])
 
 
 # ---------------------------------------------------------------------------- crazy space
@@ -284,39 +277,20 @@ def triangles(mesh) -> np.ndarray:
     return out.reshape(-1, 3)
 
 
-def ray_hit(origin, direction, co: np.ndarray, tris: np.ndarray):
-    """The nearest triangle a ray hits: ``(triangle index, barycentric (3,), hit point (3,))`` or None.
+def surface_pin(obj, depsgraph, origin_world, direction_world):
+    """Ray-cast the evaluated surface (shape keys and deform modifiers applied).
 
-    All triangles at once in numpy: the triangles are projected on the plane across the ray, the ray's
-    point is tested against each (signed areas), the hit's depth is interpolated.  ``co`` (p, 3) and the ray
-    in the same space; ``direction`` need not be unit length.
+    Returns ``(Pin, hit position in world space)`` or ``None`` when the ray misses.
     """
-    o = np.asarray(origin, dtype=np.float64)
-    d = np.asarray(direction, dtype=np.float64)
-    length = float(np.linalg.norm(d))
-    if not np.isfinite(length) or length == 0.0 or not len(tris):
+    mesh = evaluated_mesh(obj, depsgraph)
+    inv = inverse_world(obj)
+    origin = inv[:3, :3] @ np.asarray(origin_world, float) + inv[:3, 3]
+    direction = inv[:3, :3] @ np.asarray(direction_world, float)
+    co = meshes.vertex_positions(mesh).astype(np.float64)
+    tris = triangles(mesh)
+    hit = ray_hit(origin, direction, co, tris)
+    if hit is None:
         return None
-    d = d / length
-    u = np.cross(d, (1.0, 0.0, 0.0) if abs(d[0]) < 0.9 else (0.0, 1.0, 0.0))
-    u /= np.linalg.norm(u)
-    w = np.cross(d, u)
-    rel = co - o
-    x, y, z = rel @ u, rel @ w, rel @ d
-    X, Y = x[tris], y[tris]
-    a0 = X[:, 1] * Y[:, 2] - X[:, 2] * Y[:, 1]
-    a1 = X[:, 2] * Y[:, 0] - X[:, 0] * Y[:, 2]
-    a2 = X[:, 0] * Y[:, 1] - X[:, 1] * Y[:, 0]
-    total = a0 + a1 + a2
-    inside = (((a0 >= 0) & (a1 >= 0) & (a2 >= 0)) | ((a0 <= 0) & (a1 <= 0) & (a2 <= 0))) & (total != 0)
-    cand = np.flatnonzero(inside)
-    if not cand.size:
-        return None
-    bary = np.stack([a0[cand], a1[cand], a2[cand]], axis=1) / total[cand, None]
-    depth = np.einsum("ij,ij->i", bary, z[tris[cand]])
-    ahead = depth > 0
-    if not ahead.any():
-        return None
-    best = int(np.flatnonzero(ahead)[np.argmin(depth[ahead])])
-    b = np.clip(bary[best], 0.0, 1.0)
-    b = b / b.sum()
-    return int(cand[best]), b, b @ co[tris[cand[best]]]
+    index, bary, point = hit
+    pin = Pin(tuple(int(i) for i in tris[index]), tuple(float(b) for b in bary))
+    return pin, meshes.to_world(obj, point[None])[0]

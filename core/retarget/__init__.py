@@ -12,7 +12,7 @@
 - :mod:`.report` — the per-source report;
 - :mod:`.job` — the middle step of a retarget job: from the plan read out of Blender to the curves to write.
 
-Key reduction (F-curve maths) lives in the foundation module :mod:`core.animation`.
+Key reduction (F-curve maths) lives in the foundation module :mod:`core.keyreduce`.
 """
 from .capture import ROTATION_CHANNELS, WeightStream, parse_timecode, read_live_link_csv, resample
 from .cloning import (MAX_MAPPING_VALUE, LearnedCloning, cloning_matrix, copy_weights, key_frames_in_span, key_poses,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..animation import reduce_keys, reduce_keys_bezier_curves
+from ..keyreduce import reduce_keys, reduce_keys_bezier_curves
 from ..blendshape import BlendshapeModel
 from ..errors import ErrorCode
 from ..headpose import bone_curves
@@ -228,8 +228,8 @@ def plan_curves(names: list, paths: list, frames: ArrayLike, W: ArrayLike, key_t
     """Every curve to write, computed and checked before anything is written.
 
     Without key reduction (``key_tolerance ≤ 0``) every frame is a key; else the fewest keys within
-    ``key_tolerance`` of each curve: smooth Bézier keys with slopes (:func:`core.animation.reduce_keys_bezier_curves`,
-    every curve in one vectorised call) or linear keys (:func:`core.animation.reduce_keys`, per curve).
+    ``key_tolerance`` of each curve: smooth Bézier keys with slopes (:func:`core.keyreduce.reduce_keys_bezier_curves`,
+    every curve in one vectorised call) or linear keys (:func:`core.keyreduce.reduce_keys`, per curve).
 
     Parameters
     ----------

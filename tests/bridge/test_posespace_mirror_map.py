@@ -8,7 +8,7 @@ import pytest
 from blender_support import bpy
 from shapespace.bridge import symmetry
 from shapespace.core import symmetry as core_sym
-from test_posespace_hardening import _simple
+from test_correctives import _simple
 
 
 def _co(kb):

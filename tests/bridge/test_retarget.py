@@ -322,7 +322,7 @@ def test_key_reduction_beats_blender_decimate_at_equal_error():
 
 
 def test_bezier_keys_evaluate_as_the_core_hermite():
-    from shapespace.core.animation import hermite, reduce_keys_bezier
+    from shapespace.core.keyreduce import hermite, reduce_keys_bezier
     import_file(BLEND)
     ob = bpy.data.objects["FBHead"]
     key = ob.data.shape_keys

@@ -12,7 +12,7 @@ import pytest
 from support import ASSETS, ROOT
 from blender_support import bpy, import_file
 from shapespace.bridge import actions, retarget, shapekeys
-from shapespace.core.animation import reduce_keys_bezier, reduce_keys_bezier_curves
+from shapespace.core.keyreduce import reduce_keys_bezier, reduce_keys_bezier_curves
 from shapespace.core.result import ShapeSpaceError
 from shapespace.core.retarget import copy_weights, split_mapping
 from shapespace.core.retarget.capture import read_live_link_csv

@@ -1,8 +1,7 @@
 """Independent references for the retarget fits' tests (tests/core/test_perframe.py, test_spacetime_solver.py):
 ridge least squares on the augmented system, scipy's BVLS, OSQP and quadprog on box-constrained QPs."""
 import numpy as np
-import osqp
-import quadprog
+import pytest
 import scipy.sparse as sp
 from scipy.optimize import lsq_linear
 
@@ -43,6 +42,7 @@ def bvls_ridge(B, r, a, lo, hi):
 def osqp_qp(P, q, lo, hi):
     """min ½xᵀPx + qᵀx, lo ≤ x ≤ hi with OSQP at eps 1e-10 plus polishing (asserted)."""
     n = P.shape[0]
+    osqp = pytest.importorskip("osqp")  # the independent reference: skipped where not installed
     solver = osqp.OSQP()
     solver.setup(sp.triu(sp.csc_matrix(P), format="csc"), q, sp.identity(n, format="csc"), lo, hi,
                  eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=200000, verbose=False)
@@ -58,6 +58,7 @@ def quadprog_box(P, q, lo, hi):
     I = np.eye(n)
     C = np.hstack([I, -I])
     b = np.concatenate([lo, -hi])
+    quadprog = pytest.importorskip("quadprog")  # the independent reference: skipped where not installed
     return quadprog.solve_qp(np.asarray(P, dtype=float), -q, C, b, 0)[0]
 
 

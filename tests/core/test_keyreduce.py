@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from core.animation import curve_slopes, hermite, reduce_keys, reduce_keys_bezier
+from core.keyreduce import curve_slopes, hermite, reduce_keys, reduce_keys_bezier
 from core.result import ShapeSpaceError
 
 

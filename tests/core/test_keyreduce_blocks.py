@@ -8,8 +8,8 @@ import os
 import numpy as np
 import pytest
 
-from core import animation
-from core.animation import _absorb_batch, _valid_segments, curve_slopes, hermite, reduce_keys_bezier_curves
+from core import keyreduce
+from core.keyreduce import _absorb_batch, _valid_segments, curve_slopes, hermite, reduce_keys_bezier_curves
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CSV = os.path.join(ROOT, "assets", "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
@@ -107,22 +107,23 @@ def test_lanes_give_the_sequential_keys_on_random_curves(monkeypatch, seed, lane
     V = _random_curves(rng, n, 6)
     tol = float(rng.choice([0.002, 0.005, 0.01]))
     ref = _reference(t, V, tol)
-    monkeypatch.setattr(animation, "_LANE_KEYS", lane)
+    monkeypatch.setattr(keyreduce, "_LANE_KEYS", lane)
     _assert_same(reduce_keys_bezier_curves(t, V, tol), ref, t, V, tol)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lane", [4, 16, 128])
 def test_lanes_give_the_sequential_keys_on_the_live_link_take(monkeypatch, lane):
     t, V = _tiled_take(2600, [0, 3, 9, 17, 21, 24, 33, 40, 47, 50])
     ref = _reference(t, V, 0.01)
-    monkeypatch.setattr(animation, "_LANE_KEYS", lane)
+    monkeypatch.setattr(keyreduce, "_LANE_KEYS", lane)
     keys = reduce_keys_bezier_curves(t, V, 0.01)
     _assert_same(keys, ref, t, V, 0.01)
     assert sum(k[0].size for k in keys) == sum(len(i) for i in ref[0])
 
 
 def test_lanes_handle_tiny_and_flat_curves(monkeypatch):
-    monkeypatch.setattr(animation, "_LANE_KEYS", 2)
+    monkeypatch.setattr(keyreduce, "_LANE_KEYS", 2)
     t = np.arange(1.0, 7.0)
     V = np.column_stack([np.zeros(6), np.linspace(0, 1, 6) ** 2, [0, 1, 0, 1, 0, 1.0], np.full(6, 0.3)])
     ref = _reference(t, V, 0.01)
@@ -134,6 +135,7 @@ def test_lanes_handle_tiny_and_flat_curves(monkeypatch):
         assert all(k[0].tolist() == list(range(n)) for k in reduce_keys_bezier_curves(t[:n], V[:n], 0.01))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("uniform", [True, False])
 def test_stage_one_in_chunks_equals_one_piece(monkeypatch, uniform):
     rng = np.random.default_rng(11)
@@ -143,15 +145,16 @@ def test_stage_one_in_chunks_equals_one_piece(monkeypatch, uniform):
     M = np.vstack([curve_slopes(t, v) for v in V])
     whole = _valid_segments(t, V, M, 0.004, 60)
     for chunk in (1, 37, 256):
-        monkeypatch.setattr(animation, "_CHUNK_STARTS", chunk)
+        monkeypatch.setattr(keyreduce, "_CHUNK_STARTS", chunk)
         np.testing.assert_array_equal(_valid_segments(t, V, M, 0.004, 60), whole)
 
 
+@pytest.mark.slow
 def test_long_take_in_chunks_and_lanes_keeps_the_tolerance_and_the_key_count(monkeypatch):
     """6,000 frames (chunked stage 1 at the default chunk size, many lanes): the sequential keys exactly."""
     t, V = _tiled_take(6000, [1, 14, 25, 44])
     ref = _reference(t, V, 0.01)
-    monkeypatch.setattr(animation, "_CHUNK_STARTS", 10 ** 7)                 # stage 1 in one piece
+    monkeypatch.setattr(keyreduce, "_CHUNK_STARTS", 10 ** 7)                 # stage 1 in one piece
     whole = reduce_keys_bezier_curves(t, V, 0.01, refine=False)
     monkeypatch.undo()
     chunked = reduce_keys_bezier_curves(t, V, 0.01, refine=False)

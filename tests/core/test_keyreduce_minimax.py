@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-import core.animation as animation
-from core.animation import _segment_basis, chebyshev_fit, hermite, reduce_keys_bezier
+import core.keyreduce as keyreduce
+from core.keyreduce import _segment_basis, chebyshev_fit, hermite, reduce_keys_bezier
 
 
 def _lp_minimax(A, y):
@@ -66,8 +66,8 @@ def test_key_reduction_calls_no_general_lp_solver(monkeypatch):
     t = np.arange(1.0, 401.0)
     v = np.convolve(rng.normal(size=440), np.hanning(31), "same")[20:420] * 0.08 + rng.normal(size=400) * 0.002
     calls = []
-    real = animation.chebyshev_fit
-    monkeypatch.setattr(animation, "chebyshev_fit", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = keyreduce.chebyshev_fit
+    monkeypatch.setattr(keyreduce, "chebyshev_fit", lambda *a, **k: calls.append(1) or real(*a, **k))
     idx, kv, km = reduce_keys_bezier(t, v, 0.002)
     assert calls, "the refinement never needed a minimax fit; the test would prove nothing"
     assert np.abs(hermite(t[idx], kv, km, t) - v).max() <= 0.002

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from core import animation
-from core.animation import (_chebyshev_batch, _hermite_basis, _valid_segments, curve_slopes, hermite,
+from core import keyreduce
+from core.keyreduce import (_chebyshev_batch, _hermite_basis, _valid_segments, curve_slopes, hermite,
                             reduce_keys_bezier, reduce_keys_bezier_curves)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -93,6 +93,7 @@ def _brute_force_valid(t, v, m, tol, max_span):
     return ok
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("uniform", [True, False])
 def test_pruned_segment_test_equals_brute_force(uniform):
     rng = np.random.default_rng(7)
@@ -133,6 +134,7 @@ def _tiled_take(count=1640):
     return frames[0] + np.arange(count, dtype=np.float64), np.clip(w[:, :51], 0, 1)
 
 
+@pytest.mark.slow
 def test_long_take_keys_within_tolerance_at_todays_count_without_linprog(monkeypatch):
     import scipy.optimize
 
@@ -148,14 +150,15 @@ def test_long_take_keys_within_tolerance_at_todays_count_without_linprog(monkeyp
     assert total < 0.10 * dense.size         # Blender's Decimate keeps 14 % at this error (docs/bench)
 
 
+@pytest.mark.slow
 def test_key_reduction_work_is_linear_in_the_take_length(monkeypatch):
     """Counted, not timed: the absorption tests (the work of stage 2) grow linearly with the take."""
-    batch = animation._absorb_batch
+    batch = keyreduce._absorb_batch
     frames, dense = _tiled_take(3280)
     work = []
     for count in (820, 3280):
         tests = []
-        monkeypatch.setattr(animation, "_absorb_batch", lambda t, V, b, *a: tests.append(len(b)) or batch(t, V, b, *a))
+        monkeypatch.setattr(keyreduce, "_absorb_batch", lambda t, V, b, *a: tests.append(len(b)) or batch(t, V, b, *a))
         reduce_keys_bezier_curves(frames[:count], dense[:count, :12], 0.01)
         work.append(sum(tests))
     assert work[1] < 8.0 * work[0] + 10     # 4× the frames: ~4× the tests (not 16×)
@@ -163,14 +166,15 @@ def test_key_reduction_work_is_linear_in_the_take_length(monkeypatch):
 
 def test_most_absorption_tests_are_batched(monkeypatch):
     calls, tests = [], []
-    one, batch = animation._absorb_one, animation._absorb_batch
-    monkeypatch.setattr(animation, "_absorb_one", lambda *a, **k: calls.append(1) or one(*a, **k))
-    monkeypatch.setattr(animation, "_absorb_batch", lambda t, V, b, *a: tests.append(len(b)) or batch(t, V, b, *a))
+    one, batch = keyreduce._absorb_one, keyreduce._absorb_batch
+    monkeypatch.setattr(keyreduce, "_absorb_one", lambda *a, **k: calls.append(1) or one(*a, **k))
+    monkeypatch.setattr(keyreduce, "_absorb_batch", lambda t, V, b, *a: tests.append(len(b)) or batch(t, V, b, *a))
     frames, dense = _tiled_take(400)
     reduce_keys_bezier_curves(frames, dense, 0.01)
     assert len(calls) < 0.05 * sum(tests)    # only the rare rank-deficient or 3-sample systems go one by one
 
 
+@pytest.mark.slow
 def test_long_take_csv_is_read_in_memory_linear_and_small(tmp_path):
     """36,000 rows of the shipped take (10 minutes at 60 fps): the reader streams the rows into one array of
     doubles, so its peak memory is a small multiple of the file, not of Python row lists."""

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import core.retarget.spacetime_solver as st
+from core.retarget.spacetime_solver import bounded, kernels
 from core.progress import Cancelled
 from core.result import Status
 from core.retarget.perframe import fit_frames
@@ -74,7 +75,7 @@ def test_peak_active_set_gives_the_independent_qp_minimiser(beta, anchor):
 
 
 def test_interior_point_route_gives_the_independent_qp_minimiser(monkeypatch):
-    monkeypatch.setattr(st, "PEAK_PATIENCE", 0)                           # hand over at once
+    monkeypatch.setattr(bounded, "PEAK_PATIENCE", 0)                           # hand over at once
     B, b0, S = _take(3)
     n = B.shape[1]
     sig = np.ones(n)
@@ -114,7 +115,7 @@ def _dense_operator(system):
 
 @pytest.mark.parametrize("keep_bytes", [2 ** 28, 0])          # products kept, or recomputed (long takes)
 def test_block_cholesky_solves_the_held_and_shifted_systems(monkeypatch, keep_bytes):
-    monkeypatch.setattr(st, "BLOCK_KEEP_BYTES", keep_bytes)
+    monkeypatch.setattr(kernels, "BLOCK_KEEP_BYTES", keep_bytes)
     rng = np.random.default_rng(6)
     B = rng.normal(size=(15, 5))
     system = SpacetimeSystem(B, rng.uniform(0.5, 2, 5), 1e-3, 17, beta=0.2)
@@ -206,7 +207,7 @@ def test_dense_active_set_settles_the_face_like_quadprog():
 
 @pytest.mark.parametrize("patience", [5, 0])                       # peak active set, or interior point at once
 def test_one_sided_bounds_give_the_independent_qp_minimiser(monkeypatch, patience):
-    monkeypatch.setattr(st, "PEAK_PATIENCE", patience)
+    monkeypatch.setattr(bounded, "PEAK_PATIENCE", patience)
     B, b0, S = _take(11, F=30)
     n = B.shape[1]
     sig = np.ones(n)
