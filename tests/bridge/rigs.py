@@ -347,9 +347,26 @@ def take_surface(rig: Rig, values) -> np.ndarray:
     return np.stack(out)
 
 
+def take_vertices(rig: Rig, rng, every: int = 20) -> np.ndarray:
+    """The vertices a test take targets: pins spread over the channels (:func:`pin_vertices`, two per channel,
+    10–40) plus every ``every``-th vertex."""
+    pins = pin_vertices(rig, int(np.clip(2 * len(rig.controls), 10, 40)), rng)
+    return np.union1d(pins, np.arange(0, len(rig.mesh.data.vertices), every))
+
+
+def played_surface(rig: Rig, frames) -> np.ndarray:
+    """Blender's evaluation of the rig as its actions play (``frame_set``), at each frame (F, V, 3)."""
+    scene = bpy.context.scene
+    out = []
+    for f in frames:
+        scene.frame_set(int(f))
+        out.append(rig.world_points())
+    return np.stack(out)
+
+
 def diagonal(points) -> float:
     return float(np.linalg.norm(points.max(0) - points.min(0)))
 
 
-__all__ = ["Rig", "driver_rig", "hybrid_rig", "load_head", "pin_vertices", "diagonal", "smooth_take",
-           "take_surface"]
+__all__ = ["Rig", "driver_rig", "hybrid_rig", "load_head", "pin_vertices", "diagonal", "played_surface",
+           "smooth_take", "take_surface", "take_vertices"]

@@ -86,3 +86,21 @@ def test_a_deformer_after_the_keys_or_a_driver_reading_them_falls_back_to_finite
         assert ev.analytic_reason == "a driver reads a shape-key value"
         k = ev.controls.index("key mouthFunnel")
         np.testing.assert_allclose(J[:, k], _central(ev, k, 0.1), atol=1e-3 * ev.controls.scale[k])
+
+
+def test_key_vertex_groups_and_relative_keys_are_honoured():
+    rig = _posed_hybrid()
+    kbs = rig.mesh.data.shape_keys.key_blocks
+    kbs["mouthSmile_L"].vertex_group = "jaw"
+    kbs["cheekPuff"].relative_key = kbs["mouthFunnel"]
+    bpy.context.view_layer.update()
+    pins = np.arange(0, len(rig.mesh.data.vertices), 5)
+    with brig.RigEvaluator(rig.mesh, rig.controls, pins) as ev:
+        J = ev.jacobian(ev.c0)
+        assert ev.analytic_reason == ""
+        diag = ev.diagonal
+        for name in ("mouthSmile_L", "cheekPuff"):
+            k = rig.controls.index(f"key {name}")
+            ref = _central(ev, k, 0.1)
+            assert np.abs(ref).max() > 1e-3 * diag
+            np.testing.assert_allclose(J[:, k], ref, atol=1e-5 * diag)

@@ -25,28 +25,11 @@ def _head():
     return shared(*rigs.FACECAP.split("/"))
 
 
-def _sample(rig, rng) -> np.ndarray:
-    """The take's vertices: pins spread over the channels plus every 20th vertex."""
-    n = len(rig.controls)
-    pins = rigs.pin_vertices(rig, int(np.clip(2 * n, 10, 40)), rng)
-    return np.union1d(pins, np.arange(0, len(rig.mesh.data.vertices), 20))
-
-
 def _self_take(rig, seed: int, frames: int = FRAMES):
     rng = np.random.default_rng(seed)
     values = rigs.smooth_take(rig, rng, frames)
     surface = rigs.take_surface(rig, values)
-    return values, surface, _sample(rig, rng), np.arange(1, frames + 1)
-
-
-def _played(rig, frames) -> np.ndarray:
-    """Blender's evaluation of the rig as its actions play, at each frame (F, V, 3)."""
-    scene = bpy.context.scene
-    out = []
-    for f in frames:
-        scene.frame_set(int(f))
-        out.append(rig.world_points())
-    return np.stack(out)
+    return values, surface, rigs.take_vertices(rig, rng), np.arange(1, frames + 1)
 
 
 def _rms(a, b) -> float:
@@ -61,7 +44,7 @@ def _check_self_take(rig, seed: int):
     assert rep.frames == len(frames) and rep.frame_range == [1, len(frames)]
     assert rep.key_fraction < 1.0                          # keys were reduced
     assert set(rep.keyed_channels) == set(rig.controls.names)
-    err = _rms(_played(rig, frames), surface) / diag
+    err = _rms(rigs.played_surface(rig, frames), surface) / diag
     assert err <= TAKE_TOL, err
     return rep
 
@@ -140,7 +123,7 @@ def test_previous_actions_are_kept_and_restorable():
     key_action = rig.mesh.data.shape_keys.animation_data.action
     frames = np.arange(1, 21)
     bpy.context.scene.frame_set(7)
-    played_before = _played(rig, frames)
+    played_before = rigs.played_surface(rig, frames)
     bpy.context.scene.frame_set(7)
     before = _state(rig)
     _, surface, idx, _ = _self_take(rig, 4, frames=20)
@@ -149,7 +132,7 @@ def test_previous_actions_are_kept_and_restorable():
     assert rig.armature.animation_data.action is not arm_action
     assert arm_action.use_fake_user and key_action.use_fake_user
     assert {e["previous"] for e in rep.actions} == {arm_action.name, key_action.name}
-    assert _rms(_played(rig, frames), surface) / rigs.diagonal(surface[0]) <= TAKE_TOL
+    assert _rms(rigs.played_surface(rig, frames), surface) / rigs.diagonal(surface[0]) <= TAKE_TOL
     bpy.context.scene.frame_set(7)
     brig.restore_previous(rep, rig.controls)
     assert rig.armature.animation_data.action is arm_action
@@ -157,4 +140,4 @@ def test_previous_actions_are_kept_and_restorable():
     assert not arm_action.use_fake_user and not key_action.use_fake_user
     assert all(e["action"] not in bpy.data.actions for e in rep.actions)
     _assert_same_state(before, _state(rig))
-    np.testing.assert_array_equal(_played(rig, frames), played_before)
+    np.testing.assert_array_equal(rigs.played_surface(rig, frames), played_before)
