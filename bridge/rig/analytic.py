@@ -23,7 +23,7 @@ from ...core.skinning import MIN_CONTRIB, SkinWeights, bone_change_matrices
 from ..meshes import world_matrix
 from ..skin import armature_modifiers, check_skinning, pose_matrices, read_skinning
 
-__all__ = ["ShapeKeyColumns", "analytic_refusal", "shape_key_columns"]
+__all__ = ["ShapeKeyColumns", "analytic_refusal", "key_coords", "key_delta", "shape_key_columns"]
 
 
 def _reads_shape_keys(ids, key) -> bool:
@@ -120,7 +120,7 @@ class ShapeKeyColumns:
 SPARSE_READ = 0.02
 
 
-def _key_coords(kb, indices, cache) -> np.ndarray:
+def key_coords(kb, indices, cache) -> np.ndarray:
     """Object-space coordinates (p, 3) of a key block at ``indices`` (cached per block)."""
     if kb.name not in cache:
         if indices.size < SPARSE_READ * len(kb.data):
@@ -133,9 +133,9 @@ def _key_coords(kb, indices, cache) -> np.ndarray:
     return cache[kb.name]
 
 
-def _delta(mesh_obj, kb, indices, cache) -> np.ndarray:
+def key_delta(mesh_obj, kb, indices, cache) -> np.ndarray:
     """A slider's object-space delta (p, 3) at ``indices``: key − relative key, times the key's vertex group."""
-    d = _key_coords(kb, indices, cache) - _key_coords(kb.relative_key, indices, cache)
+    d = key_coords(kb, indices, cache) - key_coords(kb.relative_key, indices, cache)
     if kb.vertex_group:
         vg = mesh_obj.vertex_groups.get(kb.vertex_group)
         w = np.zeros(len(indices))
@@ -166,5 +166,5 @@ def shape_key_columns(mesh_obj, controls, ids, indices):
         kb = key.path_resolve(controls.channels[j].path[len("data.shape_keys."):].rpartition(".")[0])
         if kb.mute:
             return None, f"shape key {kb.name!r} is muted"
-        deltas.append(_delta(mesh_obj, kb, indices, cache))
+        deltas.append(key_delta(mesh_obj, kb, indices, cache))
     return ShapeKeyColumns(mesh_obj, cols, np.stack(deltas), indices), ""

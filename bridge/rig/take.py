@@ -33,13 +33,17 @@ from ...core.result import ShapeSpaceError
 from ...core.rig import (ChannelKind, ControlSet, RigTakeReport, RigTakeResult, quaternion_from_rotation_vector,
                          solve_take, take_report)
 from .. import actions
+from ..meshes import world_matrix
+from .analytic import key_coords, key_delta
 from .channels import EULER_MODES, Binding, bind
 from .evaluate import RigEvaluator
 
-__all__ = ["TakeOutcome", "compute_take", "restore_previous", "rest_controls", "retarget_take", "write_take"]
+__all__ = ["TakeOutcome", "compute_take", "restore_previous", "rest_controls", "retarget_take",
+           "shape_key_targets", "write_take"]
 
 SHAPE_KEY_PREFIX = "data.shape_keys."
-#: A channel is keyed when the take moves the surface through it by more than this fraction of the diagonal.
+#: A channel is keyed when the take moves the surface through it by more than this fraction of the diagonal (or
+#: than the key tolerance, when larger: leaving it out keeps every frame within that tolerance).
 CHANGED_REL_TOL = 1e-7
 #: Default stopping distances of a frame, as fractions of the evaluated mesh's bounding-box diagonal.
 PIN_TOL_REL, XTOL_REL = 1e-5, 1e-6
@@ -107,6 +111,37 @@ def rest_controls(controls: ControlSet) -> np.ndarray:
     return np.array(out, dtype=np.float64)
 
 
+def shape_key_targets(mesh_obj, names, weights, indices) -> np.ndarray:
+    """World-space target positions (F, p, 3) of a shape-key take on the same head: vertices ``indices`` of
+    ``mesh_obj``'s basis moved by its relative keys ``names`` (k,) at ``weights`` (F, k) (each key's vertex group
+    and relative key honoured), through the object's world matrix — the head's shape keys alone, as a capture's
+    weights (ARKit names) play on it, without the rig's bones or drivers."""
+    key = mesh_obj.data.shape_keys if mesh_obj.type == "MESH" else None
+    if key is None or not key.use_relative:
+        raise ShapeSpaceError(f"{mesh_obj.name!r} has no relative shape keys", ErrorCode.MISSING_KEY)
+    W = np.asarray(weights, dtype=np.float64)
+    names = list(names)
+    if W.ndim != 2 or W.shape[1] != len(names):
+        raise ShapeSpaceError(f"weights: expected (frames, {len(names)}) for the keys, got {W.shape}",
+                              ErrorCode.SHAPE)
+    bad = np.argwhere(~np.isfinite(W))
+    if bad.size:
+        raise ShapeSpaceError(f"weights: frame {bad[0][0]} key {names[bad[0][1]]!r} is not finite",
+                              ErrorCode.NON_FINITE)
+    idx = np.asarray(indices, dtype=np.int64).reshape(-1)
+    if idx.size == 0 or idx.min() < 0 or idx.max() >= len(mesh_obj.data.vertices):
+        raise ShapeSpaceError(f"indices: vertices of {mesh_obj.name!r} expected", ErrorCode.PIN)
+    cache, deltas = {}, []
+    for name in names:
+        kb = key.key_blocks.get(name)
+        if kb is None or kb == key.reference_key:
+            raise ShapeSpaceError(f"{mesh_obj.name!r} has no shape key {name!r}", ErrorCode.MISSING_KEY)
+        deltas.append(key_delta(mesh_obj, kb, idx, cache))
+    local = key_coords(key.reference_key, idx, cache) + np.einsum("fk,kpi->fpi", W, np.stack(deltas))
+    m = world_matrix(mesh_obj)
+    return local @ m[:3, :3].T + m[:3, 3]
+
+
 def _check_take(ev: RigEvaluator, targets, frames) -> tuple:
     t = np.asarray(targets, dtype=np.float64)
     f = np.asarray(frames, dtype=np.float64).reshape(-1)
@@ -164,12 +199,12 @@ def compute_take(mesh_obj, controls: ControlSet, indices, targets, frames, *, re
 
 # -- keys ---------------------------------------------------------------------------------------------------------
 
-def _curves(outcome: TakeOutcome, bindings) -> tuple:
+def _curves(outcome: TakeOutcome, bindings, key_tolerance: float) -> tuple:
     """Every curve to key: ``([(datablock, path, index, group, values (F,), surface units per value unit)],
     keyed channel names)`` — channels that move, quaternion / axis-angle bones as four components."""
     C, s = outcome.values, outcome.controls.scale
     current = np.array([b.get() for b in bindings])
-    moved = np.abs(C - current).max(0) * s > CHANGED_REL_TOL * outcome.diagonal
+    moved = np.abs(C - current).max(0) * s > max(CHANGED_REL_TOL * outcome.diagonal, key_tolerance)
     curves, keyed, grouped = [], [], {}
     for j, b in enumerate(bindings):
         ch = b.channel
@@ -269,7 +304,7 @@ def write_take(outcome: TakeOutcome, key_tolerance: float = 0.0, progress=None) 
                               ErrorCode.NON_FINITE)
     bindings = bind(outcome.controls)
     report = take_report(outcome.result, outcome.frames, outcome.controls.names)
-    curves, report.keyed_channels = _curves(outcome, bindings)
+    curves, report.keyed_channels = _curves(outcome, bindings, key_tolerance)
     keys, report.key_fraction = _reduce(curves, outcome.frames, key_tolerance, progress)
     report.values_before = [list(v) if isinstance(v, tuple) else v for v in (b.raw() for b in bindings)]
     ids = []

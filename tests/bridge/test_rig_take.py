@@ -141,3 +141,44 @@ def test_previous_actions_are_kept_and_restorable():
     assert all(e["action"] not in bpy.data.actions for e in rep.actions)
     _assert_same_state(before, _state(rig))
     np.testing.assert_array_equal(rigs.played_surface(rig, frames), played_before)
+
+
+def test_shape_key_take_of_the_same_head_is_reproduced_on_the_hybrid_rig():
+    """A shape-key take (weights on the head's own keys) as targets: its positions are Blender's evaluation of those
+    slider values, and the take retargeted onto the jaw + keys rig plays back the same surface."""
+    rig = rigs.hybrid_rig(_head())
+    rng = np.random.default_rng(12)
+    names = ["mouthSmile_L", "cheekPuff", "eyeBlink_L"]
+    cols = [rig.controls.index(f"key {n}") for n in names]
+    values = np.zeros((25, len(rig.controls)))
+    values[:, cols] = rigs.smooth_take(rig, rng, 25)[:, cols]
+    truth = rigs.take_surface(rig, values)                           # Blender's evaluation of the sliders
+    idx = rigs.take_vertices(rig, rng)
+    targets = brig.shape_key_targets(rig.mesh, names, values[:, cols], idx)
+    diag = rigs.diagonal(truth[0])
+    np.testing.assert_allclose(targets, truth[:, idx], atol=1e-6 * diag)
+    frames = np.arange(10, 35)
+    rep = brig.retarget_take(rig.mesh, rig.controls, idx, targets, frames, key_tolerance=1e-4 * diag)
+    assert rep.status == Status.OK
+    assert set(rep.keyed_channels) == {f"key {n}" for n in names}   # the jaw and the other keys do not move
+    assert _rms(rigs.played_surface(rig, frames), truth) / diag <= TAKE_TOL
+    with pytest.raises(ShapeSpaceError, match="no shape key 'nope'"):
+        brig.shape_key_targets(rig.mesh, ["nope"], np.zeros((2, 1)), idx)
+
+
+def test_axis_angle_bone_is_keyed_on_its_four_components():
+    rig = rigs.hybrid_rig(_head())
+    rig.armature.pose.bones["jaw"].rotation_mode = "AXIS_ANGLE"
+    keys = [ch for ch in rig.controls.channels if ch.kind == "shape_key"]
+    chans = [brig.bone_channel(rig.armature, "jaw", "rotation", k) for k in (0, 2)] + keys
+    rig.controls = brig.control_set(chans)
+    rig.pose_lo = np.r_[-0.15, -0.1, rig.controls.lo[2:]]
+    rig.pose_hi = np.r_[0.15, 0.1, rig.controls.hi[2:]]
+    values, surface, idx, frames = _self_take(rig, 21, frames=25)
+    diag = rigs.diagonal(surface[0])
+    rep = brig.retarget_take(rig.mesh, rig.controls, idx, surface[:, idx], frames)
+    assert rep.status == Status.OK
+    action = bpy.data.actions[[e for e in rep.actions if e["id"] == "OBJECT"][0]["action"]]
+    curves = [(fc.data_path, fc.array_index) for fc in btake.actions.fcurves(action, rig.armature)]
+    assert sorted(curves) == [('pose.bones["jaw"].rotation_axis_angle', k) for k in range(4)]
+    assert _rms(rigs.played_surface(rig, frames), surface) / diag <= TAKE_TOL
