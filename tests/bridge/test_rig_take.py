@@ -182,3 +182,16 @@ def test_axis_angle_bone_is_keyed_on_its_four_components():
     curves = [(fc.data_path, fc.array_index) for fc in btake.actions.fcurves(action, rig.armature)]
     assert sorted(curves) == [('pose.bones["jaw"].rotation_axis_angle', k) for k in range(4)]
     assert _rms(rigs.played_surface(rig, frames), surface) / diag <= TAKE_TOL
+
+
+def test_frames_that_do_not_converge_make_the_report_not_converged_and_are_named():
+    rig = rigs.driver_rig(_head())
+    _, surface, idx, _ = _self_take(rig, 6, frames=8)
+    frames = np.arange(101, 109)
+    rep = brig.retarget_take(rig.mesh, rig.controls, idx, surface[:, idx], frames, pin_tol=1e-12, xtol=1e-14,
+                             max_iter=1)
+    assert rep.status == Status.NOT_CONVERGED and rep.exit_code() == 1
+    assert rep.not_converged and set(rep.not_converged) <= set(range(101, 109))
+    assert rep.issues[0].code == "not_converged"
+    assert rep.issues[0].items == tuple(str(f) for f in rep.not_converged)
+    assert rep.to_json()["status"] == "not_converged"

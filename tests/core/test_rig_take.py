@@ -11,7 +11,7 @@ from scipy.optimize import least_squares
 from core.progress import Cancelled
 from core.result import Status
 from core.retarget.perframe import fit_frames
-from core.rig import solve_take, take_report
+from core.rig import finite_difference_jacobian, solve_controls, solve_take, take_report
 from test_rig_solve import DriverCurveRig, TwoBoneChain
 
 
@@ -139,3 +139,19 @@ def test_bad_targets_are_refused_by_name():
         solve_take(rig, np.array([0.0, 0.0, 1.0]), t)
     with pytest.raises(ValueError, match="smooth"):
         solve_take(rig, np.array([0.0, 0.0, 1.0]), t[:2], smooth=-1.0)
+
+
+def test_solve_returns_its_last_jacobian_and_xtol_stops_without_a_refresh():
+    rig = TwoBoneChain()
+    lo, hi = np.array([-0.6, -0.8, 0.8]), np.array([0.6, 0.8, 1.2])
+    c0 = np.array([0.0, 0.0, 1.0])
+    t = rig(np.array([0.3, -0.2, 1.1]))
+    res = solve_controls(rig, c0, t, lo=lo, hi=hi, mu=0.0, steps=np.full(3, 1e-7))
+    assert res.status == Status.OK
+    exact = finite_difference_jacobian(rig, res.x, np.full(3, 1e-7), lo, hi)
+    np.testing.assert_allclose(res.jacobian, exact, atol=1e-4 * np.abs(exact).max())
+    t2 = rig(np.array([0.31, -0.21, 1.1]))
+    near = solve_controls(rig, res.x, t2, lo=lo, hi=hi, mu=0.0, first_jacobian=res.jacobian,
+                          first_points=res.points, xtol=1e-8)
+    assert near.status == Status.OK and near.jacobians == 0          # the carried Jacobian sufficed
+    assert near.pin_error_max <= 1e-6
