@@ -11,7 +11,8 @@ stacked modifiers multiply).  A slider's column is then exactly ``W · A_v · δ
 mesh's world matrix, ``δ_v`` the key's object-space delta): no depsgraph evaluation per slider.
 
 :func:`shape_key_columns` returns the columns' computer for an evaluator, or ``None`` with the reason when the
-conditions do not hold (then every column is a finite difference).
+conditions do not hold (then every column is a finite difference); a muted slider, or one whose value a driver
+sets, keeps a finite-difference column (what is written there does not act).
 """
 from __future__ import annotations
 
@@ -161,10 +162,17 @@ def shape_key_columns(mesh_obj, controls, ids, indices):
     if reason:
         return None, reason
     key = mesh_obj.data.shape_keys
-    cache, deltas = {}, []
+    driven = {fc.data_path for fc in key.animation_data.drivers} if key.animation_data is not None else set()
+    cache, keep, deltas, other = {}, [], [], []
     for j in cols:
-        kb = key.path_resolve(controls.channels[j].path[len("data.shape_keys."):].rpartition(".")[0])
-        if kb.mute:
-            return None, f"shape key {kb.name!r} is muted"
+        path = controls.channels[j].path[len("data.shape_keys."):]
+        kb = key.path_resolve(path.rpartition(".")[0])
+        if kb.mute or path in driven:                    # what is written there does not act: finite differences
+            other.append(kb.name)
+            continue
+        keep.append(j)
         deltas.append(key_delta(mesh_obj, kb, indices, cache))
-    return ShapeKeyColumns(mesh_obj, cols, np.stack(deltas), indices), ""
+    reason = f"muted or driven shape keys by finite differences: {', '.join(other)}" if other else ""
+    if not keep:
+        return None, reason
+    return ShapeKeyColumns(mesh_obj, keep, np.stack(deltas), indices), reason

@@ -104,3 +104,18 @@ def test_key_vertex_groups_and_relative_keys_are_honoured():
             ref = _central(ev, k, 0.1)
             assert np.abs(ref).max() > 1e-3 * diag
             np.testing.assert_allclose(J[:, k], ref, atol=1e-5 * diag)
+
+
+def test_a_driven_slider_keeps_its_finite_difference_column():
+    rig = _posed_hybrid()
+    kbs = rig.mesh.data.shape_keys.key_blocks
+    fc = kbs["mouthFunnel"].driver_add("value")
+    fc.driver.expression = "0.25"
+    bpy.context.view_layer.update()
+    pins = np.arange(0, len(rig.mesh.data.vertices), 9)
+    with brig.RigEvaluator(rig.mesh, rig.controls, pins, check=False) as ev:
+        J = ev.jacobian(ev.c0)
+        assert "mouthFunnel" in ev.analytic_reason
+        assert np.abs(J[:, rig.controls.index("key mouthFunnel")]).max() == 0.0   # the driver overrides it
+        k = rig.controls.index("key cheekPuff")
+        np.testing.assert_allclose(J[:, k], _central(ev, k, 0.1), atol=1e-5 * rigs.diagonal(rig.world_points()))
