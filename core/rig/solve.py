@@ -27,7 +27,9 @@ Stopping: ``OK`` when every pin is within ``pin_tol`` of its target, or when, on
 the bounded Gauss–Newton step predicts a decrease below ``ftol`` × f (first-order stationarity on the box, up
 to the evaluation's rounding), or when a step computed on a fresh Jacobian is refused although no channel moves
 by more than its finite-difference step (stationary to the resolution of the Jacobian: a smaller step is
-below what the Jacobian can resolve); ``NOT_CONVERGED`` (value: the best controls found, which never have a higher
+below what the Jacobian can resolve), or — with ``xtol`` > 0 — when the bounded Gauss–Newton step on the current
+Jacobian, fresh or Broyden-updated, would move no pin by more than ``xtol`` (a take's frames, :mod:`.take`);
+``NOT_CONVERGED`` (value: the best controls found, which never have a higher
 objective than the start) at the iteration limit or when no step decreases the objective although the model
 predicts one.
 """
@@ -308,8 +310,8 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
             if fresh and f - _model(J, e, reg_w, c, ref, d_gn) <= ftol * f + 1e-300:
                 status, message = Status.OK, "stationary on the bounds"
                 break
-            moved = (J @ d_gn / np.where(sw > 0, sw, 1.0)).reshape(-1, 3)
-            if xtol > 0 and np.max(np.linalg.norm(moved, axis=1)) <= xtol:
+            moved = (J @ d_gn / np.where(sw > 0, sw, 1.0)).reshape(-1, 3) if xtol > 0 else None
+            if moved is not None and np.max(np.linalg.norm(moved, axis=1)) <= xtol:
                 status, message = Status.OK, "the Gauss–Newton step moves no pin by more than xtol"
                 break
         if it >= max_iter:
