@@ -17,13 +17,28 @@ Metrics per rig ``<rig>``:
   evaluated vertices (pins spread over the channels) are the targets of a solve from the rest pose; the solved
   controls are written and the rig evaluated again by the depsgraph; the largest pin distance over all poses,
   divided by the evaluated head's bounding-box diagonal.  Goal ≤ 1e-3.
-- ``rig_first_use_s_<rig>``: wall time of the first Jacobian (finite differences, one depsgraph update per
-  channel) at the rest pose, median over repetitions; ``rig_first_use_ms_per_channel_<rig>`` the same per
-  channel; ``rig_check_s_<rig>`` the refusal checks and natural-scale probe (two updates per channel).
+- ``rig_first_use_s_<rig>``: wall time of the first Jacobian at the rest pose, median over repetitions: shape-key
+  slider columns analytic where they apply (linear-blend armature after the keys, ``bridge/rig/analytic.py``;
+  building that path — vertex groups, key deltas — is included), every other channel by finite differences
+  (one depsgraph update per channel); ``rig_first_use_fd_s_<rig>`` the same Jacobian by finite differences
+  only (what the first use cost before the analytic path); ``rig_first_use_ms_per_channel_<rig>`` the first
+  use per channel; ``rig_check_s_<rig>`` the refusal checks and natural-scale probe (two updates per channel).
 - ``rig_solve_s_median_<rig>``: a whole solve (checks, Jacobians, verified steps), median over poses;
   ``rig_eval_ms_<rig>``: one evaluation of the rig after a channel changed (write controls, depsgraph update,
   read), median.
 - ``rig_solve_ok_frac_<rig>``: fraction of solves that reported OK.
+
+Per-frame retarget onto the rig's controls (``bridge/rig/take.py``), for ``hybrid``, ``driver`` and ``rigify``:
+
+- ``rig_retarget_self_rms_<rig>``: random smooth control curves (40 frames; 30 with ``--quick``) evaluated by
+  Blender are the take (its surface at pins spread over the channels plus every 20th vertex); it is retargeted
+  onto the same rig and keyed (key tolerance 1e-5 of the diagonal); the written actions are played by the
+  depsgraph frame by frame and the RMS distance of the whole evaluated surface to the take's, over every vertex
+  and frame, divided by the diagonal.  Goal ≤ 1e-3.  ``rig_retarget_evals_per_frame_<rig>``: rig evaluations per
+  frame of that retarget.
+- ``rig_retarget_s_1640_rigify``: wall time of retargeting (solve, key reduction, keying) a 1,640-frame take of
+  the Rigify face's own smooth curves.  Goal ≤ 60 s.  With ``--quick`` 160 frames are retargeted and the time
+  scaled by 1640/160 (``rig_retarget_frames_measured_rigify`` and ``rig_retarget_s_1640_rigify_note`` say so).
 """
 from __future__ import annotations
 
@@ -63,8 +78,12 @@ def _measure(name: str, build, poses: int, reps: int) -> dict:
     diag = rigs.diagonal(rig.world_points())
     n = len(rig.controls)
     pins = rigs.pin_vertices(rig, int(np.clip(2 * n, 5, 20)), rng)
-    first, check, evals = [], [], []
+    first, first_fd, check, evals = [], [], [], []
     for _ in range(reps):
+        with brig.RigEvaluator(rig.mesh, rig.controls, pins, analytic=False) as ev:
+            t0 = time.perf_counter()
+            ev.jacobian(ev.c0)
+            first_fd.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         with brig.RigEvaluator(rig.mesh, rig.controls, pins) as ev:
             t1 = time.perf_counter()
@@ -93,6 +112,7 @@ def _measure(name: str, build, poses: int, reps: int) -> dict:
         brig.apply_controls(rig.controls, c0)
     return {f"rig_drag_pin_err_max_{name}": max(errs),
             f"rig_first_use_s_{name}": float(np.median(first)),
+            f"rig_first_use_fd_s_{name}": float(np.median(first_fd)),
             f"rig_first_use_ms_per_channel_{name}": float(np.median(first)) / n * 1e3,
             f"rig_check_s_{name}": float(np.median(check)),
             f"rig_eval_ms_{name}": float(np.median(evals)) * 1e3,
@@ -103,6 +123,57 @@ def _measure(name: str, build, poses: int, reps: int) -> dict:
             f"rig_vertices_{name}": len(rig.mesh.data.vertices)}
 
 
+def _self_take(rig, rng, frames: int) -> tuple:
+    """A take made by the rig itself: (vertices, take surface (F, V, 3), frame numbers)."""
+    import rigs
+    values = rigs.smooth_take(rig, rng, frames)
+    surface = rigs.take_surface(rig, values)
+    return rigs.take_vertices(rig, rng), surface, np.arange(1, frames + 1)
+
+
+def _measure_take(name: str, build, frames: int) -> dict:
+    import rigs
+    from shapespace.bridge import rig as brig
+    rig = build()
+    idx, surface, numbers = _self_take(rig, np.random.default_rng(31), frames)
+    diag = rigs.diagonal(surface[0])
+    print(f"bench rig: {name} self take, {frames} frames", file=sys.stderr)
+    rep = brig.retarget_take(rig.mesh, rig.controls, idx, surface[:, idx], numbers, key_tolerance=1e-5 * diag)
+    played = rigs.played_surface(rig, numbers)
+    rms = float(np.sqrt(np.mean(np.sum((played - surface) ** 2, axis=-1)))) / diag
+    return {f"rig_retarget_self_rms_{name}": rms, f"rig_retarget_evals_per_frame_{name}": rep.evaluations / frames,
+            f"rig_retarget_self_status_{name}": rep.status.name.lower()}
+
+
+def _measure_long_take(build, quick: bool) -> dict:
+    """``rig_retarget_s_1640_rigify`` (module doc)."""
+    import rigs
+    from shapespace.bridge import rig as brig
+    rig = build()
+    frames = 160 if quick else 1640
+    print(f"bench rig: rigify take of {frames} frames (evaluating it)", file=sys.stderr)
+    idx, surface, numbers = _self_take(rig, np.random.default_rng(41), frames)
+    diag = rigs.diagonal(surface[0])
+    last = [0.0]
+
+    def progress(fraction):
+        if fraction - last[0] >= 0.1:
+            last[0] = fraction
+            print(f"bench rig: rigify take {fraction:.0%}", file=sys.stderr)
+
+    t0 = time.perf_counter()
+    rep = brig.retarget_take(rig.mesh, rig.controls, idx, surface[:, idx], numbers, key_tolerance=1e-5 * diag,
+                             progress=progress)
+    seconds = time.perf_counter() - t0
+    out = {"rig_retarget_s_1640_rigify": seconds * 1640 / frames, "rig_retarget_frames_measured_rigify": frames,
+           "rig_retarget_1640_status_rigify": rep.status.name.lower(),
+           "rig_retarget_1640_rms_rigify": rep.rms / diag}
+    if frames != 1640:
+        out["rig_retarget_s_1640_rigify_note"] = (f"--quick: {frames} frames retargeted in {seconds:.2f} s, "
+                                                  "scaled by 1640/{frames}".replace("{frames}", str(frames)))
+    return out
+
+
 def run(quick: bool = False) -> dict:
     import package
     sys.path.insert(0, os.path.join(env.ROOT, "tests"))
@@ -111,9 +182,15 @@ def run(quick: bool = False) -> dict:
     package.load()
     metrics = {}
     poses, reps = (3, 1) if quick else (10, 3)
-    for name, build in _rigs(quick):
+    builders = dict(_rigs(quick))
+    for name, build in builders.items():
         print(f"bench rig: building {name}", file=sys.stderr)
         metrics.update(_measure(name, build, poses, reps))
+    for name in ("hybrid", "driver", "rigify"):
+        if name in builders:
+            metrics.update(_measure_take(name, builders[name], 30 if quick else 40))
+    if "rigify" in builders:
+        metrics.update(_measure_long_take(builders["rigify"], quick))
     errs = [v for k, v in metrics.items() if k.startswith("rig_drag_pin_err_max_")]
     metrics["rig_drag_pin_err_goal_met"] = bool(errs) and max(errs) <= 1e-3
     return metrics

@@ -9,7 +9,9 @@ location or scale; the property or slider value) and the depsgraph is brought ba
 keyed.
 
 The Jacobian is by forward finite differences: one channel moved, one depsgraph update, one read per channel
-(cost: n evaluations of the whole rig — on a production rig, n × the viewport's own re-evaluation time).
+(cost: n evaluations of the whole rig — on a production rig, n × the viewport's own re-evaluation time), except
+the shape-key slider columns when only linear-blend Armature modifiers deform after the shape keys and nothing
+reads the sliders back: those are exact and cost no evaluation (:mod:`bridge.rig.analytic`).
 
 Refusals (:class:`~core.result.ShapeSpaceError`, one line naming the culprit), checked when the evaluator
 opens (:meth:`RigEvaluator.check`):
@@ -34,6 +36,7 @@ from ...core.blendshape import bounding_box_diagonal
 from ...core.errors import ErrorCode
 from ...core.result import ShapeSpaceError
 from ...core.rig import ChannelKind, ControlSet, RigSolveResult, solve_controls
+from .analytic import shape_key_columns
 from .channels import bind
 
 __all__ = ["RigEvaluator", "apply_controls", "read_controls", "solve_pins"]
@@ -107,9 +110,12 @@ class RigEvaluator:
         Vertex indices of the evaluated mesh (the same as the original's: topology-changing modifiers refused).
     check : bool
         Run :meth:`check` on entry (the probe measures natural scales and finite-difference steps).
+    analytic : bool
+        Use the analytic slider columns where they apply (:mod:`bridge.rig.analytic`; ``analytic_reason``
+        says why not after the first Jacobian).
     """
 
-    def __init__(self, mesh_obj, controls: ControlSet, indices, check: bool = True):
+    def __init__(self, mesh_obj, controls: ControlSet, indices, check: bool = True, analytic: bool = True):
         if mesh_obj is None or mesh_obj.type != "MESH":
             raise ShapeSpaceError(f"{getattr(mesh_obj, 'name', mesh_obj)!r} is not a mesh object", ErrorCode.NOT_MESH)
         self.mesh_obj = mesh_obj
@@ -131,6 +137,10 @@ class RigEvaluator:
         self._do_check = check
         self.steps = controls.steps()
         self.diagonal = float("nan")
+        self.use_analytic = analytic
+        self.analytic_reason = ""
+        self._columns = None
+        self._at = None
 
     # -- context: restore everything ------------------------------------------------------------------------
     def __enter__(self) -> RigEvaluator:
@@ -164,6 +174,7 @@ class RigEvaluator:
         """
         if c is not None:
             self._write(c)
+        self._at = None if c is None else np.array(c, dtype=np.float64)
         self.evaluations += 1
         dg = bpy.context.evaluated_depsgraph_get()
         dg.update()
@@ -182,14 +193,35 @@ class RigEvaluator:
         """World-space evaluated positions of the vertices at ``indices`` (p, 3) for controls ``c`` (n,)."""
         return self.all_points(c)[self.indices]
 
+    def _analytic_columns(self):
+        """The slider columns' computer (:mod:`bridge.rig.analytic`), built at the first use; None when off."""
+        if self._columns is None:
+            if self.use_analytic:
+                cols, self.analytic_reason = shape_key_columns(self.mesh_obj, self.controls, self.ids, self.indices)
+            else:
+                cols, self.analytic_reason = None, "off"
+            self._columns = (cols,)
+        return self._columns[0]
+
     def jacobian(self, c, base=None) -> np.ndarray:
-        """Forward-difference Jacobian (3p, n) at ``c``: one channel moved, one depsgraph update per channel."""
+        """Jacobian (3p, n) at ``c``: analytic slider columns where they apply (module doc), the others by
+        forward differences (one channel moved, one depsgraph update per channel)."""
         c = np.asarray(c, dtype=np.float64)
         lo, hi = self.controls.solve_bounds(self.c0)
-        p0 = (self.evaluate(c) if base is None else np.asarray(base, np.float64)).reshape(-1)
-        self._write(c)
+        fast = self._analytic_columns()
+        if base is None or (fast is not None and not np.array_equal(self._at, c)):
+            p0 = self.evaluate(c).reshape(-1)           # the analytic columns need the rig evaluated at c
+        else:
+            p0 = np.asarray(base, np.float64).reshape(-1)
         J = np.zeros((p0.size, c.size))
+        skip = set()
+        if fast is not None:
+            J[:, fast.columns] = fast()
+            skip = set(fast.columns)
+        self._write(c)
         for i, b in enumerate(self.bindings):
+            if i in skip:
+                continue
             h = self.steps[i]
             step = h if c[i] + h <= hi[i] or c[i] - h < lo[i] else -h
             b.set(c[i] + step)

@@ -27,7 +27,9 @@ Stopping: ``OK`` when every pin is within ``pin_tol`` of its target, or when, on
 the bounded Gauss–Newton step predicts a decrease below ``ftol`` × f (first-order stationarity on the box, up
 to the evaluation's rounding), or when a step computed on a fresh Jacobian is refused although no channel moves
 by more than its finite-difference step (stationary to the resolution of the Jacobian: a smaller step is
-below what the Jacobian can resolve); ``NOT_CONVERGED`` (value: the best controls found, which never have a higher
+below what the Jacobian can resolve), or — with ``xtol`` > 0 — when the bounded Gauss–Newton step on the current
+Jacobian, fresh or Broyden-updated, would move no pin by more than ``xtol`` (a take's frames, :mod:`.take`);
+``NOT_CONVERGED`` (value: the best controls found, which never have a higher
 objective than the start) at the iteration limit or when no step decreases the objective although the model
 predicts one.
 """
@@ -65,6 +67,9 @@ class RigSolveResult(Result):
         Rig evaluations made (trial steps and finite differences).
     jacobians : int
         Jacobians computed (finite differences or the caller's), the first included.
+    jacobian : ndarray (3p, n)
+        The last Jacobian (fresh or Broyden-updated, unweighted rows; zero rows for zero-weight pins): a start
+        for the next solve near ``value`` (``first_jacobian``; a take's next frame).
     """
 
     points: np.ndarray = None
@@ -73,6 +78,7 @@ class RigSolveResult(Result):
     objective_start: float = np.nan
     evaluations: int = 0
     jacobians: int = 0
+    jacobian: np.ndarray = None
 
     @property
     def x(self) -> np.ndarray:
@@ -201,7 +207,7 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
                    steps: ArrayLike | None = None, weights: ArrayLike | None = None,
                    reference: ArrayLike | None = None, mu: float = 1e-6, pin_tol: float = 0.0,
                    ftol: float = 1e-10, max_iter: int = 50, first_jacobian: np.ndarray | None = None,
-                   first_points: np.ndarray | None = None) -> RigSolveResult:
+                   first_points: np.ndarray | None = None, xtol: float = 0.0) -> RigSolveResult:
     """Controls that bring the pins to their targets (bounded, regularised Levenberg–Marquardt; module doc).
 
     Parameters
@@ -238,6 +244,10 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         it can stop the solve).
     first_points : ndarray (p, 3), optional
         ``evaluate(c0)`` when already known.
+    xtol : float
+        Also stop (``OK``) when the bounded Gauss–Newton step on the current Jacobian, fresh or Broyden-updated,
+        would move no pin by more than this distance (0: off).  A take solved frame after frame stops on it
+        without recomputing the Jacobian every frame.
 
     Returns
     -------
@@ -295,10 +305,14 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
             status, message = Status.OK, "every pin within tolerance"
             break
         D2 = np.maximum(np.einsum("ij,ij->j", J, J) + reg_w, 1e-12 * np.max(s * s))
-        if fresh:
+        if fresh or xtol > 0:
             d_gn = _step(J, e, reg_w, c, ref, 1e-9, D2, lo, hi)
-            if f - _model(J, e, reg_w, c, ref, d_gn) <= ftol * f + 1e-300:
+            if fresh and f - _model(J, e, reg_w, c, ref, d_gn) <= ftol * f + 1e-300:
                 status, message = Status.OK, "stationary on the bounds"
+                break
+            moved = (J @ d_gn / np.where(sw > 0, sw, 1.0)).reshape(-1, 3) if xtol > 0 else None
+            if moved is not None and np.max(np.linalg.norm(moved, axis=1)) <= xtol:
+                status, message = Status.OK, "the Gauss–Newton step moves no pin by more than xtol"
                 break
         if it >= max_iter:
             message = f"stopped after {it} steps, pins up to {np.max(np.linalg.norm(P - t, axis=1)):.3g} away"
@@ -341,8 +355,9 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
                     break
         lam = max(lam, 1e-12)
     errs = np.linalg.norm(P - t, axis=1)
+    J /= np.where(sw > 0, sw, 1.0)[:, None]
     return RigSolveResult(c, status=status, message=message, iterations=it, points=P, pin_errors=errs,
                           objective=f, objective_start=f_start, evaluations=counts["evaluations"],
-                          jacobians=counts["jacobians"],
+                          jacobians=counts["jacobians"], jacobian=J,
                           diagnostics={"lambda": lam, "pin_error_max": float(errs.max()),
                                        "objective_history": history})

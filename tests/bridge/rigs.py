@@ -318,8 +318,55 @@ def pin_vertices(rig: Rig, count: int, rng) -> np.ndarray:
     return np.sort(np.array(chosen, dtype=np.int64))
 
 
+def smooth_take(rig: Rig, rng, frames: int, spread: float = 0.8) -> np.ndarray:
+    """Random smooth control curves (F, n) of ``frames`` frames: per channel a sum of three low-frequency sines
+    with random phases, rescaled into the inner ``spread`` of the channel's pose range (:meth:`Rig.random_pose`'s
+    range: the rest value on a bound stays a bound)."""
+    lo = rig.controls.lo if rig.pose_lo is None else rig.pose_lo
+    hi = rig.controls.hi if rig.pose_hi is None else rig.pose_hi
+    c0 = brig.read_controls(rig.controls)
+    a = np.where(c0 <= lo, lo, c0 - spread * (c0 - lo))
+    b = c0 + spread * (hi - c0)
+    n = len(c0)
+    t = np.linspace(0.0, 1.0, frames)[:, None]
+    u = sum(np.sin(2 * np.pi * (k + 1) * t * rng.uniform(0.3, 1.0, n) + rng.uniform(0, 2 * np.pi, n)) / (k + 1)
+            for k in range(3))
+    u = 0.5 + 0.5 * (u - u.mean(0)) / np.abs(u - u.mean(0)).max(0)
+    return a + u * (b - a)
+
+
+def take_surface(rig: Rig, values) -> np.ndarray:
+    """Blender's evaluated world-space surface (F, V, 3) of the rig at each row of control ``values`` (F, n);
+    the rig is given back its controls."""
+    c0 = brig.read_controls(rig.controls)
+    out = []
+    for c in values:
+        brig.apply_controls(rig.controls, c)
+        out.append(rig.world_points())
+    brig.apply_controls(rig.controls, c0)
+    return np.stack(out)
+
+
+def take_vertices(rig: Rig, rng, every: int = 20) -> np.ndarray:
+    """The vertices a test take targets: pins spread over the channels (:func:`pin_vertices`, two per channel,
+    10–40) plus every ``every``-th vertex."""
+    pins = pin_vertices(rig, int(np.clip(2 * len(rig.controls), 10, 40)), rng)
+    return np.union1d(pins, np.arange(0, len(rig.mesh.data.vertices), every))
+
+
+def played_surface(rig: Rig, frames) -> np.ndarray:
+    """Blender's evaluation of the rig as its actions play (``frame_set``), at each frame (F, V, 3)."""
+    scene = bpy.context.scene
+    out = []
+    for f in frames:
+        scene.frame_set(int(f))
+        out.append(rig.world_points())
+    return np.stack(out)
+
+
 def diagonal(points) -> float:
     return float(np.linalg.norm(points.max(0) - points.min(0)))
 
 
-__all__ = ["Rig", "driver_rig", "hybrid_rig", "load_head", "pin_vertices", "diagonal"]
+__all__ = ["Rig", "driver_rig", "hybrid_rig", "load_head", "pin_vertices", "diagonal", "played_surface",
+           "smooth_take", "take_surface", "take_vertices"]
