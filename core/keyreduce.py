@@ -764,60 +764,79 @@ def _absorb_keys(t: np.ndarray, V: np.ndarray, idx: list, kv: list, km: list, to
     C = len(idx)
     sweep = [0] * C
     failed = [{} for _ in range(C)]
-    lanes = [_start_lanes(c, (list(idx[c]), list(kv[c]), list(km[c]))) for c in range(C)]
-    for c in range(C):
-        if not lanes[c]:
-            lanes[c] = None
+    lanes = [_start_lanes(c, (list(idx[c]), list(kv[c]), list(km[c]))) or None for c in range(C)]
     running = [ln for c in range(C) if lanes[c] for ln in lanes[c]]
     step = 0
     while running:
         step += 1
         if progress is not None and step % 32 == 0:                  # the first sweep dominates the work
-            notify(progress, sum(1.0 if lanes[c] is None else 0.9 * (sweep[c] > 0 or sum(
-                ln.state != 0 for ln in lanes[c]) / len(lanes[c])) for c in range(C)) / C)
-        tests, sigs, owners, still, touched = [], [], [], [], set()
-        for lane in running:
-            if lane.state != 0:
-                continue
-            nxt = _lane_advance(lanes[lane.curve], lane, failed[lane.curve])
-            if nxt is not None:
-                q, a, b, sig = nxt
-                tests.append((len(owners), q, a, b))
-                owners.append(lane)
-                sigs.append(sig)
-            if lane.state == 0:
-                still.append(lane)
-            else:
-                touched.add(lane.curve)
+            notify(progress, _absorb_done(lanes, sweep))
+        tests, sigs, owners, still, touched = _next_tests(running, lanes, failed)
         if tests:
-            res = []
-            for lo in range(0, len(tests), _BATCH_TESTS):             # cache-sized batches
-                part = owners[lo:lo + _BATCH_TESTS]
-                res += _absorb_batch(t, V, [(k, q, a, b) for k, (_, q, a, b) in enumerate(tests[lo:lo + _BATCH_TESTS])],
-                                     [ln.i for ln in part], [ln.v for ln in part], [ln.m for ln in part], tol,
-                                     [ln.curve for ln in part], sigs[lo:lo + _BATCH_TESTS])
-            for (_, q, _, _), sig, lane, x in zip(tests, sigs, owners, res):
-                if x is None:
-                    failed[lane.curve][lane.i[q]] = sig
-                    lane.q += 1
-                else:
-                    lane.v[q - 1], lane.m[q - 1], lane.v[q + 1], lane.m[q + 1] = x
-                    del lane.i[q], lane.v[q], lane.m[q]
+            _run_tests(t, V, tol, tests, sigs, owners, failed)
         for c in touched:
-            if lanes[c] is None:
-                continue
-            out = _lanes_done(lanes[c])
-            if out is None:
-                continue
-            for ln in lanes[c]:                                       # lanes off the chain: not needed
-                if ln.state == 0:
-                    ln.state = 3
-            changed = len(out[0]) < len(lanes[c][0].g[0])
-            idx[c][:], kv[c][:], km[c][:] = out
-            sweep[c] += 1
-            lanes[c] = _start_lanes(c, out) if changed and sweep[c] < max_sweeps else []
-            if not lanes[c]:
-                lanes[c] = None
-            else:
-                still += lanes[c]
+            still += _end_sweep(c, lanes, sweep, (idx, kv, km), max_sweeps)
         running = [ln for ln in still if ln.state == 0]
+
+
+def _absorb_done(lanes: list, sweep: list) -> float:
+    """The fraction of :func:`_absorb_keys`' work done (each curve's first sweep counts 0.9 of it)."""
+    C = len(lanes)
+    return sum(1.0 if lanes[c] is None else 0.9 * (sweep[c] > 0 or sum(
+        ln.state != 0 for ln in lanes[c]) / len(lanes[c])) for c in range(C)) / C
+
+
+def _next_tests(running: list, lanes: list, failed: list) -> tuple:
+    """Advance every running lane to its next test: ``(tests, sigs, owners, still running, curves touched)``."""
+    tests, sigs, owners, still, touched = [], [], [], [], set()
+    for lane in running:
+        if lane.state != 0:
+            continue
+        nxt = _lane_advance(lanes[lane.curve], lane, failed[lane.curve])
+        if nxt is not None:
+            q, a, b, sig = nxt
+            tests.append((len(owners), q, a, b))
+            owners.append(lane)
+            sigs.append(sig)
+        if lane.state == 0:
+            still.append(lane)
+        else:
+            touched.add(lane.curve)
+    return tests, sigs, owners, still, touched
+
+
+def _run_tests(t, V, tol: float, tests: list, sigs: list, owners: list, failed: list) -> None:
+    """Solve the lanes' current tests in cache-sized batches and apply them: a key absorbed is dropped (its
+    neighbours take the fitted values and slopes), a failure is remembered by the keys it read."""
+    res = []
+    for lo in range(0, len(tests), _BATCH_TESTS):
+        part = owners[lo:lo + _BATCH_TESTS]
+        res += _absorb_batch(t, V, [(k, q, a, b) for k, (_, q, a, b) in enumerate(tests[lo:lo + _BATCH_TESTS])],
+                             [ln.i for ln in part], [ln.v for ln in part], [ln.m for ln in part], tol,
+                             [ln.curve for ln in part], sigs[lo:lo + _BATCH_TESTS])
+    for (_, q, _, _), sig, lane, x in zip(tests, sigs, owners, res):
+        if x is None:
+            failed[lane.curve][lane.i[q]] = sig
+            lane.q += 1
+        else:
+            lane.v[q - 1], lane.m[q - 1], lane.v[q + 1], lane.m[q + 1] = x
+            del lane.i[q], lane.v[q], lane.m[q]
+
+
+def _end_sweep(c: int, lanes: list, sweep: list, keys: tuple, max_sweeps: int) -> list:
+    """When curve ``c``'s lanes have chained through the whole sweep, take its keys and start the next sweep
+    (while it still drops keys, at most ``max_sweeps``); the new lanes to run (none otherwise)."""
+    if lanes[c] is None:
+        return []
+    out = _lanes_done(lanes[c])
+    if out is None:
+        return []
+    for ln in lanes[c]:                                       # lanes off the chain: not needed
+        if ln.state == 0:
+            ln.state = 3
+    changed = len(out[0]) < len(lanes[c][0].g[0])
+    idx, kv, km = keys
+    idx[c][:], kv[c][:], km[c][:] = out
+    sweep[c] += 1
+    lanes[c] = (_start_lanes(c, out) if changed and sweep[c] < max_sweeps else []) or None
+    return lanes[c] or []

@@ -10,6 +10,7 @@ the Ready Player Me head under its armature, posed.
 from __future__ import annotations
 
 import csv
+import functools
 import os
 import time
 
@@ -102,7 +103,6 @@ def peers(P, q, lo, hi, R, m, w0, alpha, mu, reps):
 def solve_speed(quick):
     from shapespace.bridge import assets, shapekeys
     import copy
-
     from shapespace.core.manipulation import DragSession, solve_drag
     import bpy
 
@@ -122,22 +122,22 @@ def solve_speed(quick):
             w0 = np.zeros(model.n_targets)
             lo, hi = model.slider_min, model.slider_max
             P, q, const, R, m = qp_matrices(model, pins, targets, w0)
-            cold_ms, res = timed(lambda: solve_drag(model, pins, targets, w0), reps)
+            cold_ms, res = timed(functools.partial(solve_drag, model, pins, targets, w0), reps)
             # interactive: the same drag reached through 10 mouse moves, each warm-started
             path = [pins_t for pins_t in np.linspace(0.1, 1.0, 10)]
             rest = pin_rest(model, pins)
             started = DragSession()
             solve_drag(model, pins, rest, w0, session=started)
 
-            def drag_sequence():
+            def drag_sequence(model, pins, rest, targets, w0, started, path):
                 session = copy.copy(started)
                 for t in path:
                     last = solve_drag(model, pins, (1 - t) * rest + t * targets, w0, session=session)
                 return last
-            warm_ms, _ = timed(drag_sequence, reps)
+            warm_ms, _ = timed(functools.partial(drag_sequence, model, pins, rest, targets, w0, started, path), reps)
             warm_ms /= len(path)
             pr = peers(P, q, lo, hi, R, m, w0, 0.1, 0.001, max(1, reps // 3))
-            f = lambda x: 0.5 * x @ P @ x + q @ x + const  # noqa: E731
+            f = lambda x, P=P, q=q, const=const: 0.5 * x @ P @ x + q @ x + const  # noqa: E731
             best_obj = min(f(x) for _, x in pr.values())
             gaps.append(max(0.0, (f(res.weights) - best_obj) / abs(best_obj)))
             peer_best = min(ms for ms, _ in pr.values())

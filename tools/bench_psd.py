@@ -20,6 +20,7 @@ REGIONS = {  # region: (asset, mesh, joints) — rpm_brunette is read from share
                   "LeftHandPinky2"]),
 }
 KS = (2, 4, 8, 16, 32)
+N_TRAIN = max(KS)
 #: Curves: skinning only, PSD, Shape-by-Example, weighted PSD (skin-weighted distance), weighted PSD's "Blended"
 #: option (per region by leave-one-out: skin-weighted, blended with the global distance, or bone pairs) and its
 #: "Bone Pairs" option.  ``wpsd_examples_for_psd32_<region>`` is the Blended option's; the skin-weighted one's is
@@ -111,7 +112,7 @@ def _bulge(region, quats):
     return 0.05 * local * a * fall[:, None] * off / (np.linalg.norm(off, axis=1, keepdims=True) + 1e-12)
 
 
-def _examples(region, rng, ref, n_train=max(KS), n_test=100):
+def _examples(region, rng, ref, n_train=N_TRAIN, n_test=100):
     """One draw of the benchmark: ``n_train`` example poses (features and rest-space correctives) and
     ``n_test`` held-out test poses (features, skinning pose, true deformed mesh), every joint bent about its
     own axis independently; ``ref`` "dqs" (the dual-quaternion look) or "bulge"."""

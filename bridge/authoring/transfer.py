@@ -137,35 +137,9 @@ def _write(target, rig: SourceRig, names: dict, write: list, replace: list, full
     try:
         if made_key:
             target.shape_key_add(name="Basis", from_mix=False)
+        group_names = _write_groups(target, masks, old_groups, replace_groups, new_groups, swap_groups)
+        _write_keys(target, rig, names, write, live, [base + full[index[n]] for n in write], report)
         blocks = target.data.shape_keys.key_blocks
-        group_names = {}
-        for j, (group, weights) in enumerate(masks.items()):
-            if group in old_groups and not replace_groups:
-                group_names[group] = group                       # "skip": the target's own group is kept
-                continue
-            made = target.vertex_groups.new(name=group if group not in old_groups else f"{_TMP}g{j}")
-            new_groups.append(made.name)
-            _fill_group(made, weights)
-            group_names[group] = group
-            if group in old_groups:
-                swap_groups[made.name] = group
-        for n in write:
-            if n in rig.inbetweens or n in rig.combinations:
-                continue
-            kb = target.shape_key_add(name=live[n], from_mix=False)
-            write_float(kb.data, "co", base + full[index[n]])
-        for n in [n for n in write if n in rig.inbetweens] + [n for n in write if n in rig.combinations]:
-            tmp = target.shape_key_add(name=_TMP, from_mix=False)
-            write_float(tmp.data, "co", base + full[index[n]])
-            if n in rig.inbetweens:
-                v = rig.inbetweens[n]
-                driven.add_inbetween(target, live.get(v["primary"], names[v["primary"]]), tmp.name,
-                                     float(v["at"]), name=live[n])
-                report.inbetweens.append(names[n])
-            else:
-                inputs = [live.get(i, names[i]) for i in rig.combinations[n]["inputs"]]
-                driven.add_combination(target, inputs, tmp.name, name=live[n])
-                report.combinations.append(names[n])
         for n in write:
             kb = blocks[live[n]]
             i = index[n]
@@ -177,24 +151,72 @@ def _write(target, rig: SourceRig, names: dict, write: list, replace: list, full
     except Exception:
         _undo_write(target, old_keys, new_groups, made_key, old_meta)
         raise
-    # everything is written: now replace the old keys and groups (plain renames and removals)
+    _swap_in(target, replace, {live[n]: names[n] for n in write}, swap_groups)
+    report.overwritten = list(replace)
+    report.created = [names[n] for n in write]
+    report.vertex_groups = sorted(group_names.values())
+    target.data.update()
+
+
+def _write_groups(target, masks: dict, old_groups: set, replace_groups: bool, new_groups: list,
+                  swap_groups: dict) -> dict:
+    """Write the mask vertex groups (those replacing a group under temporary names, listed in ``swap_groups``;
+    every new group appended to ``new_groups`` as it is made, for the undo); source group → target group."""
+    group_names = {}
+    for j, (group, weights) in enumerate(masks.items()):
+        if group in old_groups and not replace_groups:
+            group_names[group] = group                       # "skip": the target's own group is kept
+            continue
+        made = target.vertex_groups.new(name=group if group not in old_groups else f"{_TMP}g{j}")
+        new_groups.append(made.name)
+        _fill_group(made, weights)
+        group_names[group] = group
+        if group in old_groups:
+            swap_groups[made.name] = group
+    return group_names
+
+
+def _write_keys(target, rig: SourceRig, names: dict, write: list, live: dict, coords: list,
+                report: TransferReport) -> None:
+    """Add the keys of ``write`` under their ``live`` names with ``coords`` (one array per key, in ``write``'s
+    order): plain keys first, then in-betweens and combinations through the driven verbs."""
+    co = dict(zip(write, coords))
+    for n in write:
+        if n in rig.inbetweens or n in rig.combinations:
+            continue
+        kb = target.shape_key_add(name=live[n], from_mix=False)
+        write_float(kb.data, "co", co[n])
+    for n in [n for n in write if n in rig.inbetweens] + [n for n in write if n in rig.combinations]:
+        tmp = target.shape_key_add(name=_TMP, from_mix=False)
+        write_float(tmp.data, "co", co[n])
+        if n in rig.inbetweens:
+            v = rig.inbetweens[n]
+            driven.add_inbetween(target, live.get(v["primary"], names[v["primary"]]), tmp.name,
+                                 float(v["at"]), name=live[n])
+            report.inbetweens.append(names[n])
+        else:
+            inputs = [live.get(i, names[i]) for i in rig.combinations[n]["inputs"]]
+            driven.add_combination(target, inputs, tmp.name, name=live[n])
+            report.combinations.append(names[n])
+
+
+def _swap_in(target, replace: list, renames: dict, swap_groups: dict) -> None:
+    """Everything is written: replace the old keys and groups (plain renames and removals; drivers referring to
+    a renamed key follow it)."""
+    blocks = target.data.shape_keys.key_blocks
     for name in replace:                                         # validated: never the reference key
         old = blocks[name]
         old.driver_remove("value")
         target.shape_key_remove(old)
-    for n in write:
-        if live[n] != names[n]:
-            blocks[live[n]].name = names[n]                      # drivers referring to it follow the rename
+    for tmp_name, final in renames.items():
+        if tmp_name != final:
+            blocks[tmp_name].name = final
     for tmp_name, final in swap_groups.items():
         target.vertex_groups.remove(target.vertex_groups[final])
         target.vertex_groups[tmp_name].name = final
     if replace:
         key = target.data.shape_keys
         storage.write_id_blob(key, driven.PROP, driven.SCHEMA, driven.prune(key))
-    report.overwritten = list(replace)
-    report.created = [names[n] for n in write]
-    report.vertex_groups = sorted(group_names.values())
-    target.data.update()
 
 
 def _undo_write(target, old_keys: set, groups: list, made_key: bool, old_meta) -> None:

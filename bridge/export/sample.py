@@ -150,7 +150,7 @@ def sample_meshes(meshes, scene, frames) -> dict:
     try:
         for i, f in enumerate(frames):
             scene.frame_set(f)
-            for ob, key, ranges, muted, ps, samples in jobs:
+            for _ob, key, ranges, muted, ps, samples in jobs:
                 row = _effective_weights(key, ranges, muted)
                 if ps is not None:
                     mesh = ps.apply(row)

@@ -343,7 +343,7 @@ def test_driven_targets_follow_pose_space_and_bake(registered, tmp_path):
         bpy.ops.shapespace.psd_add_target(data_path="not.a.path")
     values = [(1.0, 0.0), (1.4, 0.8)]
     poses = [(1, 0, 0, 0), (0.8, 0.6, 0.0, 0.0)]
-    for i, (q, (sx, ex)) in enumerate(zip(poses, values)):
+    for q, (sx, ex) in zip(poses, values):
         _pose(arm, bone, q)
         bpy.ops.shapespace.psd_add_example(sculpt_copy=False)
         arm.pose.bones[other].scale[0] = sx

@@ -36,7 +36,7 @@ def _rig():
     rest = co.reshape(-1, 3)
     size = bounding_box_diagonal(rest)
     for k, q in enumerate(QUATS):
-        for j, pb in enumerate(bones):
+        for pb in bones:
             pb.rotation_quaternion = q if j == k % 3 else (1, 0, 0, 0)
         bpy.context.view_layer.update()
         name = posespace.add_example(ob, make_sculpt_copy=False)

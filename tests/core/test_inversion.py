@@ -9,9 +9,9 @@ from core.skinning import ArmatureDeform, SkinningRig, SkinWeights, deform
 
 
 # ------------------------------------------------------------------ helpers
-def mat4(r=np.eye(3), t=(0.0, 0.0, 0.0)):
+def mat4(r=None, t=(0.0, 0.0, 0.0)):
     m = np.eye(4)
-    m[:3, :3] = r
+    m[:3, :3] = np.eye(3) if r is None else r
     m[:3, 3] = t
     return m
 
@@ -317,7 +317,7 @@ def test_zero_scale_bone_with_general_rest_matrices_is_singular():
     for seed in range(12):
         rng = np.random.default_rng(seed)
         rig, pose = collapse_rig(np.stack([random_rigid(rng) for _ in range(2)]))
-        f = lambda x: deform(x, rig, [pose])
+        f = lambda x, rig=rig, pose=pose: deform(x, rig, [pose])  # noqa: E731
         rest = rng.normal(size=(6, 3))
         with pytest.raises(ShapeSpaceError) as e:
             invert_deformation(f, rest, f(rest) + 0.1)

@@ -158,7 +158,8 @@ def test_key_reduction_work_is_linear_in_the_take_length(monkeypatch):
     work = []
     for count in (820, 3280):
         tests = []
-        monkeypatch.setattr(keyreduce, "_absorb_batch", lambda t, V, b, *a: tests.append(len(b)) or batch(t, V, b, *a))
+        monkeypatch.setattr(keyreduce, "_absorb_batch",
+                            lambda t, V, b, *a, tests=tests: tests.append(len(b)) or batch(t, V, b, *a))
         reduce_keys_bezier_curves(frames[:count], dense[:count, :12], 0.01)
         work.append(sum(tests))
     assert work[1] < 8.0 * work[0] + 10     # 4× the frames: ~4× the tests (not 16×)

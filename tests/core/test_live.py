@@ -342,7 +342,7 @@ def test_dense_box_qp_matches_the_reference_box_qp():
     from core.boxqp import solve_box_qp
     from core.live import dense_box_qp
     rng = np.random.default_rng(8)
-    for trial in range(30):
+    for _trial in range(30):
         n = int(rng.integers(2, 40))
         A = rng.normal(size=(n + 5, n))
         H = A.T @ A + 1e-3 * np.eye(n)

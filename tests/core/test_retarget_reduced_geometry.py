@@ -46,7 +46,7 @@ def test_perframe_equals_the_per_vertex_formulation_and_scipy():
         A = np.vstack([Bl, np.sqrt(reg) * np.eye(Bl.shape[1])])
         rhs = np.concatenate([raw[f, live] @ Bl.T, np.zeros(Bl.shape[1])])
         ref = lsq_linear(A, rhs, bounds=(0, 1), tol=1e-13, lsmr_tol="auto").x
-        cost = lambda w: np.sum((A @ w - rhs) ** 2)    # noqa: E731
+        cost = lambda w, A=A, rhs=rhs: np.sum((A @ w - rhs) ** 2)    # noqa: E731
         assert cost(got[f, live]) <= cost(ref) * (1 + 1e-7) + 1e-12
     assert np.all(got[:, ~live] == np.clip(raw[:, ~live], 0, 1))
 

@@ -19,9 +19,9 @@ def rot_axis_angle(axis, angle):
     return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
-def mat4(r=np.eye(3), t=(0, 0, 0)):
+def mat4(r=None, t=(0, 0, 0)):
     m = np.eye(4)
-    m[:3, :3] = r
+    m[:3, :3] = np.eye(3) if r is None else r
     m[:3, 3] = t
     return m
 
@@ -47,7 +47,9 @@ def apply(m, pts):
     return pts @ m[:3, :3].T + m[:3, 3]
 
 
-def make_rig(weights, rest, mesh_world=np.eye(4), arm_world=np.eye(4), dqs=False, mask=None):
+def make_rig(weights, rest, mesh_world=None, arm_world=None, dqs=False, mask=None):
+    mesh_world = np.eye(4) if mesh_world is None else mesh_world
+    arm_world = np.eye(4) if arm_world is None else arm_world
     d = ArmatureDeform(weights, [f"b{i}" for i in range(len(rest))], rest, arm_world,
                        preserve_volume=dqs, vertex_mask=mask)
     return SkinningRig(mesh_world, [d])

@@ -308,7 +308,7 @@ def active_set(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo: np.n
     upper, lower = Y >= yhi, Y <= ylo
     seen = set()
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 — the count is read after the loop
         Yn = np.where(upper, yhi, np.where(lower, ylo, Y))
         act = upper | lower
         Yn = Yn + reduced_step(system, act, R0 - system.apply(Yn), scale, max_exact_active)
@@ -356,7 +356,7 @@ def projected_newton(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo
     f = system.objective(Y, R0)
     status, message = Status.NOT_CONVERGED, "iteration limit reached"
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 — the count is read after the loop
         g = system.apply(Y) - R0
         nat = float(np.abs(Y - np.clip(Y - g, ylo, yhi)).max())
         if nat <= tol * scale:
