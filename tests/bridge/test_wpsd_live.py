@@ -36,7 +36,7 @@ def _rig():
     rest = co.reshape(-1, 3)
     size = bounding_box_diagonal(rest)
     for k, q in enumerate(QUATS):
-        for pb in bones:
+        for j, pb in enumerate(bones):
             pb.rotation_quaternion = q if j == k % 3 else (1, 0, 0, 0)
         bpy.context.view_layer.update()
         name = posespace.add_example(ob, make_sculpt_copy=False)
@@ -44,7 +44,7 @@ def _rig():
         disp = 0.01 * size * np.sin(rest * (3.0 + k) / size + k)
         kb.points.foreach_set("co", (rest + disp).astype(np.float32).ravel())
     ob.data.update()
-    for j, pb in enumerate(bones):
+    for pb in bones:
         pb.rotation_quaternion = (0.92, 0.2, 0.25, 0.1)
     bpy.context.view_layer.update()
     return ob, arm, rest.astype(np.float64), size
