@@ -22,6 +22,7 @@ from contextlib import contextmanager
 import bpy
 import numpy as np
 
+from ...core.cache import BoundedCache
 from ...core.errors import ErrorCode
 from ...core.posespace.finalshape import (array_digest, compare_fingerprints, decode_array, encode_array,
                                           lbs_affine_maps, touched_vertices)
@@ -366,23 +367,22 @@ def stale_examples(obj) -> list:
     return found
 
 
-_CACHE: dict = {}
+#: The panel's stale-example checks by (mesh, revision, example count): (time, findings).
+STALE_CHECKS = BoundedCache("stale-example checks of the pose-space panel", capacity=64)
 
 
 def stale_examples_cached(obj, max_age: float = 1.0) -> list:
     """:func:`stale_examples` at most once per ``max_age`` seconds per mesh (for a panel's draw; never raises)."""
     key = (obj.name_full, settings(obj).revision, len(settings(obj).examples))
     now = time.monotonic()
-    hit = _CACHE.get(key)
-    if hit is not None and now - hit[0] < max_age:
+    hit = STALE_CHECKS.get(key, valid=lambda e: now - e[0] < max_age)
+    if hit is not None:
         return hit[1]
     try:
         value = stale_examples(obj)
     except Exception as exc:      # a draw must not fail: say what could not be read
         value = [("", "error", f"cannot check the examples: {exc}")]
-    if len(_CACHE) > 64:
-        _CACHE.clear()
-    _CACHE[key] = (now, value)
+    STALE_CHECKS.put(key, (now, value))
     return value
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...core.cache import BoundedCache
 from ...core.errors import ErrorCode
 from ...core.result import ShapeSpaceError
 from .. import shapekeys
@@ -71,26 +72,25 @@ def _fingerprint(obj) -> tuple:
             _checksum(key, [ex.name for ex in st.examples], len(obj.data.vertices)) if key else ())
 
 
-#: Trained models by object ``session_uid``: (fingerprint, deformer, names, driver).
-_MODELS: dict = {}
+#: Trained models by object ``session_uid``: (fingerprint, deformer, names, driver); models of 30k vertices are
+#: tens of MB, so four are kept.
+MODELS = BoundedCache("trained pose-space models", capacity=4)
 
 
 def forget_models() -> None:
     """Forget every cached model (they are retrained at their next use)."""
-    _MODELS.clear()
+    MODELS.clear()
 
 
 def cached_model(obj) -> tuple:
     """``(deformer, names, driver)`` of ``obj``, trained only when its fingerprint changed."""
     fp = _fingerprint(obj)
-    entry = _MODELS.get(obj.session_uid)
-    if entry is not None and entry[0] == fp:
+    entry = MODELS.get(obj.session_uid, valid=lambda e: e[0] == fp)
+    if entry is not None:
         return entry[1:]
     deformer, names = trained_deformer(obj)
     driver = target_driver(obj)
-    if len(_MODELS) >= 4:                                # models of 30k vertices are tens of MB
-        _MODELS.clear()
-    _MODELS[obj.session_uid] = (fp, deformer, names, driver)
+    MODELS.put(obj.session_uid, (fp, deformer, names, driver))
     return deformer, names, driver
 
 

@@ -26,6 +26,7 @@ take (:class:`RigTakeReport`, the frames concerned listed in its issues).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Callable
 
 import numpy as np
@@ -226,7 +227,7 @@ def solve_take(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo: Arr
                          diagnostics={"ridge_unit": unit})
 
 
-def take_report(result: RigTakeResult, frames: ArrayLike, names) -> RigTakeReport:
+def take_report(result: RigTakeResult, frames: ArrayLike, names: Sequence[str]) -> RigTakeReport:
     """The :class:`RigTakeReport` of a solved take: ``frames`` (F,) are the frame numbers of its rows, ``names``
     the channel names; frames that did not converge are listed (by frame number) in one warning issue."""
     frames = np.asarray(frames, dtype=np.float64).reshape(-1)

@@ -281,7 +281,7 @@ def test_panel_names_the_stale_examples_and_offers_reinvert_and_capture(register
     assert ("operator", "shapespace.push_sculpt_masked") in log
     _reweight(ob, finalshape.final_shape_positions(ob, names[0])[0])
     ob.shapespace_psd.examples[1].final_shape = ""
-    finalshape._CACHE.clear()                 # the panel re-checks at most once a second
+    finalshape.STALE_CHECKS.clear()                 # the panel re-checks at most once a second
     log = _draw_all(bpy.context)["SHAPESPACE_PT_correctives"]
     labels = [text for kind, text in log if kind == "label"]
     assert any(t.startswith(f"{names[0]}: ") and "skin weights" in t for t in labels)
