@@ -24,6 +24,7 @@ Limits (each refusal is a :class:`~core.result.ShapeSpaceError` naming the file 
 """
 from __future__ import annotations
 
+import codecs
 import csv
 import math
 import os
@@ -45,7 +46,7 @@ from ..result import Issue, ShapeSpaceError
 from ..validate import array
 
 __all__ = ["WeightStream", "parse_timecode", "read_live_link_csv", "resample", "finish_stream", "read_capture_text",
-           "plain_rows",
+           "read_capture_chunks", "capture_path", "plain_rows",
            "ROTATION_CHANNELS", "MAX_FILE_BYTES", "MAX_TAKE_SECONDS", "MAX_GAP_SECONDS", "MAX_ABS_WEIGHT",
            "MAX_RESAMPLE_BYTES"]
 
@@ -521,15 +522,11 @@ def read_capture_text(source: str | os.PathLike) -> tuple:
     A path must be a regular file of at most :data:`MAX_FILE_BYTES`; it is opened without blocking (a FIFO
     never blocks the reader) and checked with ``fstat`` before a byte is read.
     """
-    if isinstance(source, os.PathLike):
-        source = os.fspath(source)
-    if isinstance(source, bytes):
-        source = os.fsdecode(source)
-    if not isinstance(source, str):
-        raise ShapeSpaceError(f"a CSV source must be a path or text, got {type(source).__name__}", ErrorCode.TYPE)
-    if ("\n" in source or "\r" in source) and not _exists(source):
-        return source, None
-    return _read_file(source), source
+    path = capture_path(source)
+    if path is None:
+        text = os.fspath(source)
+        return (os.fsdecode(text) if isinstance(text, bytes) else text), None
+    return _read_file(path), path
 
 
 def _exists(path: str) -> bool:
@@ -539,7 +536,9 @@ def _exists(path: str) -> bool:
         return False
 
 
-def _read_file(path: str) -> str:
+def _open_regular(path: str) -> tuple:
+    """``(fd, size)`` of ``path`` opened without blocking, checked with ``fstat`` before a byte is read: a regular
+    file of at most :data:`MAX_FILE_BYTES` (the caller closes ``fd``)."""
     flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
     try:
         fd = os.open(path, flags)
@@ -561,10 +560,29 @@ def _read_file(path: str) -> str:
             raise ShapeSpaceError(f"{path}: is {info.st_size / 2 ** 20:.0f} MiB; capture files larger than "
                                   f"{MAX_FILE_BYTES / 2 ** 20:.0f} MiB are refused (split the take)",
                                   ErrorCode.TOO_LARGE)
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd, info.st_size
+
+
+def _too_large(path: str) -> ShapeSpaceError:
+    return ShapeSpaceError(f"{path}: is larger than {MAX_FILE_BYTES / 2 ** 20:.0f} MiB; split the take",
+                           ErrorCode.TOO_LARGE)
+
+
+def _not_utf8(path: str, line: int, byte: int) -> ShapeSpaceError:
+    return ShapeSpaceError(f"{path}: line {line}: not UTF-8 text (byte {byte}): not a Live Link Face CSV",
+                           ErrorCode.CORRUPT_FILE)
+
+
+def _read_file(path: str) -> str:
+    fd, size = _open_regular(path)
+    try:
         try:
             with os.fdopen(os.dup(fd), "rb") as fh:
-                data = fh.read(info.st_size + 1)          # not a MAX_FILE_BYTES buffer for every read
-                if len(data) > info.st_size:              # it grew since fstat
+                data = fh.read(size + 1)                  # not a MAX_FILE_BYTES buffer for every read
+                if len(data) > size:                      # it grew since fstat
                     data += fh.read(MAX_FILE_BYTES + 1 - len(data))
         except OSError as exc:
             raise ShapeSpaceError(f"{path}: cannot be read ({exc.strerror or exc})", ErrorCode.CORRUPT_FILE) \
@@ -572,14 +590,60 @@ def _read_file(path: str) -> str:
     finally:
         os.close(fd)
     if len(data) > MAX_FILE_BYTES:
-        raise ShapeSpaceError(f"{path}: is larger than {MAX_FILE_BYTES / 2 ** 20:.0f} MiB; split the take",
-                              ErrorCode.TOO_LARGE)
+        raise _too_large(path)
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        line = data[:exc.start].count(b"\n") + 1
-        raise ShapeSpaceError(f"{path}: line {line}: not UTF-8 text (byte {exc.start}): not a Live Link Face CSV",
-                              ErrorCode.CORRUPT_FILE) from None
+        raise _not_utf8(path, data[:exc.start].count(b"\n") + 1, exc.start) from None
+
+
+def capture_path(source: str | os.PathLike) -> str | None:
+    """The path ``source`` names, or ``None`` when it is the text itself (:func:`read_capture_text`'s rule)."""
+    if isinstance(source, os.PathLike):
+        source = os.fspath(source)
+    if isinstance(source, bytes):
+        source = os.fsdecode(source)
+    if not isinstance(source, str):
+        raise ShapeSpaceError(f"a CSV source must be a path or text, got {type(source).__name__}", ErrorCode.TYPE)
+    if ("\n" in source or "\r" in source) and not _exists(source):
+        return None
+    return source
+
+
+def read_capture_chunks(path: str, size: int | None = None) -> Iterator[str]:
+    """The text of the capture file at ``path`` in pieces decoded from ``size`` bytes at a time
+    (:data:`PLAIN_CHUNK` when None): a long take is never held whole, nor as bytes and text at once.  The
+    checks and messages of :func:`read_capture_text`: a regular file (checked before a byte is read), at most
+    :data:`MAX_FILE_BYTES`, UTF-8 (the line and byte of the first bad one)."""
+    size = size or PLAIN_CHUNK
+    fd, _ = _open_regular(path)
+    decoder = codecs.getincrementaldecoder("utf-8-sig")()
+    done, lines = 0, 0                               # bytes and line breaks before the current piece
+    try:
+        with os.fdopen(os.dup(fd), "rb") as fh:
+            while True:
+                try:
+                    data = fh.read(size)
+                except OSError as exc:
+                    raise ShapeSpaceError(f"{path}: cannot be read ({exc.strerror or exc})",
+                                          ErrorCode.CORRUPT_FILE) from None
+                if done + len(data) > MAX_FILE_BYTES:
+                    raise _too_large(path)
+                pending = decoder.getstate()[0]
+                try:
+                    text = decoder.decode(data, final=not data)
+                except UnicodeDecodeError as exc:
+                    joined = pending + data
+                    at = done - len(pending) + exc.start
+                    raise _not_utf8(path, lines + joined[:exc.start].count(b"\n") + 1, at) from None
+                done += len(data)
+                lines += data.count(b"\n")
+                if text:
+                    yield text
+                if not data:
+                    return
+    finally:
+        os.close(fd)
 
 
 def resample(times: ArrayLike, weights: ArrayLike, fps: float, start_frame: float = 1.0,

@@ -45,12 +45,15 @@ The kind is detected from the content (:func:`detect_kind`), never from the file
 """
 from __future__ import annotations
 
+import gc
 import json
 import math
 import os
 import re
 from array import array as array_of
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from operator import itemgetter
 
 import numpy as np
 
@@ -59,7 +62,7 @@ from ..headpose import eye_ypr_from_degrees, ypr_from_degrees
 from ..names import ARKIT_52, FACECAP_52
 from ..result import Issue, ShapeSpaceError
 from .capture import (MAX_ABS_WEIGHT, ROTATION_CHANNELS, WeightStream, _channel_columns, _csv_rows, _parse,
-                      finish_stream, plain_rows, read_capture_text)
+                      capture_path, finish_stream, plain_rows, read_capture_chunks, read_capture_text)
 
 __all__ = ["KINDS", "detect_kind", "read_capture", "parse_capture", "describe_stream", "IFACIALMOCAP_FPS",
            "MAX_ABS_DEGREES", "MAX_JSON_BYTES"]
@@ -122,9 +125,13 @@ def read_capture(source: str | os.PathLike, required: Sequence[str] = ARKIT_52) 
     """Read any supported capture recording (path or text) into a :class:`~.capture.WeightStream`.
 
     The kind is detected from the content (:func:`detect_kind`); the Live Link Face CSV is read with its head
-    and eye columns.  Every failure is a one-line :class:`ShapeSpaceError`; from a file its message starts
-    with the path.
+    and eye columns; a MediaPipe JSON list of frames is read from the file piece by piece (never whole).  Every
+    failure is a one-line :class:`ShapeSpaceError`; from a file its message starts with the path.
     """
+    path = capture_path(source)
+    stream = None if path is None else _read_mediapipe_file(path, required)
+    if stream is not None:
+        return stream
     text, label = read_capture_text(source)
     try:
         return parse_capture(text, required)
@@ -132,6 +139,47 @@ def read_capture(source: str | os.PathLike, required: Sequence[str] = ARKIT_52) 
         if label is None:
             raise
         raise ShapeSpaceError(f"{label}: {exc}", exc.code) from None
+
+
+class _SourceError(ShapeSpaceError):
+    """A failure reading the file itself (its message names the file already)."""
+
+
+def _source_pieces(pieces: Iterator[str]) -> Iterator[str]:
+    try:
+        yield from pieces
+    except ShapeSpaceError as exc:
+        raise _SourceError(str(exc), exc.code) from None
+
+
+def _read_mediapipe_file(path: str, required: Sequence[str]) -> WeightStream | None:
+    """The stream of the MediaPipe JSON list of frames at ``path``, read piece by piece, or ``None`` when the file
+    is something else or cannot be read (:func:`read_capture` then reads it whole and says why)."""
+    pieces = _source_pieces(read_capture_chunks(path))
+    src = _Text("", pieces)
+    try:
+        try:
+            src.ahead(0, _SNIFF)
+            head = src.text[:_SNIFF].lstrip("\ufeff \t\r\n")
+            if not head.startswith("[") or detect_kind(head) != "mediapipe_json":
+                return None
+        except ShapeSpaceError:
+            return None
+        try:
+            stream = _mediapipe_json(src, required)
+        except _SourceError as exc:
+            raise ShapeSpaceError(str(exc), exc.code) from None
+        except ShapeSpaceError as exc:
+            try:                                      # a file that is not UTF-8 further on is refused as such
+                for _ in pieces:
+                    pass
+            except _SourceError as bad:
+                raise ShapeSpaceError(str(bad), bad.code) from None
+            raise ShapeSpaceError(f"{path}: {exc}", exc.code) from None
+    finally:
+        pieces.close()
+    stream.kind = "mediapipe_json"
+    return stream
 
 
 def parse_capture(text: str, required: Sequence[str] = ARKIT_52, kind: str | None = None) -> WeightStream:
@@ -531,48 +579,194 @@ def _mediapipe_frame(frame, k: int) -> tuple:
     return float(t), scores
 
 
-def _mediapipe_json(text: str, required: Sequence[str]) -> WeightStream:
-    """A MediaPipe JSON recording, one frame at a time (a list of frames is never held as Python objects)."""
-    column, names, times, rows = {}, [], array_of("d"), []
-    lost = 0
-    for k, frame in enumerate(_json_frames(text)):
-        ms, scores = _mediapipe_frame(frame, k)
-        row = array_of("d", [math.nan]) * len(names)
-        for name, score in scores.items():
-            if name not in column:
-                if len(column) >= MAX_CHANNELS:
+_CATEGORY_NAME, _SCORE = itemgetter("category_name"), itemgetter("score")
+_NUMBER_TYPES = {float, int}
+
+
+def _mediapipe_plain(frame) -> tuple | None:
+    """``(timestamp ms, category names, scores)`` of a frame of the usual shape — a dict whose first face lists
+    categories with a name and a numeric score — read with C-level built-ins only (the scores' range is checked
+    for all frames at once: :meth:`_Rows.check_range`); ``None`` for anything else (:func:`_mediapipe_frame`
+    then reads it and names what is wrong)."""
+    if type(frame) is not dict:
+        return None
+    t = frame.get("timestamp_ms")
+    faces = frame.get("face_blendshapes", frame.get("blendshapes"))
+    if type(t) not in _NUMBER_TYPES or type(faces) is not list or not faces:
+        return None
+    cats = faces[0] if type(faces[0]) is list else faces
+    try:
+        names, scores = list(map(_CATEGORY_NAME, cats)), list(map(_SCORE, cats))
+    except (KeyError, TypeError):
+        return None
+    if not scores or not set(map(type, scores)) <= _NUMBER_TYPES:
+        return None
+    return t, names, scores
+
+
+class _Rows:
+    """Score rows of a MediaPipe recording gathered frame by frame into flat arrays of doubles (one per run of
+    frames of the same width: a category first seen later widens the rows), with the categories' columns in
+    the order first seen."""
+
+    def __init__(self) -> None:
+        self.column, self.names, self.times = {}, [], array_of("d")
+        self.runs = [(0, array_of("d"))]               # (width, flat values) per run of frames
+        self.known = None                                # the last frame's names, when they were all the columns
+        self.lost = 0
+
+    def add_plain(self, ms: float, names: list, scores: list) -> bool:
+        """Add a frame read by :func:`_mediapipe_plain` whose names are the columns in order (as a rule every
+        frame's); ``False`` (nothing added) otherwise."""
+        if names != self.known:
+            if names != self.names:
+                return False
+            self.known = names
+        try:
+            row = array_of("d", scores)
+        except OverflowError:                          # an integer beyond a double: read by the cell reader
+            return False
+        self.times.append(ms / 1000.0)
+        self.runs[-1][1].extend(row)
+        return True
+
+    def check_range(self) -> None:
+        """Refuse the first score (frame, then category order) beyond ±:data:`MAX_ABS_WEIGHT`, as
+        :func:`_mediapipe_frame` does frame by frame."""
+        at = 0
+        for width, values in self.runs:
+            count = len(values) // width if width else 0
+            a = np.frombuffer(values, dtype=np.float64)
+            bad = np.flatnonzero(np.isfinite(a) & (np.abs(a) > MAX_ABS_WEIGHT))
+            if bad.size:
+                f, j = divmod(int(bad[0]), width)
+                raise ShapeSpaceError(f"frame {at + f + 1}, {self.names[j]}: {a[bad[0]]:g} is beyond "
+                                      f"±{MAX_ABS_WEIGHT:g}: a damaged value", ErrorCode.RANGE)
+            at += count
+
+    def add(self, ms: float, scores: dict, k: int) -> None:
+        """Add a frame read by :func:`_mediapipe_frame` (new categories become new columns)."""
+        for name in scores:
+            if name not in self.column:
+                if len(self.column) >= MAX_CHANNELS:
                     raise ShapeSpaceError(f"frame {k + 1}: more than {MAX_CHANNELS} category names",
                                           ErrorCode.TOO_LARGE)
-                column[name] = len(names)
-                names.append(name)
-                row.append(math.nan)
-            row[column[name]] = score
-        lost += not scores
-        times.append(ms / 1000.0)
-        rows.append(row)
-    if not names:
+                self.column[name] = len(self.names)
+                self.names.append(name)
+                self.known = None
+        if len(self.names) != self.runs[-1][0]:
+            self.runs.append((len(self.names), array_of("d")))
+        row = [math.nan] * len(self.names)
+        for name, score in scores.items():
+            row[self.column[name]] = score
+        self.lost += not scores
+        self.times.append(ms / 1000.0)
+        self.runs[-1][1].extend(row)
+
+    def matrix(self) -> np.ndarray:
+        """The weights (frames, columns), NaN where a frame had no score for a column."""
+        w = np.full((len(self.times), len(self.names)), np.nan)
+        at = 0
+        for width, values in self.runs:
+            count = len(values) // width if width else 0
+            if count:
+                w[at:at + count, :width] = np.frombuffer(values, dtype=np.float64).reshape(count, width)
+            at += count
+        return w
+
+
+def _mediapipe_json(source: str | _Text, required: Sequence[str]) -> WeightStream:
+    """A MediaPipe JSON recording, one frame at a time: a list of frames is never held as Python objects, nor
+    (from a file, :func:`read_capture`) as one text."""
+    rows = _Rows()
+    try:
+        with _collection_paused():
+            for k, frame in enumerate(_json_frames(source if isinstance(source, _Text) else _Text(source))):
+                plain = _mediapipe_plain(frame)
+                if plain is None or not rows.add_plain(*plain):
+                    rows.add(*_mediapipe_frame(frame, k), k)
+    except ShapeSpaceError:
+        rows.check_range()                  # a damaged score of an earlier frame is named first, frame by frame
+        raise
+    rows.check_range()
+    if not rows.names:
         raise ShapeSpaceError("the MediaPipe JSON has no blendshape scores", ErrorCode.NO_CHANNELS)
-    cols, kept, issues = _columns(names, required)
-    w = np.full((len(rows), len(names)), np.nan)
-    for f, row in enumerate(rows):
-        w[f, :len(row)] = row
-    rows.clear()
-    t = np.frombuffer(times, dtype=np.float64).copy()
+    cols, kept, issues = _columns(rows.names, required)
+    w = rows.matrix()
+    rows.runs.clear()
+    t = np.frombuffer(rows.times, dtype=np.float64).copy()
     _check_time(t)
-    if lost:
-        issues.append(Issue("warning", "no_face", f"{lost} frames found no face; filled from the neighbours"))
+    if rows.lost:
+        issues.append(Issue("warning", "no_face", f"{rows.lost} frames found no face; filled from the neighbours"))
     return finish_stream(t, w[:, cols], kept, np.arange(1, t.size + 1), issues, None, "mediapipe_json")
 
 
 _WS = re.compile(r"[ \t\n\r]*")
+#: Characters of a MediaPipe JSON recording kept ahead of the frame being parsed (a frame is ~5 K).
+_JSON_AHEAD = 1 << 20
 
 
-def _json_frames(text: str):
+@contextmanager
+def _collection_paused():
+    """The cyclic garbage collector paused (and restored as it was): a recording's ~100 short-lived containers
+    per frame would otherwise start a collection every few frames, for nothing (they are freed by reference
+    counting) — a fifth of the reading time."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+class _Text:
+    """A text read on demand from its pieces (:func:`~.capture.read_capture_chunks`): ``text`` holds the part
+    not yet parsed, which starts at ``line``, ``column`` of the whole (for messages)."""
+
+    def __init__(self, text: str, pieces: Iterator[str] | None = None) -> None:
+        self.text, self.pieces, self.line, self.column = text, pieces, 1, 1
+
+    def ahead(self, at: int, size: int | None = None) -> int:
+        """Make ``text[at:at + size]`` present when the whole has it (the text before ``at`` is dropped);
+        returns the new index of ``at`` (``size``: :data:`_JSON_AHEAD` when None)."""
+        size = size or _JSON_AHEAD
+        if self.pieces is None or len(self.text) - at >= size:
+            return at
+        breaks = self.text.count("\n", 0, at)
+        self.line += breaks
+        self.column = at - self.text.rfind("\n", 0, at) if breaks else self.column + at
+        parts, have = [self.text[at:]], len(self.text) - at
+        while have < size:
+            piece = next(self.pieces, None)
+            if piece is None:
+                self.pieces = None
+                break
+            parts.append(piece)
+            have += len(piece)
+        self.text = "".join(parts)
+        return 0
+
+    def where(self, at: int) -> tuple:
+        """``(line, column)`` in the whole of ``text[at]``."""
+        breaks = self.text.count("\n", 0, at)
+        return self.line + breaks, (at - self.text.rfind("\n", 0, at) if breaks else self.column + at)
+
+    def skip_space(self, at: int) -> int:
+        """The index of the first character from ``at`` that is not JSON white space (reading on as needed)."""
+        while True:
+            at = _WS.match(self.text, at).end()
+            if at < len(self.text) or self.pieces is None:
+                return at
+            at = self.ahead(at)
+
+
+def _json_frames(src: _Text):
     """The frames of a MediaPipe JSON recording one by one: a top-level list streamed element by element
     (``json.JSONDecoder.raw_decode``), or ``{"frames": [...]}`` parsed whole (within :data:`MAX_JSON_BYTES`)."""
-    at = _WS.match(text, text.startswith("\ufeff")).end()
-    if text[at:at + 1] != "[":
-        data = _json(text)
+    at = src.skip_space(src.ahead(0, _SNIFF) + src.text.startswith("\ufeff"))
+    if src.text[at:at + 1] != "[":
+        data = _json(src.text + "".join(src.pieces or ()))
         frames = data.get("frames") if isinstance(data, dict) else None
         if not isinstance(frames, list):
             raise ShapeSpaceError("the MediaPipe JSON is neither a list of frames nor {\"frames\": [...]}",
@@ -580,30 +774,41 @@ def _json_frames(text: str):
         yield from frames
         return
     decoder = json.JSONDecoder(parse_constant=lambda c: math.nan)
-    at = _WS.match(text, at + 1).end()
-    if text[at:at + 1] == "]":
+    at = src.skip_space(at + 1)
+    if src.text[at:at + 1] == "]":
         at += 1
     else:
         while True:
-            try:
-                frame, at = decoder.raw_decode(text, at)
-            except json.JSONDecodeError as exc:
-                raise ShapeSpaceError(f"line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})",
-                                      ErrorCode.CORRUPT_FILE) from None
-            except (RecursionError, ValueError) as exc:
-                raise ShapeSpaceError(f"not readable JSON ({type(exc).__name__})", ErrorCode.CORRUPT_FILE) from None
+            frame, at = _decode_frame(src, decoder, src.ahead(at))
             yield frame
-            at = _WS.match(text, at).end()
-            sep = text[at:at + 1]
-            at = _WS.match(text, at + 1).end()
+            at = src.skip_space(at)
+            sep = src.text[at:at + 1]
+            at = src.skip_space(at + 1)
             if sep == "]":
                 break
             if sep != ",":
-                raise ShapeSpaceError(f"line {text.count(chr(10), 0, at) + 1}: the list of frames is not valid JSON "
+                raise ShapeSpaceError(f"line {src.where(at)[0]}: the list of frames is not valid JSON "
                                       "(expected ',' or ']')", ErrorCode.CORRUPT_FILE)
-    if _WS.match(text, at).end() != len(text):
-        raise ShapeSpaceError(f"line {text.count(chr(10), 0, at) + 1}: text after the list of frames",
-                              ErrorCode.CORRUPT_FILE)
+    if src.skip_space(at) != len(src.text):
+        raise ShapeSpaceError(f"line {src.where(at)[0]}: text after the list of frames", ErrorCode.CORRUPT_FILE)
+
+
+def _decode_frame(src: _Text, decoder: json.JSONDecoder, at: int) -> tuple:
+    """``(frame, end)``: the JSON value at ``src.text[at]`` (read on while it runs past the text read so far)."""
+    size = _JSON_AHEAD
+    while True:
+        try:
+            return decoder.raw_decode(src.text, at)
+        except json.JSONDecodeError as exc:
+            if src.pieces is not None and exc.pos >= len(src.text) - size // 2:
+                size *= 2                                 # the frame may go on in the next piece
+                at = src.ahead(at, size)
+                continue
+            line, column = src.where(exc.pos)
+            raise ShapeSpaceError(f"line {line}, column {column}: not valid JSON ({exc.msg})",
+                                  ErrorCode.CORRUPT_FILE) from None
+        except (RecursionError, ValueError) as exc:
+            raise ShapeSpaceError(f"not readable JSON ({type(exc).__name__})", ErrorCode.CORRUPT_FILE) from None
 
 
 def _mediapipe_csv(text: str, required: Sequence[str]) -> WeightStream:

@@ -231,3 +231,105 @@ def test_plain_fast_paths_engage_and_equal_the_cell_readers(take):
     slow = parse_capture(text.replace("timestamp_ms", '"timestamp_ms"', 1))     # a quote: read cell by cell
     np.testing.assert_array_equal(fast.weights, slow.weights)
     np.testing.assert_array_equal(fast.times, slow.times)
+
+
+# --------------------------------------------------------------------------- MediaPipe JSON read in pieces
+@pytest.fixture()
+def small_pieces(monkeypatch):
+    """Pieces far smaller than a frame (~5 K): every frame crosses pieces, and the reader reads on mid-frame."""
+    from core.retarget import capture, formats
+    monkeypatch.setattr(capture, "PLAIN_CHUNK", 1000)
+    monkeypatch.setattr(formats, "_JSON_AHEAD", 300)
+
+
+def _mediapipe_variants(take):
+    """A plain recording, and one with a lost face, a NaN score, an integer score, categories in another order,
+    CRLF line breaks and indentation (each frame then not read by the plain path)."""
+    short = (take[0], take[1][:40], take[2][:40], take[3][:40])
+    plain = write_mediapipe_json(short)
+    frames = json.loads(plain)
+    frames[3]["face_blendshapes"] = []
+    frames[5]["face_blendshapes"][0][7]["score"] = float("nan")
+    frames[6]["face_blendshapes"][0][2]["score"] = 1
+    frames[8]["face_blendshapes"][0].reverse()
+    frames[9]["face_blendshapes"][0][4]["category_name"] = "cheekPuff2"
+    return [plain, json.dumps(frames), json.dumps(frames, indent=1).replace("\n", "\r\n")]
+
+
+def test_mediapipe_json_file_read_in_pieces_equals_the_text(take, tmp_path, small_pieces):
+    path = tmp_path / "take.json"
+    for text in _mediapipe_variants(take):
+        path.write_text(text, encoding="utf-8")
+        whole, pieces = parse_capture(text), read_capture(path)
+        assert pieces.kind == whole.kind == "mediapipe_json" and pieces.names == whole.names
+        np.testing.assert_array_equal(pieces.times, whole.times)
+        np.testing.assert_array_equal(pieces.weights, whole.weights)
+        assert [i.message for i in pieces.issues] == [i.message for i in whole.issues]
+
+
+def _stray_x(text, at):
+    """``text`` with an ``x`` at the start of the line after ``at`` (invalid JSON there)."""
+    at = text.index("\n", at) + 1
+    return text[:at] + "x" + text[at:]
+
+
+@pytest.mark.parametrize("damage", [
+    lambda text: _stray_x(text, len(text) - 900),                       # invalid JSON in the last frame
+    lambda text: text.replace('"score": 0.5', '"score": 0.5.5', 30),     # invalid JSON in frame 30
+    lambda text: text.replace('"score": 0.5', '"score": 500', 7).replace('"timestamp_ms": 1000.0', '"x": 1'),
+    lambda text: text.replace('"score": 0.5', '"score": "a"', 12),
+    lambda text: text[:-1] + ", 7]",
+    lambda text: text + " {}",
+])
+def test_mediapipe_json_file_read_in_pieces_refused_as_the_text(take, tmp_path, small_pieces, damage):
+    """Every refusal of the piecewise reader is the whole text's, line and column included (multi-line JSON)."""
+    short = (take[0], take[1][:70], take[2][:70], take[3][:70])
+    text = damage(json.dumps(json.loads(write_mediapipe_json(short)), indent=1))
+    path = tmp_path / "take.json"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ShapeSpaceError) as whole:
+        parse_capture(text)
+    with pytest.raises(ShapeSpaceError) as pieces:
+        read_capture(path)
+    assert str(pieces.value) == f"{path}: {whole.value}" and pieces.value.code == whole.value.code
+
+
+def test_mediapipe_json_damaged_score_named_before_a_later_damaged_frame():
+    frame = '{"timestamp_ms": %d, "face_blendshapes": [[{"category_name": "jawOpen", "score": %s}]]}'
+    frames = [frame % (k * 33, "0.5") for k in range(9)]
+    frames[4] = frame % (4 * 33, "500")
+    frames[7] = '{"timestamp_ms": 231, "face_blendshapes": [[{"category_name": "jawOpen"}]]}'
+    with pytest.raises(ShapeSpaceError) as exc:
+        parse_capture("[" + ", ".join(frames) + "]")
+    assert str(exc.value) == "frame 5, jawOpen: 500 is beyond ±100: a damaged value"
+
+
+def test_mediapipe_json_not_utf8_further_on_is_refused_as_such(take, tmp_path, small_pieces):
+    """A file that is not UTF-8 is refused as such even when its JSON is damaged before the bad byte."""
+    short = (take[0], take[1][:20], take[2][:20], take[3][:20])
+    data = write_mediapipe_json(short).replace('"score": 0.5', '"score": x', 1).encode("utf-8") + b"\xff"
+    path = tmp_path / "take.json"
+    path.write_bytes(data)
+    with pytest.raises(ShapeSpaceError) as exc:
+        read_capture(path)
+    assert str(exc.value) == f"{path}: line 1: not UTF-8 text (byte {len(data) - 1}): not a Live Link Face CSV"
+
+
+def test_mediapipe_json_file_memory_is_bounded(take, tmp_path, monkeypatch):
+    """A long MediaPipe JSON is read in pieces: the peak of traced memory (the weights and their copies) stays
+    under half the file (the whole text, and its bytes besides, were held before: twice the file)."""
+    import tracemalloc
+    from capture_files import long_take
+    from core.retarget import capture, formats
+    monkeypatch.setattr(capture, "PLAIN_CHUNK", 1 << 16)
+    monkeypatch.setattr(formats, "_JSON_AHEAD", 1 << 14)
+    path = tmp_path / "take.json"
+    path.write_text(write_mediapipe_json(long_take(take, 2000)), encoding="utf-8")
+    tracemalloc.start()
+    try:
+        s = read_capture(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert s.times.size == 2000
+    assert peak < 0.5 * path.stat().st_size
