@@ -2,6 +2,7 @@
 velocity error on real captures, key reduction."""
 from __future__ import annotations
 
+import functools
 import os
 import time
 import tracemalloc
@@ -624,12 +625,12 @@ def cancel_latency(quick):
     for case, make in plans.items():
         plan = make()
         stamps = [time.perf_counter()]
-        retarget.compute_retarget(plan, lambda f: stamps.append(time.perf_counter()))
+        retarget.compute_retarget(plan, lambda f, stamps=stamps: stamps.append(time.perf_counter()))
         stamps.append(time.perf_counter())
         whole = stamps[-1] - stamps[0]
         out[f"cancel_latency_s_{case}"] = float(np.diff(stamps).max())
         out[f"cancel_work_s_{case}"] = whole
-        job = BackgroundJob(lambda progress: retarget.compute_retarget(plan, progress)).start()
+        job = BackgroundJob(functools.partial(retarget.compute_retarget, plan)).start()
         time.sleep(0.5 * whole)
         asked = time.perf_counter()
         job.cancel()
@@ -686,7 +687,7 @@ def capture(quick):
         path = os.path.join(folder, f"take_{kind}.txt")
         with open(path, "w", encoding="utf-8") as fh:
             fh.write(writer(big))
-        out[f"capture_read_s_{kind}_36000"] = min(_timed(lambda: read_capture(path)) for _ in range(1 if quick else 3))
+        out[f"capture_read_s_{kind}_36000"] = min(_timed(functools.partial(read_capture, path)) for _ in range(1 if quick else 3))
         tracemalloc.start()
         read_capture(path)
         out[f"capture_read_mb_{kind}_36000"] = tracemalloc.get_traced_memory()[1] / 1e6
