@@ -32,6 +32,7 @@ import numpy as np
 
 from ...core.blendshape import bounding_box_diagonal
 from ...core.errors import ErrorCode
+from ...core.progress import notify
 from ...core.result import ShapeSpaceError
 from ...core.rig import ChannelKind, ControlSet, RigSolveResult, solve_controls
 from .channels import bind
@@ -237,7 +238,7 @@ class RigEvaluator:
                                   ErrorCode.INVALID)
         return rest
 
-    def probe(self, rest, lo, hi, measure=None) -> tuple:
+    def probe(self, rest, lo, hi, measure=None, progress=None) -> tuple:
         """Move each channel alone to both sides (a quarter of its range, or :data:`PROBE` when unbounded, never
         past ``lo``/``hi`` (n,)) and measure how the surface moves from ``rest`` (V, 3); the rig is restored.
 
@@ -245,6 +246,9 @@ class RigEvaluator:
         ----------
         measure : callable (rest (V, 3), moved (V, 3)) -> float, optional
             How far the surface moved (default: the largest vertex displacement).
+        progress : callable (fraction) -> None, optional
+            Called after each channel (:mod:`core.progress`; raising :class:`~core.progress.Cancelled` from it
+            stops the probe — the evaluator's exit restores the rig).
 
         Returns
         -------
@@ -271,6 +275,7 @@ class RigEvaluator:
                     amounts[i] = max(amounts[i], moved)
                     per_unit[i] = max(per_unit[i], moved / delta)
             b.set(c)
+            notify(progress, (i + 1) / len(self.bindings))
         self.all_points()
         return amounts, per_unit
 

@@ -11,6 +11,7 @@ exactly as it was.
 from __future__ import annotations
 
 import bpy
+import numpy as np
 
 from ...core.errors import ErrorCode
 from ...core.result import ShapeSpaceError
@@ -88,8 +89,9 @@ def candidates(face, arm) -> tuple:
     return [ch for ch in chans if not ch.locked and ch.lo < ch.hi], locked, held
 
 
-def propose(face, arm=None) -> tuple:
-    """Probe the candidates of ``face`` (and the armature ``arm``) through Blender's evaluation.
+def propose(face, arm=None, progress=None) -> tuple:
+    """Probe the candidates of ``face`` (and the armature ``arm``) through Blender's evaluation (``progress``:
+    :mod:`core.progress`, per channel probed).
 
     Returns
     -------
@@ -105,14 +107,18 @@ def propose(face, arm=None) -> tuple:
     controls = ControlSet(tuple(chans))
     with RigEvaluator(face, controls, [0], check=False) as ev:
         rest = ev.check_rig()
+        bad = np.flatnonzero(~np.isfinite(rest).all(1))
+        if bad.size:
+            raise ShapeSpaceError(f"{face.name!r}: evaluated vertex {int(bad[0])} is not finite (NaN or infinite "
+                                  "coordinates, shape keys or drivers)", ErrorCode.NON_FINITE)
         lo, hi = controls.solve_bounds(ev.c0)
-        amounts, _ = ev.probe(rest, lo, hi, measure=deformation)
+        amounts, _ = ev.probe(rest, lo, hi, measure=deformation, progress=progress)
         report = rank_channels(controls.names, amounts, ev.diagonal, locked=locked, held=held)
     by_name = {ch.name: ch for ch in chans}
     return report, [by_name[n] for n in report.proposed]
 
 
-def propose_and_store(face, arm=None) -> tuple:
+def propose_and_store(face, arm=None, progress=None) -> tuple:
     """:func:`propose`, then add the proposed channels not stored yet to the face's control set (stored ones keep
     their bounds and enabled flags).  Nothing is written when nothing deforms the face (the report is FAILED).
 
@@ -126,6 +132,6 @@ def propose_and_store(face, arm=None) -> tuple:
         raise ShapeSpaceError(f"the control set of {face.name!r} belongs to armature {stored_arm!r}, not "
                               f"{arm.name!r}: clear it first", ErrorCode.INVALID)
     check_editable([face] + ([arm] if arm is not None else []))
-    report, chans = propose(face, arm)
+    report, chans = propose(face, arm, progress)
     added = stored.add_entries_of(face, arm.name if arm is not None else "", chans) if chans else []
     return report, added

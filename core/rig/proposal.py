@@ -74,6 +74,10 @@ def deformation(rest: ArrayLike, moved: ArrayLike) -> float:
     b = np.asarray(moved, dtype=np.float64)
     if a.shape != b.shape or a.ndim != 2 or a.shape[1] != 3 or not len(a):
         raise ShapeSpaceError(f"rest {a.shape} and moved {b.shape} must be the same (V, 3)", ErrorCode.SHAPE)
+    for name, x in (("rest", a), ("moved", b)):
+        bad = np.flatnonzero(~np.isfinite(x).all(1))
+        if bad.size:
+            raise ShapeSpaceError(f"{name}: vertex {int(bad[0])} is not finite", ErrorCode.NON_FINITE)
     ca, cb = a.mean(0), b.mean(0)
     u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
     d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0

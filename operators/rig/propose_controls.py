@@ -2,6 +2,7 @@ import bpy
 
 from ...bridge.rig import proposal, stored
 from ..polls import control_face
+from ..progress import window_progress
 from ..reporting import FAILED, attempt
 
 
@@ -20,7 +21,8 @@ drivers read), probing each through Blender's evaluation, and add them to the fa
     def execute(self, context):
         face = control_face(self, context)
         arm = stored.armature_for(face, context.active_object)
-        found = attempt(self, proposal.propose_and_store, face, arm)
+        with window_progress(context) as progress:
+            found = attempt(self, proposal.propose_and_store, face, arm, progress)
         if found is FAILED:
             return {"CANCELLED"}
         report, added = found

@@ -278,3 +278,42 @@ def test_operators_work_in_object_and_pose_mode_and_refuse_edit_mode_by_name(reg
                 assert f"'{ob.name}' is in Edit Mode" in message, (op, message)
         assert _stored_text(face) == text
         bpy.ops.object.mode_set(mode="OBJECT")
+
+
+def test_propose_reports_progress_and_a_cancel_leaves_rig_and_file_as_they_were(registered):
+    from shapespace.core.progress import Cancelled
+    rig = rigs.hybrid_rig(_head())
+    seen = []
+    report, chans = proposal.propose(rig.mesh, rig.armature, progress=seen.append)
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == len(proposal.candidates(rig.mesh,
+                                                                                             rig.armature)[0])
+    before = (rig.world_points(), [tuple(pb.rotation_euler) for pb in rig.armature.pose.bones],
+              [kb.value for kb in rig.mesh.data.shape_keys.key_blocks])
+
+    def stop(fraction):
+        if fraction > 0.5:
+            raise Cancelled()
+    with pytest.raises(Cancelled):
+        proposal.propose_and_store(rig.mesh, rig.armature, progress=stop)
+    after = (rig.world_points(), [tuple(pb.rotation_euler) for pb in rig.armature.pose.bones],
+             [kb.value for kb in rig.mesh.data.shape_keys.key_blocks])
+    np.testing.assert_array_equal(before[0], after[0])
+    assert before[1:] == after[1:] and stored.PROP not in rig.mesh
+
+
+def test_add_property_refuses_what_is_not_a_channel_by_name(registered):
+    rig = rigs.driver_rig(_head())
+    _activate(rig.mesh)
+    cases = {'pose.bones["ctl_jaw"].location': "is not a custom property",
+             '["nope"]': "has no custom property 'nope'",
+             'data.shape_keys.key_blocks["nope"].value': "has no shape-key slider 'nope'"}
+    for path, said in cases.items():
+        with pytest.raises(RuntimeError, match=said):
+            bpy.ops.shapespace.add_control_property(data_path=path, object_name=rig.mesh.name
+                                                    if "shape_keys" in path else rig.armature.name)
+    assert stored.PROP not in rig.mesh
+    assert bpy.ops.shapespace.add_control_property(data_path='["blink"]', object_name="Controls") == {"FINISHED"}
+    with pytest.raises(RuntimeError, match=r"channel 'Controls\[blink\]' is already in the control set"):
+        bpy.ops.shapespace.add_control_property(data_path='["blink"]', object_name="Controls")
+    with pytest.raises(RuntimeError, match="no object 'Missing'"):
+        bpy.ops.shapespace.add_control_property(data_path='["blink"]', object_name="Missing")

@@ -94,6 +94,9 @@ def test_deformation_takes_out_the_rigid_motion():
     bent = rigid.copy()
     bent[7] += [0.0, 0.0, 0.05]
     assert 0.04 < deformation(rest, bent) <= 0.05 + 1e-12
+    bent[3, 1] = np.nan
+    with pytest.raises(ShapeSpaceError, match="moved: vertex 3 is not finite"):
+        deformation(rest, bent)
 
 
 def test_rank_keeps_what_deforms_largest_first_and_names_the_rest():
