@@ -238,7 +238,7 @@ class RigEvaluator:
                                   ErrorCode.INVALID)
         return rest
 
-    def probe(self, rest, lo, hi, measure=None, progress=None) -> tuple:
+    def probe(self, rest, lo, hi, measure=None, progress=None, either_side: bool = False) -> tuple:
         """Move each channel alone to both sides (a quarter of its range, or :data:`PROBE` when unbounded, never
         past ``lo``/``hi`` (n,)) and measure how the surface moves from ``rest`` (V, 3); the rig is restored.
 
@@ -249,6 +249,9 @@ class RigEvaluator:
         progress : callable (fraction) -> None, optional
             Called after each channel (:mod:`core.progress`; raising :class:`~core.progress.Cancelled` from it
             stops the probe — the evaluator's exit restores the rig).
+        either_side : bool
+            Stop at the first side that moves the surface (enough to know *whether* a channel moves it; the
+            natural scale needs both sides).
 
         Returns
         -------
@@ -274,6 +277,8 @@ class RigEvaluator:
                 if moved > INERT_REL_TOL * self.diagonal:
                     amounts[i] = max(amounts[i], moved)
                     per_unit[i] = max(per_unit[i], moved / delta)
+                    if either_side:
+                        break
             b.set(c)
             notify(progress, (i + 1) / len(self.bindings))
         self.all_points()

@@ -112,7 +112,7 @@ def propose(face, arm=None, progress=None) -> tuple:
             raise ShapeSpaceError(f"{face.name!r}: evaluated vertex {int(bad[0])} is not finite (NaN or infinite "
                                   "coordinates, shape keys or drivers)", ErrorCode.NON_FINITE)
         lo, hi = controls.solve_bounds(ev.c0)
-        amounts, _ = ev.probe(rest, lo, hi, measure=deformation, progress=progress)
+        amounts, _ = ev.probe(rest, lo, hi, measure=deformation, progress=progress, either_side=True)
         report = rank_channels(controls.names, amounts, ev.diagonal, locked=locked, held=held)
     by_name = {ch.name: ch for ch in chans}
     return report, [by_name[n] for n in report.proposed]
