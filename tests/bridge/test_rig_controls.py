@@ -317,3 +317,16 @@ def test_add_property_refuses_what_is_not_a_channel_by_name(registered):
         bpy.ops.shapespace.add_control_property(data_path='["blink"]', object_name="Controls")
     with pytest.raises(RuntimeError, match="no object 'Missing'"):
         bpy.ops.shapespace.add_control_property(data_path='["blink"]', object_name="Missing")
+
+
+@pytest.mark.parametrize("name", ["hybrid", "driver"])
+def test_a_stored_control_set_reads_back_as_the_rigs_own_channels(registered, name):
+    """Channel → stored entry → channel is exact (path, axis, bounds, lock, rotation mode), so a solve on the stored
+    set is the solve on the rig's control set (tests/bridge/test_rig.py)."""
+    rig = BUILDERS[name](_head())
+    entries = [stored.entry_of(ch) for ch in rig.controls.channels]
+    stored.write(rig.mesh, rig.armature.name, entries)
+    assert stored.control_set(rig.mesh) == rig.controls
+    stored.set_enabled(rig.mesh, 0, False)
+    assert stored.control_set(rig.mesh).channels == rig.controls.channels[1:]
+    assert stored.control_set(rig.mesh, enabled_only=False) == rig.controls
