@@ -10,6 +10,7 @@ from ..core.names import ARKIT_52, canonical_name
 from ..core.skinning import diagnose_weights
 from ..core.version import version
 from . import actions, shapekeys, skin, storage, symmetry
+from .rig import stored as rig_stored
 
 
 def bone_shape_objects() -> set:
@@ -106,6 +107,7 @@ def check_object(obj) -> list:
     has_skin = bool(skin.armature_modifiers(obj))
     found += storage.damaged_blobs(obj)
     found += symmetry.table_damage(obj)
+    found += rig_stored.damage(obj)
     if has_keys or not has_skin:
         structural = shapekeys.check_shape_keys(obj)
         found += structural

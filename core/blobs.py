@@ -133,6 +133,11 @@ NAMED_LANDMARKS = Blob("Mesh", "shapespace_named_landmarks", Schema(
 LANDMARK_PAIRS = Blob("Object", "shapespace_landmarks", Schema(
     "transfer landmark pairs", 1, fields={"pairs": "list", "source_vertices": "int", "target_vertices": "int"}))
 
+#: A face's stored control set (issue #25): the armature and, per channel, kind, object, owner (bone, property,
+#: key), data path, axis, bounds override and enabled (:mod:`bridge.rig.stored`; entries: :mod:`core.rig.stored`).
+CONTROL_SET = Blob("Object", "shapespace_controls", Schema(
+    "control set", 1, fields={"armature": "string", "channels": "list"}))
+
 # ------------------------------------------------------------------ actions (Action)
 #: A live take's metadata (:mod:`bridge.live.recording`).
 LIVE_TAKE = Blob("Action", "shapespace_live_take", Schema(
@@ -163,7 +168,7 @@ EXAMPLE_FINAL_SHAPE = Blob("Example", "final_shape", Schema(
 
 #: Every stored blob, by owner.
 BLOBS = (DRIVEN, RETARGET_MAPPING, RETARGET_LAST, TRANSFER_LAST, REPRESENTATION, FACE_PRIOR, ANALYSIS,
-         MIRROR_MAP, NAMED_LANDMARKS, LANDMARK_PAIRS, LIVE_TAKE,
+         MIRROR_MAP, NAMED_LANDMARKS, LANDMARK_PAIRS, CONTROL_SET, LIVE_TAKE,
          EXAMPLE_POSE, EXAMPLE_PSEUDO_POSE, EXAMPLE_TARGET_VALUES, EXAMPLE_FINAL_SHAPE)
 
 

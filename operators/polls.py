@@ -1,4 +1,6 @@
 """Shared poll checks: each returns the object or None after telling the user why (poll message)."""
+from ..bridge.rig import stored as rig_stored
+from ..core.result import ShapeSpaceError
 
 
 def active_mesh(cls, context, editable: bool = True):
@@ -141,3 +143,24 @@ def animated_object(cls, context):
             return ob
     cls.poll_message_set("The object has no animation")
     return None
+
+
+def control_face(cls, context):
+    """The face mesh whose control set an edit means (the active mesh, or with an armature active — Object or Pose
+    Mode — the face :func:`bridge.rig.stored.face_for` finds); Edit Mode and linked data refused by name."""
+    active = context.active_object
+    if active is not None and active.mode == "EDIT":
+        cls.poll_message_set(f"'{active.name}' is in Edit Mode: leave Edit Mode first")
+        return None
+    try:
+        face = rig_stored.face_for(active, context.selected_objects)
+    except ShapeSpaceError as exc:
+        cls.poll_message_set(str(exc))
+        return None
+    if face.mode == "EDIT":
+        cls.poll_message_set(f"'{face.name}' is in Edit Mode: leave Edit Mode first")
+        return None
+    if not editable_data(face):
+        cls.poll_message_set(f"'{face.name}' is linked from a library: make it local first")
+        return None
+    return face

@@ -2,6 +2,7 @@
 import bpy
 
 from .authoring import SHAPESPACE_PT_transfer_shapes
+from .controls import SHAPESPACE_PT_controls
 from .export import SHAPESPACE_PT_export
 from .facespace import SHAPESPACE_PT_face_space, SHAPESPACE_UL_flagged_frames
 from .live import SHAPESPACE_PT_live, SHAPESPACE_UL_live_takes
@@ -11,7 +12,8 @@ from .posespace import SHAPESPACE_PT_correctives, SHAPESPACE_UL_examples, SHAPES
 from .retarget import SHAPESPACE_PT_retarget
 from .rig import SHAPESPACE_PT_rig
 
-classes = (SHAPESPACE_PT_rig, SHAPESPACE_PT_transfer_shapes, SHAPESPACE_PT_named_landmarks, SHAPESPACE_UL_pins,
+classes = (SHAPESPACE_PT_rig, SHAPESPACE_PT_controls, SHAPESPACE_PT_transfer_shapes, SHAPESPACE_PT_named_landmarks,
+           SHAPESPACE_UL_pins,
            SHAPESPACE_PT_direct,
            SHAPESPACE_UL_examples,
            SHAPESPACE_UL_readers, SHAPESPACE_PT_correctives, SHAPESPACE_PT_retarget,

@@ -52,6 +52,9 @@ def register():
     bpy.types.Object.shapespace_face = bpy.props.PointerProperty(type=SHAPESPACE_PG_face)
     bpy.types.Scene.shapespace_live = bpy.props.PointerProperty(type=SHAPESPACE_PG_live)
     bpy.types.Object.shapespace_authoring = bpy.props.PointerProperty(type=SHAPESPACE_PG_authoring)
+    # UI state, not data: the page of Rig ▸ Controls' channel list
+    bpy.types.WindowManager.shapespace_controls_page = bpy.props.IntProperty(
+        name="Page", description="The page of the control set's channels shown", min=0)
     live_session.register()
 
 
@@ -61,6 +64,7 @@ def unregister():
         bpy.app.handlers.save_pre.remove(_upgrade_before_save)
     if _pin_after_load in bpy.app.handlers.load_post:
         bpy.app.handlers.load_post.remove(_pin_after_load)
+    del bpy.types.WindowManager.shapespace_controls_page
     del bpy.types.Object.shapespace_authoring
     del bpy.types.Scene.shapespace_live
     del bpy.types.Object.shapespace_face

@@ -34,12 +34,13 @@ import numpy as np
 
 from ...core.blendshape import bounding_box_diagonal
 from ...core.errors import ErrorCode
+from ...core.progress import notify
 from ...core.result import ShapeSpaceError
 from ...core.rig import ChannelKind, ControlSet, RigSolveResult, solve_controls
 from .analytic import shape_key_columns
 from .channels import bind
 
-__all__ = ["RigEvaluator", "apply_controls", "read_controls", "solve_pins"]
+__all__ = ["RigEvaluator", "apply_controls", "check_editable", "read_controls", "solve_pins"]
 
 #: A channel "moves nothing" when no vertex moves more than this fraction of the mesh's bounding-box diagonal
 #: at either end of its probe.
@@ -70,7 +71,8 @@ def _rig_ids(mesh_obj, bindings) -> list:
     return out
 
 
-def _check_editable(ids) -> None:
+def check_editable(ids) -> None:
+    """Refuse linked or library-override data and data in Edit Mode among ``ids`` (one line naming the ID)."""
     for idb in ids:
         kind = type(idb).__name__
         if idb.library is not None:
@@ -122,7 +124,7 @@ class RigEvaluator:
         self.controls = controls
         self.bindings = bind(controls)
         self.ids = _rig_ids(mesh_obj, self.bindings)
-        _check_editable(self.ids)
+        check_editable(self.ids)
         n_verts = len(mesh_obj.data.vertices)
         self.indices = np.asarray(indices, dtype=np.int64).reshape(-1)
         if self.indices.size == 0:
@@ -240,6 +242,19 @@ class RigEvaluator:
             ch = self.controls.channels[i]
             raise ShapeSpaceError(f"channel {ch.name!r} is held still by its bounds [{ch.lo:g}, {ch.hi:g}]",
                                   ErrorCode.INVALID)
+        rest = self.check_rig()
+        scales = self._probe(rest, lo, hi)
+        self.controls = self.controls.with_scales(scales)
+        self.steps = np.minimum(FD_REL_STEP * self.diagonal / scales, 0.1 * (hi - lo))
+
+    def check_rig(self) -> np.ndarray:
+        """Refuse invalid drivers and an evaluation that is not deterministic; set :attr:`diagonal`.
+
+        Returns
+        -------
+        ndarray (V, 3)
+            The evaluated world-space surface at the current controls.
+        """
         rest = self.all_points(self.c0)
         _check_drivers(self.ids)
         again = self.all_points(self.c0.copy())
@@ -253,14 +268,33 @@ class RigEvaluator:
             raise ShapeSpaceError(f"{self.mesh_obj.name!r}: the rig does not evaluate the same twice (moved "
                                   f"{drift / self.diagonal:.2g} of the diagonal; a driver on time or randomness?)",
                                   ErrorCode.INVALID)
-        scales = self._probe(rest, lo, hi)
-        self.controls = self.controls.with_scales(scales)
-        self.steps = np.minimum(FD_REL_STEP * self.diagonal / scales, 0.1 * (hi - lo))
+        return rest
 
-    def _probe(self, rest, lo, hi) -> np.ndarray:
-        """Natural scale of each channel (largest vertex displacement per unit over a probe on both sides);
-        refuses a channel that moves nothing."""
-        scales = np.zeros(len(self.bindings))
+    def probe(self, rest, lo, hi, measure=None, progress=None, either_side: bool = False) -> tuple:
+        """Move each channel alone to both sides (a quarter of its range, or :data:`PROBE` when unbounded, never
+        past ``lo``/``hi`` (n,)) and measure how the surface moves from ``rest`` (V, 3); the rig is restored.
+
+        Parameters
+        ----------
+        measure : callable (rest (V, 3), moved (V, 3)) -> float, optional
+            How far the surface moved (default: the largest vertex displacement).
+        progress : callable (fraction) -> None, optional
+            Called after each channel (:mod:`core.progress`; raising :class:`~core.progress.Cancelled` from it
+            stops the probe — the evaluator's exit restores the rig).
+        either_side : bool
+            Stop at the first side that moves the surface (enough to know *whether* a channel moves it; the
+            natural scale needs both sides).
+
+        Returns
+        -------
+        (ndarray (n,), ndarray (n,))
+            The largest measure over both sides, and the largest measure per unit of the channel (0 where the
+            measure stays within :data:`INERT_REL_TOL` of the diagonal: the channel does not move it).
+        """
+        if measure is None:
+            def measure(a, b):
+                return np.linalg.norm(b - a, axis=1).max()
+        amounts, per_unit = np.zeros(len(self.bindings)), np.zeros(len(self.bindings))
         for i, b in enumerate(self.bindings):
             ch = self.controls.channels[i]
             c = self.c0[i]
@@ -271,15 +305,25 @@ class RigEvaluator:
                 delta = min(room, 0.25 * (hi[i] - lo[i])) if math.isfinite(hi[i] - lo[i]) else PROBE[ch.kind]
                 delta = min(delta, room)
                 b.set(c + side * delta)
-                moved = np.linalg.norm(self.all_points() - rest, axis=1).max()
+                moved = float(measure(rest, self.all_points()))
                 if moved > INERT_REL_TOL * self.diagonal:
-                    scales[i] = max(scales[i], moved / delta)
+                    amounts[i] = max(amounts[i], moved)
+                    per_unit[i] = max(per_unit[i], moved / delta)
+                    if either_side:
+                        break
             b.set(c)
-            if scales[i] == 0.0:
-                raise ShapeSpaceError(f"channel {ch.name!r} moves no vertex of {self.mesh_obj.name!r} "
-                                      f"(driven, muted, constrained away or not bound to the mesh)",
-                                      ErrorCode.DEGENERATE)
+            notify(progress, (i + 1) / len(self.bindings))
         self.all_points()
+        return amounts, per_unit
+
+    def _probe(self, rest, lo, hi) -> np.ndarray:
+        """Natural scale of each channel (largest vertex displacement per unit over a probe on both sides);
+        refuses a channel that moves nothing."""
+        scales = self.probe(rest, lo, hi)[1]
+        for i in np.flatnonzero(scales == 0.0):
+            raise ShapeSpaceError(f"channel {self.controls.channels[i].name!r} moves no vertex of "
+                                  f"{self.mesh_obj.name!r} (driven, muted, constrained away or not bound to the "
+                                  "mesh)", ErrorCode.DEGENERATE)
         return scales
 
 

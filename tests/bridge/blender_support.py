@@ -197,6 +197,10 @@ OPERATOR_CALLS = {
     # live capture (live_start opens a socket: it has its own loopback tests in test_live_stream.py)
     "live_stop": {}, "live_calibrate": {}, "live_record": {}, "live_stop_recording": {}, "live_play_take": {},
     "live_remove_take": {},
+    # any rig's control sets (issue #25)
+    "propose_controls": {}, "add_control_bones": {}, "add_control_property": {"data_path": '["x"]'},
+    "remove_control": {"index": 0}, "toggle_control": {"index": 0, "enabled": False},
+    "set_control_bounds": {"index": 0, "use_min": True, "min": -0.5}, "clear_controls": {}, "mirror_controls": {},
     "export_for_engines": {"filepath": os.path.join(tempfile.mkdtemp(prefix="ss-export-"), "face.fbx"),
                            "format": "FBX"},
 }
