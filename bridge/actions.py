@@ -8,9 +8,8 @@ hold the F-Curves of one *slot*, and an ID animates through
 """
 from __future__ import annotations
 
-import numpy as np
-
 import bpy
+import numpy as np
 
 from ..core.animation import CONSTANT, LINEAR, sample_keys
 from ..core.result import ShapeSpaceError

@@ -4,8 +4,16 @@ from __future__ import annotations
 import bpy
 
 from ..core.blendshape import diagnose_model
-from ..core.inventory import (ActionInfo, ArmatureInfo, ArmatureModifierInfo, FileInventory, IssueInfo, SceneInfo,
-                              ShapeKeyMeshInfo, SkinnedMeshInfo)
+from ..core.inventory import (
+    ActionInfo,
+    ArmatureInfo,
+    ArmatureModifierInfo,
+    FileInventory,
+    IssueInfo,
+    SceneInfo,
+    ShapeKeyMeshInfo,
+    SkinnedMeshInfo,
+)
 from ..core.names import ARKIT_52, canonical_name
 from ..core.skinning import diagnose_weights
 from ..core.version import version

@@ -6,7 +6,6 @@ import numpy as np
 from ..core.blendshape import BlendshapeModel, Combination, InBetween
 from ..core.result import Issue, ShapeSpaceError
 from ..core.validate import ABSURD_COORDINATE, ABSURD_MOVE, bad_coordinate, coordinates
-
 from . import driven
 from .arrays import read_float, write_float
 from .meshes import group_weight_vector, vertex_groups

@@ -5,7 +5,6 @@ import numpy as np
 
 from ..core.result import Issue, ShapeSpaceError
 from ..core.skinning import ArmatureDeform, SkinningRig, SkinWeights
-
 from .arrays import read_matrices
 from .meshes import group_weight_vector, vertex_groups, world_matrix
 

@@ -20,8 +20,7 @@ from ..core.result import Issue, ShapeSpaceError
 from ..core.validate import coordinates, in_range
 from . import storage
 from .arrays import read_float, write_float
-from .meshes import triangles
-from .meshes import group_weight_vector
+from .meshes import group_weight_vector, triangles
 
 #: ``{"mirror": [int], "axis": int, "offset": float, "method": str, "tolerance": float,
 #: "topology": {"vertices", "edges", "faces", "edge_hash"}, "coverage": float}``

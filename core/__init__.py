@@ -7,8 +7,15 @@ from .animation import frames_to_seconds, sample_keys, seconds_to_frames
 from .blendshape import BlendshapeModel, bounding_box_diagonal, diagnose_model
 from .names import ARKIT_52, canonical_name, match_channels
 from .result import Issue, Result, ShapeSpaceError
-from .skinning import (ArmatureDeform, SkinningRig, SkinWeights, deform, diagnose_weights,
-                       dual_quaternion_skinning, linear_blend_skinning)
+from .skinning import (
+                       ArmatureDeform,
+                       SkinningRig,
+                       SkinWeights,
+                       deform,
+                       diagnose_weights,
+                       dual_quaternion_skinning,
+                       linear_blend_skinning,
+)
 
 __all__ = [
     "ARKIT_52", "ArmatureDeform", "BlendshapeModel", "Issue", "Result", "ShapeSpaceError",

@@ -6,8 +6,8 @@ from .controls import SHAPESPACE_PT_controls
 from .export import SHAPESPACE_PT_export
 from .facespace import SHAPESPACE_PT_face_space, SHAPESPACE_UL_flagged_frames
 from .live import SHAPESPACE_PT_live, SHAPESPACE_UL_live_takes
-from .named_landmarks import SHAPESPACE_PT_named_landmarks
 from .manipulation import SHAPESPACE_PT_direct, SHAPESPACE_UL_pins
+from .named_landmarks import SHAPESPACE_PT_named_landmarks
 from .posespace import SHAPESPACE_PT_correctives, SHAPESPACE_UL_examples, SHAPESPACE_UL_readers
 from .retarget import SHAPESPACE_PT_retarget
 from .rig import SHAPESPACE_PT_rig

@@ -11,7 +11,6 @@ from bpy.app.handlers import persistent
 from ..bridge import storage
 from ..bridge.live import session as live_session
 from ..bridge.posespace import stored as posespace_stored
-
 from .authoring import SHAPESPACE_PG_authoring
 from .facespace import SHAPESPACE_PG_face, SHAPESPACE_PG_flagged_frame
 from .live import SHAPESPACE_PG_live

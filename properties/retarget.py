@@ -1,7 +1,6 @@
 """Stored per object: retarget settings and the last result (``Object.shapespace_retarget``)."""
 import bpy
 
-
 RETARGET_METHODS = [
     ("copy", "Copy", "Copy the mapped channels (corresponding parameterisation)"),
     ("learned", "Learned", "Linear expression cloning learnt from the target posed at key poses"),

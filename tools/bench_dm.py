@@ -101,10 +101,12 @@ def peers(P, q, lo, hi, R, m, w0, alpha, mu, reps):
 
 
 def solve_speed(quick):
-    from shapespace.bridge import assets, shapekeys
     import copy
-    from shapespace.core.manipulation import DragSession, solve_drag
+
     import bpy
+
+    from shapespace.bridge import assets, shapekeys
+    from shapespace.core.manipulation import DragSession, solve_drag
 
     reps = 3 if quick else 15
     models = {f"synthetic{n}": synthetic_model(n, seed=n) for n in (52, 150, 300, 675)}
@@ -180,6 +182,7 @@ def update_overhead(quick):
 
 def _update_overhead(quick):
     import bpy
+
     from shapespace.bridge import assets, manipulation, meshes, shapekeys
     from shapespace.core.manipulation import DragSession, Pin, pin_positions
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
@@ -251,6 +254,7 @@ def llf_weights(names):
 
 def artist_effort(quick):
     import bpy
+
     from shapespace.bridge import actions, assets, shapekeys
     from shapespace.core.manipulation import NORMALISED_DIAGONAL, train_prior
 
@@ -290,6 +294,7 @@ def artist_effort(quick):
 # ------------------------------------------------------------------- production scale (issue #17)
 def _ict_face():
     import bpy
+
     from shapespace.bridge import assets
     assets.load(ICT)
     return bpy.data.objects["ICTFace"]
@@ -327,6 +332,7 @@ def _ict_subdivided(n_keys=150, seed=17):
 
 def _rpm_posed():
     import bpy
+
     from shapespace.bridge import assets, skin
     assets.load(RPM)
     ob = bpy.data.objects["Wolf3D_Head"]
@@ -358,6 +364,7 @@ def _init_gpu():
 def _drag_setup(ob, n_still=4, seed=5):
     """Zero sliders, a dragged pin at the jaw and ``n_still`` stationary pins; the drag's world-space goal."""
     import bpy
+
     from shapespace.bridge import manipulation, meshes, shapekeys
     from shapespace.core.manipulation import Pin
     bpy.context.view_layer.objects.active = ob
@@ -402,6 +409,7 @@ def _mouse_path(start, goal, moves):
 def _overlay_view(ob):
     """View and projection matrices that frame ``ob`` (orthographic, looking along +Y)."""
     from mathutils import Matrix
+
     from shapespace.bridge import meshes
     pts = meshes.to_world(ob, np.array([list(c) for c in ob.bound_box]))
     lo, hi = pts.min(0), pts.max(0)
@@ -418,6 +426,7 @@ def _timed_drag(ob, path, offscreen):
     so both see the same machine load; then the overlay redraw (the draw callback into ``offscreen``)."""
     import bpy
     import gpu
+
     from shapespace.bridge import manipulation
     from shapespace.ui import overlay
     view, proj = _overlay_view(ob)
@@ -477,6 +486,7 @@ def _timed_solve_op(ob, start, goal, calls):
 def _timed_drag_start(ob, point, reps):
     """Mouse-down on the face: the drag reads the (cached) rig, the ray picks the surface, the pin is added."""
     import bpy
+
     from shapespace.bridge import manipulation, meshes
     size = float(np.ptp(meshes.to_world(ob, np.array([list(c) for c in ob.bound_box])), axis=0).max())
     origin = point + np.array([0.0, -3.0 * size, 0.0])
@@ -497,6 +507,7 @@ def production_case(name, quick):
     """Every issue #17 metric of one production face."""
     import bpy
     import gpu
+
     from shapespace.bridge import manipulation, shapekeys
     bpy.ops.wm.read_factory_settings(use_empty=True)
     _init_gpu()

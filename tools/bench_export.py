@@ -39,6 +39,7 @@ def retargeted_fbhead():
     """The shipped Live Link Face take retargeted onto FBHead (copy); the scene range stays 20–160 while the
     action runs 20–183.  Returns (mesh names, frame range to export or None)."""
     import bpy
+
     from shapespace.bridge import retarget
     _import(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
     retarget.retarget(bpy.data.objects["FBHead"], CSV, "copy")
@@ -61,6 +62,7 @@ def inbetween_rig():
     """Face Cap with an in-between of jawOpen and a smile × blink combination (native drivers), playing the
     Face Cap capture (frames 1–40)."""
     import bpy
+
     from shapespace.bridge import driven
     _import(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
     ob = bpy.data.objects["Mesh_2"]
@@ -80,6 +82,7 @@ def cesium_correctives(method):
     """CesiumMan with three sculpted examples on one bone (30°, 45°, 60°), animated through them and beyond
     (120°: extrapolated weights leave [0, 1]); Live Preview on.  ``method``: PSD, SBE or WPSD."""
     import bpy
+
     from shapespace.bridge import meshes
     from shapespace.core.blendshape import bounding_box_diagonal
     _import(os.path.join(ASSETS, "cesium_man", "CesiumMan.glb"))
@@ -130,6 +133,7 @@ def roundtrip(case: str, fmt: str, folder: str, frames: int = 9) -> tuple:
     """Build ``case`` in an empty file, export it as ``fmt``, re-import it; (max error over the sampled frames
     and meshes, the export report)."""
     import bpy
+
     from shapespace.bridge.export import export
     from shapespace.bridge.export import roundtrip as rt
     from shapespace.core.export import sample_frames
@@ -149,6 +153,7 @@ def roundtrip(case: str, fmt: str, folder: str, frames: int = 9) -> tuple:
 def long_take(repeats: int = 10) -> list:
     """FBHead playing the retargeted take ``repeats`` times in a row (1,640 frames for 10), keyed every frame."""
     import bpy
+
     from shapespace.bridge import actions, retarget, shapekeys
     bpy.ops.wm.read_factory_settings(use_empty=True)
     _import(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
@@ -167,6 +172,7 @@ def long_take(repeats: int = 10) -> list:
 
 def speed(folder: str) -> dict:
     import bpy
+
     from shapespace.bridge.export import export
     out = {}
     for fmt in FORMATS:

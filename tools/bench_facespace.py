@@ -28,8 +28,8 @@ import time
 import numpy as np
 
 import env
-
 from bench_support import ASSETS, SHARED, shared_data  # noqa: E402
+
 MOCAP = os.path.join(SHARED, "cmu_mocap", "131_01.bvh")
 FACECAP = os.path.join(env.ROOT, "assets", "facecap", "facecap_decoded.glb")
 KNEE_GAPS = (10, 20, 40)
@@ -114,8 +114,9 @@ def _fills(X, s, G, pool=None):
 
 def mocap(quick):
     """Knee flexion channels of the CMU walk: every method on the same held-out gaps, degrees."""
-    from shapespace.bridge import actions, assets
     import bpy
+
+    from shapespace.bridge import actions, assets
     assets.load(MOCAP)
     arm = next(ob for ob in bpy.data.objects if ob.type == "ARMATURE")
     action = actions.active_action(arm)
@@ -179,8 +180,9 @@ def mocap(quick):
 
 def facecap(quick):
     """jawOpen of the Face Cap capture on integer frames: Blender vs ours on held-out gaps, weights."""
-    from shapespace.bridge import actions, assets
     import bpy
+
+    from shapespace.bridge import actions, assets
     assets.load(FACECAP)
     ob = bpy.data.objects["Mesh_2"]
     curves = actions.shape_key_curves(ob)
@@ -253,6 +255,7 @@ def representations():
     at 1e-3 / 1e-2 of the head size, coherence, sparsity, the face prior, and shell vs linear in-betweens
     of every pair of ten expressive captured frames (norm at the midpoint relative to the endpoints')."""
     import bpy
+
     from shapespace.bridge import actions, assets, facespace, retarget, shapekeys
     from shapespace.core import facespace as fs
     from shapespace.core.retarget.cloning import copy_weights

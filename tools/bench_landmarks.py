@@ -44,6 +44,7 @@ def read_head(tag: str):
     """(neutral (n, 3), triangles (f, 3), deltas (k, n, 3), names) of a shared head read through Blender, or None
     when its file is missing."""
     import bpy
+
     from shapespace.bridge import assets, shapekeys
     rel, name = HEADS[tag]
     path = shared_data(rel, f"the {tag} head")

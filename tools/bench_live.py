@@ -183,8 +183,9 @@ def record_matches_offline(bpy) -> dict:
 
 
 def run(quick: bool = False) -> dict:
-    import package
     import bpy
+
+    import package
     sys.path.insert(0, os.path.join(env.ROOT, "tests"))
     import conftest  # noqa: F401  (a throw-away Blender user folder)
     ss = package.load()

@@ -6,7 +6,6 @@ import time
 
 import numpy as np
 
-
 from bench_support import shared_data  # noqa: E402
 
 REGIONS = {  # region: (asset, mesh, joints) — rpm_brunette is read from shared/ only (non-commercial)
@@ -31,6 +30,7 @@ METHOD_CURVES = ("lbs", "psd", "sbe", "wpsd", "wpsd_blend", "wpsd_pairs")
 def _rig(asset, mesh_name):
     """Rest mesh, skinning (one Armature modifier), bone rest matrices and parents, via the bridge."""
     import bpy
+
     from shapespace.bridge import assets, meshes, skin
     assets.load(shared_data(asset, asset))
     ob = bpy.data.objects[mesh_name]
@@ -245,6 +245,7 @@ def plot(curves, path):
 def roundtrip():
     """Apply through the real Blender pipeline; error of Blender's evaluated mesh vs the sculpt."""
     import bpy
+
     from shapespace.bridge import meshes, posespace, skin
     out = {}
     for label, dqs, bbone in (("lbs", False, False), ("dqs", True, False), ("bbone", False, True)):
@@ -340,6 +341,7 @@ def _pairs_speed(X, D, gi, gw, cols, poses, size, reps):
 
 def speed(quick):
     from scipy.interpolate import RBFInterpolator
+
     from shapespace.core import rbf
     from shapespace.core.posespace.inversion import invert_deformation
     from shapespace.core.posespace.psd import train_psd
@@ -445,6 +447,7 @@ def final_shape(quick=False):
     """Final-shape examples on a ~30k-vertex CesiumMan (subdivided, weights interpolated): re-invert time after a
     weight change, and the evaluated mesh at the example pose against the sculpt (issue #16 Build 1)."""
     import bpy
+
     from shapespace.bridge import meshes, posespace
     from shapespace.bridge.posespace import finalshape
     ob, arm, _, _, _ = _rig(*REGIONS["cesium_arm"][:2])
@@ -497,6 +500,7 @@ def _cesium_30k(n_examples=30, seed=3):
     frames, and ``n_examples`` examples at random poses of every bone with smooth rest-space correctives."""
     import bmesh
     import bpy
+
     from shapespace.bridge import posespace
     ob, arm, _, _, _ = _rig(*REGIONS["cesium_arm"][:2])
     bm = bmesh.new()
@@ -557,7 +561,9 @@ def live30k(quick=False, verbose=False) -> dict:
     """Update Correctives and a live-preview frame change on a 30k-vertex skinned character, end to end:
     the operator (or the frame-change handler) plus Blender's write and depsgraph evaluation."""
     import os
+
     import bpy
+
     from shapespace.ui import posespace_preview
     ob, arm = _cesium_30k()
     st = ob.shapespace_psd
@@ -607,6 +613,7 @@ def postdeform(quick=False):
     import tempfile
 
     import bpy
+
     import package
     from shapespace.bridge import meshes, posespace
     from shapespace.bridge.posespace import postdeform as pd

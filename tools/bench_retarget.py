@@ -107,6 +107,7 @@ def _plot_channel(curves, path):
 def _facecap_reduced():
     """The Face Cap head with six sliders limited to 0.4 (the target cannot follow), its capture detached."""
     import bpy
+
     from shapespace.bridge import actions, assets
     assets.load(os.path.join(ASSETS, "facecap", "facecap_decoded.glb"))
     ob = bpy.data.objects["Mesh_2"]
@@ -121,6 +122,7 @@ def _facecap_reduced():
 def quality(plot_path=None):
     """Real captures: facecap's capture onto facecap with reduced slider ranges; LLF onto FBHead."""
     import bpy
+
     from shapespace.bridge import actions, assets, retarget
     out = {}
     ob, key, capture = _facecap_reduced()
@@ -158,6 +160,7 @@ def key_reduction(quick):
     (Graph Editor, 'Allowed Change'), each curve's Decimate margin bisected to the largest one whose
     real max error (Blender's own evaluation) stays ≤ 0.01 — the most generous setting for Decimate."""
     import bpy
+
     from shapespace.bridge import actions, retarget
     tol = 0.01
     ob, key, capture = _facecap_reduced()
@@ -227,6 +230,7 @@ def _one_compiled_factorisation_s(args, kwargs, reps=3) -> float:
     (bandwidth 2n − 1, nothing held — the cheapest coupled system there is), with no Python per frame.  Beside
     the unbounded solve it is the flop floor of any exact bounded solve, whatever language it is written in."""
     from scipy.linalg import lapack
+
     from shapespace.core.blas_threads import single_threaded
     from shapespace.core.retarget import spacetime_solver as ss
     B, _, S, sig, lam = args[:5]
@@ -247,6 +251,7 @@ def landmark_cases():
     (1.5k vertices) and ICT FaceKit (27k, skipped without ../shared/data).  Also times the bounded vs
     unbounded space-time solve on the real FBHead problem (slider ranges [0, 1], dense noisy correspondence)."""
     import bpy
+
     from shapespace.bridge import assets, retarget
     from shapespace.core.retarget import performance
     out = {}
@@ -297,6 +302,7 @@ def landmark_cases():
 def _tiled_llf(count: int):
     """FBHead and the Live Link Face take tiled to ``count`` frames (names, frames, weights), via the bridge."""
     import bpy
+
     from shapespace.bridge import assets, retarget
     assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
     csv = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
@@ -389,9 +395,10 @@ def longtake(quick):
     distance ‖ΔW Bᵀ‖, over the head's size: it grows with the vertex count).  Key reduction alone: the 51
     mapped curves of the take, all at once (as the batch command reduces them).  Plus the redundant rig."""
     import tempfile
+
     from shapespace.bridge import retarget, shapekeys
-    from shapespace.core.keyreduce import hermite, reduce_keys_bezier_curves
     from shapespace.core.blendshape import bounding_box_diagonal
+    from shapespace.core.keyreduce import hermite, reduce_keys_bezier_curves
     from shapespace.core.retarget import copy_weights, performance, split_mapping
     out = {}
     folder = tempfile.mkdtemp(prefix="shapespace_longtake_")
@@ -477,6 +484,7 @@ def _redundant_head():
     and near duplicates, visemes, empty keys; rank ≈ 90) and the shipped Live Link Face take at 24 fps (131
     frames), its 52 ARKit channels copied onto the ARKit keys: ``(model, rig, ideal weights (131, 124))``."""
     import bpy
+
     from shapespace.bridge import assets, retarget, shapekeys
     from shapespace.core.blendshape import BlendshapeModel
     assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
@@ -603,7 +611,9 @@ def cancel_latency(quick):
     longest gap (``cancel_latency_s_<case>``), and a real cancel half-way through a ``BackgroundJob``
     (``cancel_measured_s_<case>``: from ``cancel()`` to the worker's end; nothing is written either way)."""
     import tempfile
+
     import bpy
+
     from shapespace.bridge import assets, retarget
     from shapespace.core.jobs import BackgroundJob
     ict = shared_data(os.path.join("ict_facekit", "ict_facekit_expressions.glb"), "the cancel latency case")
@@ -672,7 +682,9 @@ def capture(quick):
     to the scene's frames as a recorded take is, solved by the live pipeline) — radians (quaternion and
     axis-angle components are unitless)."""
     import tempfile
+
     import bpy
+
     from capture_files import WRITERS, load_llf_take, long_take, write_llf_csv
     from shapespace.bridge import assets, retarget
     from shapespace.bridge.live.rig import Pipeline

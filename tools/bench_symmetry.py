@@ -35,6 +35,7 @@ HEADS = {
 
 def _load(rel: str, name: str, what: str):
     import bpy
+
     from shapespace.bridge import assets
     path = shared_data(rel, what)
     if path is None:
@@ -52,6 +53,7 @@ def _load(rel: str, name: str, what: str):
 
 def _evaluated(ob):
     import bpy
+
     from shapespace.bridge import meshes
     bpy.context.view_layer.update()
     return meshes.evaluated_positions(ob, bpy.context.evaluated_depsgraph_get()).astype(np.float64)

@@ -129,6 +129,7 @@ def _pair(src, dst):
 def _capture_diff(fbhead, transferred):
     """Live Link Face recording (copy method) on FBHead: transferred vs authored shapes, per-vertex RMS (mm)."""
     import bpy
+
     from shapespace.bridge import retarget
     from shapespace.core import authoring
     from shapespace.core.names import canonical_name

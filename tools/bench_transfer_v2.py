@@ -43,6 +43,7 @@ HEADS = {"facecap": ("facecap/facecap_decoded.glb", ("Mesh_2", "Mesh_0", "Mesh_1
 def read_head(tag):
     """(neutral (n, 3), triangles (f, 3), deltas (k, n, 3), canonical names) of a whole head, world space."""
     import bpy
+
     from shapespace.bridge import assets, shapekeys
     from shapespace.core.names import canonical_name
     rel, objects = HEADS[tag]

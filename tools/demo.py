@@ -314,8 +314,9 @@ def _facespace_demo(bpy, np, out_dir, size):
 
 
 def run(out_dir: str, size: int = 512) -> dict:
-    import numpy as np
     import bpy
+    import numpy as np
+
     import package
     pkg = package.load(register=True)
     try:

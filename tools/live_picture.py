@@ -77,16 +77,17 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     env.reexec_in("bpy50", os.path.abspath(__file__), sys.argv[1:] if argv is None else argv)
     sys.path.insert(0, os.path.join(env.ROOT, "tests"))
-    import conftest  # noqa: F401  (a throw-away Blender user folder)
     import bpy
     import numpy as np
-    import package
+
+    import conftest  # noqa: F401  (a throw-away Blender user folder)
     import live_replay
+    import package
     ss = package.load()
     ss.register()
+    from demo import _render, _setup_render
     from shapespace.bridge import assets, retarget
     from shapespace.bridge.live import session
-    from demo import _render, _setup_render
 
     assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
     for ob in [o for o in bpy.data.objects if o.type == "EMPTY"]:

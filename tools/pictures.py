@@ -239,6 +239,7 @@ def main(argv) -> int:
 
     import bpy
     import numpy as np
+
     import package
     pkg = package.load(register=True)
     try:

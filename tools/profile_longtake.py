@@ -19,10 +19,11 @@ import package  # noqa: E402
 
 def stages(method: str, csv: str) -> dict:
     import bpy
+
+    from bench_support import ASSETS
     from shapespace.bridge import assets, retarget
     from shapespace.core.retarget import copy_weights, retarget_weights
     from shapespace.core.retarget.job import plan_curves
-    from bench_support import ASSETS
     assets.load(os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend"))
     ob = bpy.data.objects["FBHead"]
     t0 = time.perf_counter()

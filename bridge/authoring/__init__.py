@@ -17,18 +17,58 @@ everything is computed: validate → compute → write, and on any failure the f
 Level order (each imports only those above it): reading → landmarks → registration → transfer; source_file
 stands alone.
 """
-from ...core.authoring.job import (PreviewOutcome, PreviewPlan, SourceRig, TargetMesh, TransferOutcome,
-                                   TransferPlan, compute_preview, compute_transfer)
+from ...core.authoring.job import (
+                                   PreviewOutcome,
+                                   PreviewPlan,
+                                   SourceRig,
+                                   TargetMesh,
+                                   TransferOutcome,
+                                   TransferPlan,
+                                   compute_preview,
+                                   compute_transfer,
+)
 from ...core.authoring.report import TransferReport
-from .landmarks import (LANDMARKS_PROP, LANDMARKS_SCHEMA, MIN_LANDMARKS, add_landmark, clear_landmarks,
-                        landmark_count, landmark_list, landmark_pairs, propose_landmarks, remove_landmark,
-                        selected_vertex, set_landmarks, use_named_landmarks)
+from .landmarks import (
+                                   LANDMARKS_PROP,
+                                   LANDMARKS_SCHEMA,
+                                   MIN_LANDMARKS,
+                                   add_landmark,
+                                   clear_landmarks,
+                                   landmark_count,
+                                   landmark_list,
+                                   landmark_pairs,
+                                   propose_landmarks,
+                                   remove_landmark,
+                                   selected_vertex,
+                                   set_landmarks,
+                                   use_named_landmarks,
+)
 from .reading import read_source_rig, read_target
-from .registration import (PREVIEW_PROP, clear_preview, finish_preview_job, preview_object, read_preview,
-                           register_source, show_preview, start_preview_job, write_preview)
+from .registration import (
+                                   PREVIEW_PROP,
+                                   clear_preview,
+                                   finish_preview_job,
+                                   preview_object,
+                                   read_preview,
+                                   register_source,
+                                   show_preview,
+                                   start_preview_job,
+                                   write_preview,
+)
 from .source_file import append_object, remove_appended
-from .transfer import (EXISTING, LAST_PROP, LAST_SCHEMA, NAMINGS, finish_transfer_job, last_verdict, read_transfer,
-                       start_transfer_job, transfer_shapes, verdict_status, write_transfer)
+from .transfer import (
+                                   EXISTING,
+                                   LAST_PROP,
+                                   LAST_SCHEMA,
+                                   NAMINGS,
+                                   finish_transfer_job,
+                                   last_verdict,
+                                   read_transfer,
+                                   start_transfer_job,
+                                   transfer_shapes,
+                                   verdict_status,
+                                   write_transfer,
+)
 
 __all__ = ["MIN_LANDMARKS", "PREVIEW_PROP", "LANDMARKS_PROP", "LANDMARKS_SCHEMA", "NAMINGS", "EXISTING",
            "LAST_PROP", "LAST_SCHEMA", "SourceRig", "TargetMesh", "TransferReport", "read_source_rig", "read_target",

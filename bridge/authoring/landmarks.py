@@ -10,13 +10,17 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ...core import blobs
 from ...core.authoring import contacts as core_contacts
 from ...core.authoring import named as core_named
 from ...core.authoring.job import SourceRig, TargetMesh
-from ...core.authoring.landmarks import (LandmarkPairs, check_landmarks, landmarks_from_indices,
-                                         landmarks_from_shared_shapes)
+from ...core.authoring.landmarks import (
+    LandmarkPairs,
+    check_landmarks,
+    landmarks_from_indices,
+    landmarks_from_shared_shapes,
+)
 from ...core.authoring.proposal import propose_landmark_pairs
-from ...core import blobs
 from ...core.errors import ErrorCode
 from ...core.result import Result, ShapeSpaceError
 from .. import named_landmarks, shapekeys, storage

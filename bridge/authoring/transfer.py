@@ -19,11 +19,11 @@ import time
 import bpy
 import numpy as np
 
+from ...core import blobs
 from ...core.authoring.job import SourceRig, TargetMesh, TransferOutcome, TransferPlan, compute_transfer
 from ...core.authoring.mesh import triangle_parts
 from ...core.authoring.report import TransferReport
 from ...core.authoring.transfer import convert_name
-from ...core import blobs
 from ...core.errors import ErrorCode
 from ...core.jobs import BackgroundJob
 from ...core.result import ShapeSpaceError

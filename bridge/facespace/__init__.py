@@ -14,15 +14,46 @@ verbs that report return the typed reports of :mod:`core.facespace.report`.
 - :mod:`.prior` — the face prior, its meter, implausible frames, in-betweens (3.7.9, ch. 6);
 - :mod:`.inpainting` — curve inpainting (9.3).
 """
-from .conversions import (FORMS, NEUTRAL_KEY, SLIDER_LIMIT, ZERO_KEY, convert_rig, make_convex, to_delta_object,
-                          to_pca_object, to_pca_object_relative, to_whole_face_object, whole_face_issue)
+from .conversions import (
+                          FORMS,
+                          NEUTRAL_KEY,
+                          SLIDER_LIMIT,
+                          ZERO_KEY,
+                          convert_rig,
+                          make_convex,
+                          to_delta_object,
+                          to_pca_object,
+                          to_pca_object_relative,
+                          to_whole_face_object,
+                          whole_face_issue,
+)
 from .inpainting import inpaint_gap
-from .prior import (fill_around, fill_between, flag_implausible_frames, has_prior, implausible_frames,
-                    keyed_frames, learn_prior, meter, prior, set_frame)
+from .prior import (
+                          fill_around,
+                          fill_between,
+                          flag_implausible_frames,
+                          has_prior,
+                          implausible_frames,
+                          keyed_frames,
+                          learn_prior,
+                          meter,
+                          prior,
+                          set_frame,
+)
 from .readers import MAX_FRAMES, animation_weights, linear_model
 from .reports import analyse, compression, compression_relative
-from .stored import (ANALYSIS_PROP, ANALYSIS_SCHEMA, COHERENCE_SCHEMA, COMPRESSION_SCHEMA, PRIOR_PROP, PRIOR_SCHEMA,
-                     REPRESENTATION_PROP, REPRESENTATION_SCHEMA, stored, stored_analysis)
+from .stored import (
+                          ANALYSIS_PROP,
+                          ANALYSIS_SCHEMA,
+                          COHERENCE_SCHEMA,
+                          COMPRESSION_SCHEMA,
+                          PRIOR_PROP,
+                          PRIOR_SCHEMA,
+                          REPRESENTATION_PROP,
+                          REPRESENTATION_SCHEMA,
+                          stored,
+                          stored_analysis,
+)
 
 __all__ = [
     "REPRESENTATION_PROP", "PRIOR_PROP", "ANALYSIS_PROP", "REPRESENTATION_SCHEMA", "PRIOR_SCHEMA",

@@ -11,8 +11,14 @@ from ...core.facespace.job import meter_step, prior_step
 from ...core.facespace.report import FillReport, MeterReport, PriorReport
 from ...core.result import ShapeSpaceError
 from .. import actions, shapekeys
-from .readers import animation_weights, linear_model, refuse_non_finite_frames, refuse_non_finite_keys, \
-    refuse_non_finite_samples, tick
+from .readers import (
+    animation_weights,
+    linear_model,
+    refuse_non_finite_frames,
+    refuse_non_finite_keys,
+    refuse_non_finite_samples,
+    tick,
+)
 from .stored import PRIOR_PROP, damaged, store, stored
 
 

@@ -2,14 +2,13 @@
 image, near-duplicate and empty targets, sparsity), both stored on the rig for the panel."""
 from __future__ import annotations
 
-
 import bpy
 import numpy as np
 
 from ...core.errors import ErrorCode
-from ...core.paths import check_output_file
 from ...core.facespace.job import coherence_step, compression_step
 from ...core.facespace.report import CoherenceReport, CompressionReport
+from ...core.paths import check_output_file
 from ...core.result import ShapeSpaceError
 from .. import actions
 from .readers import animation_weights, linear_model, tick

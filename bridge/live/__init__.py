@@ -11,8 +11,22 @@
 """
 from . import recording, rig, session
 from .recording import TAKE_PROP, is_take, play_take, remove_take, take_info, takes
-from .session import (RUNTIME, SOURCES, LiveStatus, calibrate, is_recording, is_running, record, register, start,
-                      status, stop, stop_recording, tick, unregister)
+from .session import (
+                      RUNTIME,
+                      SOURCES,
+                      LiveStatus,
+                      calibrate,
+                      is_recording,
+                      is_running,
+                      record,
+                      register,
+                      start,
+                      status,
+                      stop,
+                      stop_recording,
+                      tick,
+                      unregister,
+)
 
 __all__ = ["recording", "rig", "session", "TAKE_PROP", "is_take", "play_take", "remove_take", "take_info", "takes",
            "RUNTIME", "SOURCES", "LiveStatus", "calibrate", "is_recording", "is_running", "record", "register",

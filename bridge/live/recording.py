@@ -19,8 +19,8 @@ import bpy
 import numpy as np
 
 from ...core import blobs
-from ...core.keyreduce import reduce_keys_bezier
 from ...core.errors import ErrorCode
+from ...core.keyreduce import reduce_keys_bezier
 from ...core.result import ShapeSpaceError
 from ...core.retarget import retarget_weights
 from .. import actions, retarget, shapekeys, storage

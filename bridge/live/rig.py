@@ -18,12 +18,26 @@ import numpy as np
 
 from ...core.errors import ErrorCode
 from ...core.headpose import BoneSpec, bone_values
-from ...core.live import (FACECAP_52, LLF_BLENDSHAPES, CopySolver, GeometricSolver, LearnedSolver, Neutral,
-                          OneEuroFilter, calibrate)
+from ...core.live import (
+    FACECAP_52,
+    LLF_BLENDSHAPES,
+    CopySolver,
+    GeometricSolver,
+    LearnedSolver,
+    Neutral,
+    OneEuroFilter,
+    calibrate,
+)
 from ...core.names import match_channels
 from ...core.result import ShapeSpaceError
-from ...core.retarget import (key_frames_in_span, learned_cloning, moving_channels, normalised_basis, split_mapping,
-                              transfer_motion)
+from ...core.retarget import (
+    key_frames_in_span,
+    learned_cloning,
+    moving_channels,
+    normalised_basis,
+    split_mapping,
+    transfer_motion,
+)
 from .. import actions, retarget, shapekeys
 
 __all__ = ["SOURCE_NAMES", "METHODS", "BoneTarget", "Pipeline", "build_pipeline"]

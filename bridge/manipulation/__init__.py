@@ -30,12 +30,42 @@ from __future__ import annotations
 
 from ...core.manipulation.geometry import mirror_pin, reflect_point, symmetric_target
 from .cache import RIGS, RigCache, RigEntry, rig_model, write_sliders
-from .drag import (Drag, current_sliders, drag_status_line, drag_step, key_changed, prior_from_settings, report_text,
-                   solve_pins, solve_to_target, symmetric_move)
-from .pins import (SPACES, PinState, add_pin, check_pins, clear_pins, deformed_pin_positions, deformed_to_shape_space,
-                   mirror_links, mirror_partner, mirror_pins, mirror_plane, overlay_points, pin_target, read_pin_state,
-                   read_pins, remove_pin, set_active_pin, set_pin_target, settings, stored_pin, to_shape_space,
-                   undo_drag)
+from .drag import (
+                   Drag,
+                   current_sliders,
+                   drag_status_line,
+                   drag_step,
+                   key_changed,
+                   prior_from_settings,
+                   report_text,
+                   solve_pins,
+                   solve_to_target,
+                   symmetric_move,
+)
+from .pins import (
+                   SPACES,
+                   PinState,
+                   add_pin,
+                   check_pins,
+                   clear_pins,
+                   deformed_pin_positions,
+                   deformed_to_shape_space,
+                   mirror_links,
+                   mirror_partner,
+                   mirror_pins,
+                   mirror_plane,
+                   overlay_points,
+                   pin_target,
+                   read_pin_state,
+                   read_pins,
+                   remove_pin,
+                   set_active_pin,
+                   set_pin_target,
+                   settings,
+                   stored_pin,
+                   to_shape_space,
+                   undo_drag,
+)
 from .surface import surface_pin, world_to_local
 
 __all__ = ["SPACES", "RIGS", "RigCache", "RigEntry", "PinState", "Drag", "rig_model", "write_sliders",

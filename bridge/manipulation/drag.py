@@ -20,8 +20,19 @@ from ...core.manipulation.geometry import reflect_point, symmetric_target
 from ...core.result import ShapeSpaceError, Status
 from .. import actions, meshes, shapekeys
 from .cache import RIGS, write_sliders
-from .pins import (PinState, check_pins, deformed_to_shape_space, mirror_partner, mirror_plane, pin_index, pin_target,
-                   set_pin_target, settings, to_shape_space, undo_drag)
+from .pins import (
+    PinState,
+    check_pins,
+    deformed_to_shape_space,
+    mirror_partner,
+    mirror_plane,
+    pin_index,
+    pin_target,
+    set_pin_target,
+    settings,
+    to_shape_space,
+    undo_drag,
+)
 from .surface import finite_point, world_to_local
 
 __all__ = ["Drag", "prior_from_settings", "solve_pins", "symmetric_move", "drag_step", "solve_to_target",

@@ -20,19 +20,37 @@ more than the highest level it imports (``tests/core/test_imports.py`` checks bo
 - level 6: :mod:`.postdeform` — post-deformation correctives (frame offsets applied after skinning);
 - level 7: :mod:`.examples` — add, move and remove examples.
 """
-from .bake import (MESH_CACHE_NAME, bake_point_cache, bake_weights, cache_path, default_cache_name,
-                   stored_cache_path)
+from .bake import MESH_CACHE_NAME, bake_point_cache, bake_weights, cache_path, default_cache_name, stored_cache_path
 from .confidence import CONFIDENCE_ATTRIBUTE, confidence, confidence_model, show_variance
 from .correctives import check_not_editing, check_topology, example_correctives, example_keys, pre_armature_positions
 from .examples import add_example, move_example, posed_copy, problem, remove_example, remove_sculpt_copy
 from .inversion import TEMP_KEY, modelled_exactly
 from .mirror import mirror_example
 from .pose import add_default_readers, armature_of, default_readers, read_pose, readers, settings
-from .preview import (cached_model, clear_preview_message, forget_models, model_method, preview, stop_live_preview,
-                      write_wpsd_preview)
+from .preview import (
+                   cached_model,
+                   clear_preview_message,
+                   forget_models,
+                   model_method,
+                   preview,
+                   stop_live_preview,
+                   write_wpsd_preview,
+)
 from .sculpt import apply_example
-from .stored import (POSE_SCHEMA, PSEUDO_POSE_SCHEMA, SCULPT_SUFFIX, TARGET_VALUES_SCHEMA, WPSD_KEY, check_examples,
-                     example_pose, find_example, interpolation_pose, pseudo_pose, target_values, wpsd_distance)
+from .stored import (
+                   POSE_SCHEMA,
+                   PSEUDO_POSE_SCHEMA,
+                   SCULPT_SUFFIX,
+                   TARGET_VALUES_SCHEMA,
+                   WPSD_KEY,
+                   check_examples,
+                   example_pose,
+                   find_example,
+                   interpolation_pose,
+                   pseudo_pose,
+                   target_values,
+                   wpsd_distance,
+)
 from .targets import add_target, read_targets, record_targets, target_driver, write_targets
 from .training import flag_examples, trained_deformer
 

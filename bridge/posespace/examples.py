@@ -15,8 +15,15 @@ from .. import meshes
 from .correctives import basis_positions, check_finite_positions, check_not_editing, check_topology, new_corrective_key
 from .pose import add_readers, armature_of, default_readers, read_pose, readers, settings
 from .postdeform import remove_post_deform
-from .stored import (SCULPT_SUFFIX, check_examples, find_example, pin_wpsd_distance, set_example_pose,
-                     set_pseudo_pose, set_target_values)
+from .stored import (
+    SCULPT_SUFFIX,
+    check_examples,
+    find_example,
+    pin_wpsd_distance,
+    set_example_pose,
+    set_pseudo_pose,
+    set_target_values,
+)
 from .targets import read_targets
 
 

@@ -24,15 +24,27 @@ import numpy as np
 
 from ...core.cache import BoundedCache
 from ...core.errors import ErrorCode
-from ...core.posespace.finalshape import (array_digest, compare_fingerprints, decode_array, encode_array,
-                                          lbs_affine_maps, touched_vertices)
+from ...core.posespace.finalshape import (
+    array_digest,
+    compare_fingerprints,
+    decode_array,
+    encode_array,
+    lbs_affine_maps,
+    touched_vertices,
+)
 from ...core.posespace.inversion import InversionResult, invert_affine, invert_deformation
 from ...core.result import ShapeSpaceError, Status
 from ...core.skinning import ArmatureDeform, SkinningRig, SkinWeights, deform
 from .. import meshes, skin
 from ..arrays import matrix, read_float, read_matrices, write_float
-from .correctives import (basis_positions, check_not_editing, check_topology, example_correctives, example_keys,
-                          pre_armature_positions)
+from .correctives import (
+    basis_positions,
+    check_not_editing,
+    check_topology,
+    example_correctives,
+    example_keys,
+    pre_armature_positions,
+)
 from .inversion import invert_through_blender, modelled_exactly
 from .pose import read_pose, readers, settings
 from .stored import check_examples, example_pose, final_shape, find_example, set_final_shape

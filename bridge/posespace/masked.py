@@ -20,8 +20,14 @@ from ...core.result import ShapeSpaceError
 from .. import symmetry
 from ..arrays import write_float
 from ..meshes import group_weight_vector, vertex_groups
-from .correctives import (basis_positions, check_finite_positions, check_not_editing, check_topology,
-                          new_corrective_key, pre_armature_positions)
+from .correctives import (
+    basis_positions,
+    check_finite_positions,
+    check_not_editing,
+    check_topology,
+    new_corrective_key,
+    pre_armature_positions,
+)
 from .inversion import invert, sculpt_positions_of
 from .pose import settings
 from .stored import check_examples, find_example

@@ -7,8 +7,13 @@ from __future__ import annotations
 
 from ...core.posespace.inversion import InversionResult
 from ..arrays import write_float
-from .correctives import (basis_positions, check_finite_positions, check_not_editing, check_topology,
-                          pre_armature_positions)
+from .correctives import (
+    basis_positions,
+    check_finite_positions,
+    check_not_editing,
+    check_topology,
+    pre_armature_positions,
+)
 from .finalshape import store_final_shape, touched
 from .inversion import invert, sculpt_positions_of
 from .pose import settings

@@ -18,12 +18,37 @@ from ...core.retarget.job import KEY_SHAPES, RetargetOutcome, RetargetPlan, comp
 from .dense import LANDMARK_PREFIX, STABLE_GROUP, dense_source_positions, landmark_pairs, mesh_sequence
 from .landmarks import add_landmark, landmarks_from_shapes, selected_vertex
 from .last_result import LAST_PROP, LAST_SCHEMA, REPORT_KEYS, discard_last, has_result, last_report
-from .mapping import (MAPPING_PROP, MAPPING_SCHEMA, MAX_MAPPING_VALUE, channel_mapping, remove_mapping,
-                      resolve_mapping, set_mapping, stored_mapping)
-from .run import (NONLINEAR_MESSAGE, finish_retarget_job, read_retarget, read_retarget_dense, reduce_action_keys,
-                  retarget, retarget_dense, start_retarget_job, write_retarget)
-from .sources import (CAPTURE_EXTENSIONS, KEY_POSE_MARKER, HeadEyeBones, bone_specs, is_capture_file,
-                      read_capture_source, read_source, suggest_key_poses)
+from .mapping import (
+                      MAPPING_PROP,
+                      MAPPING_SCHEMA,
+                      MAX_MAPPING_VALUE,
+                      channel_mapping,
+                      remove_mapping,
+                      resolve_mapping,
+                      set_mapping,
+                      stored_mapping,
+)
+from .run import (
+                      NONLINEAR_MESSAGE,
+                      finish_retarget_job,
+                      read_retarget,
+                      read_retarget_dense,
+                      reduce_action_keys,
+                      retarget,
+                      retarget_dense,
+                      start_retarget_job,
+                      write_retarget,
+)
+from .sources import (
+                      CAPTURE_EXTENSIONS,
+                      KEY_POSE_MARKER,
+                      HeadEyeBones,
+                      bone_specs,
+                      is_capture_file,
+                      read_capture_source,
+                      read_source,
+                      suggest_key_poses,
+)
 
 __all__ = ["METHODS", "KEY_SHAPES", "read_source", "read_capture_source", "is_capture_file",
            "channel_mapping", "resolve_mapping", "suggest_key_poses",

@@ -21,19 +21,25 @@ import numpy as np
 
 from ...core.errors import ErrorCode
 from ...core.jobs import BackgroundJob
+from ...core.progress import scaled
 from ...core.result import Issue, ShapeSpaceError
 from ...core.retarget import GEOMETRIC_METHODS, METHODS, RetargetReport, split_mapping
-from ...core.retarget.job import (KEY_SHAPES, RetargetOutcome, RetargetPlan, check_settings, compute_retarget,
-                                  plan_curves, written_range)
+from ...core.retarget.job import (
+    KEY_SHAPES,
+    RetargetOutcome,
+    RetargetPlan,
+    check_settings,
+    compute_retarget,
+    plan_curves,
+    written_range,
+)
 from ...core.retarget.performance import check_dense_budget
-from ...core.progress import scaled
 from ...core.validate import choice, positive
 from .. import actions, shapekeys, storage
 from .dense import read_dense_inputs
 from .last_result import LAST_PROP, LAST_SCHEMA, REPORT_KEYS
 from .mapping import resolve_mapping
-from .sources import (HeadEyeBones, is_capture_file, read_capture_source, read_head_eye_bones, read_learned,
-                      read_source)
+from .sources import HeadEyeBones, is_capture_file, read_capture_source, read_head_eye_bones, read_learned, read_source
 
 __all__ = ["NONLINEAR_MESSAGE", "read_retarget", "read_retarget_dense", "write_retarget", "start_retarget_job",
            "finish_retarget_job", "retarget", "retarget_dense", "reduce_action_keys"]

@@ -17,8 +17,14 @@ from ...core.errors import ErrorCode
 from ...core.headpose import BoneSpec, unused_rotation_channels
 from ...core.live import Neutral, calibrate
 from ...core.result import Issue, ShapeSpaceError
-from ...core.retarget import (LearnedCloning, key_frames_in_span, learned_cloning, read_capture, resample,
-                              suggest_key_frames)
+from ...core.retarget import (
+    LearnedCloning,
+    key_frames_in_span,
+    learned_cloning,
+    read_capture,
+    resample,
+    suggest_key_frames,
+)
 from .. import actions
 
 __all__ = ["KEY_POSE_MARKER", "CAPTURE_EXTENSIONS", "is_capture_file", "read_source", "read_capture_source",

@@ -22,8 +22,13 @@ import numpy as np
 
 from ...core.errors import ErrorCode
 from ...core.result import ShapeSpaceError
-from ...core.rig import (Channel, ChannelKind, ControlSet, quaternion_from_rotation_vector,
-                         rotation_vector_from_quaternion)
+from ...core.rig import (
+    Channel,
+    ChannelKind,
+    ControlSet,
+    quaternion_from_rotation_vector,
+    rotation_vector_from_quaternion,
+)
 
 __all__ = ["Binding", "bind", "bone_channel", "bone_channels", "control_set", "property_channel",
            "shape_key_channel"]

@@ -16,8 +16,15 @@ from ...core import blobs
 from ...core.errors import ErrorCode
 from ...core.result import Issue, ShapeSpaceError
 from ...core.rig.controls import Channel, ChannelKind, ControlSet
-from ...core.rig.stored import (BONE_KINDS, StoredChannel, add_entries, blob_from_entries, entries_from_blob,
-                                mirror_entries, mirror_entry)
+from ...core.rig.stored import (
+    BONE_KINDS,
+    StoredChannel,
+    add_entries,
+    blob_from_entries,
+    entries_from_blob,
+    mirror_entries,
+    mirror_entry,
+)
 from .. import storage
 from .channels import bone_channel, property_channel, shape_key_channel
 from .evaluate import check_editable

@@ -26,12 +26,19 @@ from dataclasses import dataclass, replace
 import bpy
 import numpy as np
 
-from ...core.keyreduce import reduce_keys_bezier_curves
 from ...core.errors import ErrorCode
+from ...core.keyreduce import reduce_keys_bezier_curves
 from ...core.progress import notify, scaled
 from ...core.result import ShapeSpaceError
-from ...core.rig import (ChannelKind, ControlSet, RigTakeReport, RigTakeResult, quaternion_from_rotation_vector,
-                         solve_take, take_report)
+from ...core.rig import (
+    ChannelKind,
+    ControlSet,
+    RigTakeReport,
+    RigTakeResult,
+    quaternion_from_rotation_vector,
+    solve_take,
+    take_report,
+)
 from .. import actions
 from ..meshes import world_matrix
 from .analytic import key_coords, key_delta

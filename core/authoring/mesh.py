@@ -11,9 +11,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .. import validate
-from ..surface import closest_on_triangles
 from ..errors import ErrorCode
 from ..result import ShapeSpaceError
+from ..surface import closest_on_triangles
 
 __all__ = ["check_mesh", "triangulate", "inv3", "bbox_diagonal", "mm_per_unit", "triangle_parts", "face_normals",
            "vertex_normals", "closest_on_triangles", "symmetry_plane", "boundary_vertices"]

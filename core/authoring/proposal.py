@@ -67,8 +67,8 @@ from .. import validate
 from ..result import Result, ShapeSpaceError, Status
 from .features import FaceFrame, Head, locate_from_shapes, locate_on_geometry
 from .landmarks import MIN_LANDMARKS, LandmarkPairs
-from .named import CENTRE, NAMES, mirror_name
 from .mesh import bbox_diagonal, boundary_vertices, check_mesh, symmetry_plane, triangle_parts, vertex_normals
+from .named import CENTRE, NAMES, mirror_name
 from .registration import similarity
 
 __all__ = ["propose_landmark_pairs", "head_frame"]

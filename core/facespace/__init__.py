@@ -11,13 +11,36 @@ J.P. Lewis, *Learning from the Artist*, 2016:
 - :mod:`.job` — the pure middle step of each face-space verb of :mod:`bridge.facespace` (arrays in, report out);
 - :mod:`.report` — the reports those verbs return (:class:`core.result.Report`).
 """
-from .diagnostics import (coherence_image, coherence_matrix, empty_targets, mutual_coherence, similar_pairs,
-                          sparsity_comparison)
-from .forms import (convex_slider_values, delta_weights, from_whole_face, neutral_key_count, project_convex,
-                    to_whole_face, whole_face_weights)
+from .diagnostics import (
+                          coherence_image,
+                          coherence_matrix,
+                          empty_targets,
+                          mutual_coherence,
+                          similar_pairs,
+                          sparsity_comparison,
+)
+from .forms import (
+                          convex_slider_values,
+                          delta_weights,
+                          from_whole_face,
+                          neutral_key_count,
+                          project_convex,
+                          to_whole_face,
+                          whole_face_weights,
+)
 from .inpainting import context_channels, cubic_fill, fill_gap, gap_mask, inpaint_curve, linear_fill
-from .pca import (PCABasis, PCASliders, animation_pca, blendshape_to_pca_maps, compressed_animation_pca,
-                  compression_report, fit_pca, pca_from_model, pca_sliders, pca_to_blendshape_maps)
+from .pca import (
+                          PCABasis,
+                          PCASliders,
+                          animation_pca,
+                          blendshape_to_pca_maps,
+                          compressed_animation_pca,
+                          compression_report,
+                          fit_pca,
+                          pca_from_model,
+                          pca_sliders,
+                          pca_to_blendshape_maps,
+)
 from .prior import FaceGaussian, face_gaussian_from_arrays, fit_face_gaussian
 from .shell import INTERPOLATIONS, fill_range, inbetween_times, interpolate, linear_interpolate, shell_interpolate
 

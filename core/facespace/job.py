@@ -23,8 +23,14 @@ from ..blendshape import BlendshapeModel
 from ..errors import ErrorCode
 from ..progress import ProgressFn, notify
 from ..result import Issue, ShapeSpaceError, Status
-from .diagnostics import coherence_image, coherence_matrix, empty_targets, mutual_coherence, similar_pairs, \
-    sparsity_comparison
+from .diagnostics import (
+    coherence_image,
+    coherence_matrix,
+    empty_targets,
+    mutual_coherence,
+    similar_pairs,
+    sparsity_comparison,
+)
 from .forms import convex_slider_values, neutral_key_count, to_whole_face
 from .inpainting import fill_gap
 from .pca import PCABasis, PCASliders, compressed_animation_pca, compression_report, pca_from_model, pca_sliders

@@ -10,14 +10,44 @@
 
 Pure numpy/scipy and the standard library: the bridge runs the sockets, threads and Blender writes.
 """
-from .calibration import (FACE_TO_ARMATURE, Neutral, bone_local, calibrate, euler_matrix, face_to_armature,
-                          matrix_euler, matrix_quaternion, rotation_power)
+from .calibration import (
+                          FACE_TO_ARMATURE,
+                          Neutral,
+                          bone_local,
+                          calibrate,
+                          euler_matrix,
+                          face_to_armature,
+                          matrix_euler,
+                          matrix_quaternion,
+                          rotation_power,
+)
 from .filter import OneEuroFilter
-from .frames import (FACECAP_52, LLF_BLENDSHAPES, LLF_CURVES, LLF_ROTATIONS, MAX_ABS_ANGLE, LiveFrame,
-                     format_timecode, implausible_channel)
-from .packets import (FACECAP_PORT, IFM_PORT, LLF_PORT, LLF_VERSION, MAX_DATAGRAM, MAX_OSC_DEPTH, FaceCapAssembler,
-                      check_osc_message, decode_ifacialmocap, decode_llf, encode_ifacialmocap, encode_llf,
-                      osc_bundle_messages, quaternion_to_yaw_pitch_roll)
+from .frames import (
+                          FACECAP_52,
+                          LLF_BLENDSHAPES,
+                          LLF_CURVES,
+                          LLF_ROTATIONS,
+                          MAX_ABS_ANGLE,
+                          LiveFrame,
+                          format_timecode,
+                          implausible_channel,
+)
+from .packets import (
+                          FACECAP_PORT,
+                          IFM_PORT,
+                          LLF_PORT,
+                          LLF_VERSION,
+                          MAX_DATAGRAM,
+                          MAX_OSC_DEPTH,
+                          FaceCapAssembler,
+                          check_osc_message,
+                          decode_ifacialmocap,
+                          decode_llf,
+                          encode_ifacialmocap,
+                          encode_llf,
+                          osc_bundle_messages,
+                          quaternion_to_yaw_pitch_roll,
+)
 from .solvers import CopySolver, GeometricSolver, LearnedSolver, dense_box_qp
 from .take import SceneResampler
 

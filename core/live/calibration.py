@@ -22,8 +22,15 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..errors import ErrorCode
-from ..headpose import (FACE_TO_ARMATURE, bone_local, euler_matrix, face_to_armature, matrix_euler,
-                        matrix_quaternion, rotation_power)
+from ..headpose import (
+    FACE_TO_ARMATURE,
+    bone_local,
+    euler_matrix,
+    face_to_armature,
+    matrix_euler,
+    matrix_quaternion,
+    rotation_power,
+)
 from ..result import ShapeSpaceError
 from ..validate import array
 from .frames import implausible_channel

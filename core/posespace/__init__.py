@@ -14,12 +14,28 @@ from .confidence import GP_KERNELS, GPConfidence, gp_variance, heat_map_colors, 
 from .drivers import ScalarDriver, train_driver, train_target_driver
 from .examples import example_issues
 from .inversion import InversionResult, invert_deformation, vertex_jacobians
-from .pairs import BonePairs, bone_pairs
 from .mirror import mirror_displacements, mirror_features, mirror_name, mirror_partners, mirror_pose
-from .psd import (AMPLIFICATION_LIMIT, METHODS, PoseSpaceDeformer, affine_determined, default_epsilon,
-                  regularisation, skin_group_inputs, train_psd)
-from .readers import (READER_DIMS, PoseReader, feature_groups, pose_features, quaternion_distance,
-                      quaternion_to_matrix, reader_features, swing_twist)
+from .pairs import BonePairs, bone_pairs
+from .psd import (
+                  AMPLIFICATION_LIMIT,
+                  METHODS,
+                  PoseSpaceDeformer,
+                  affine_determined,
+                  default_epsilon,
+                  regularisation,
+                  skin_group_inputs,
+                  train_psd,
+)
+from .readers import (
+                  READER_DIMS,
+                  PoseReader,
+                  feature_groups,
+                  pose_features,
+                  quaternion_distance,
+                  quaternion_to_matrix,
+                  reader_features,
+                  swing_twist,
+)
 
 __all__ = [
     "PoseReader", "READER_DIMS", "quaternion_distance", "quaternion_to_matrix", "swing_twist", "reader_features",

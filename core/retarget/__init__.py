@@ -15,14 +15,31 @@
 Key reduction (F-curve maths) lives in the foundation module :mod:`core.keyreduce`.
 """
 from .capture import ROTATION_CHANNELS, WeightStream, parse_timecode, read_live_link_csv, resample
-from .cloning import (MAX_MAPPING_VALUE, LearnedCloning, cloning_matrix, copy_weights, key_frames_in_span, key_poses,
-                      learned_cloning, moving_channels, resolve_channel_mapping, split_mapping, suggest_key_frames)
+from .cloning import (
+                      MAX_MAPPING_VALUE,
+                      LearnedCloning,
+                      cloning_matrix,
+                      copy_weights,
+                      key_frames_in_span,
+                      key_poses,
+                      learned_cloning,
+                      moving_channels,
+                      resolve_channel_mapping,
+                      split_mapping,
+                      suggest_key_frames,
+)
 from .formats import KINDS, describe_stream, detect_kind, parse_capture, read_capture
 from .landmarks import check_landmarks, closest_points, landmark_layout, landmark_warp, peak_landmarks, procrustes
 from .metrics import clipped_mask, per_vertex_mm, position_error_rms, slider_scales, velocity_error_rms
+from .performance import (
+                      GEOMETRIC_METHODS,
+                      METHODS,
+                      PerformanceFit,
+                      normalised_basis,
+                      retarget_positions,
+                      retarget_weights,
+)
 from .perframe import fit_frames
-from .performance import (GEOMETRIC_METHODS, METHODS, PerformanceFit, normalised_basis, retarget_positions,
-                          retarget_weights)
 from .report import RetargetReport
 from .spacetime_solver import GreenTables, SpacetimeResult, SpacetimeSystem, spacetime
 from .transfer import moving_vertices, stabilise, transfer_motion

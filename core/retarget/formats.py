@@ -61,8 +61,19 @@ from ..errors import ErrorCode
 from ..headpose import eye_ypr_from_degrees, ypr_from_degrees
 from ..names import ARKIT_52, FACECAP_52
 from ..result import Issue, ShapeSpaceError
-from .capture import (MAX_ABS_WEIGHT, ROTATION_CHANNELS, WeightStream, _channel_columns, _csv_rows, _parse,
-                      capture_path, finish_stream, plain_rows, read_capture_chunks, read_capture_text)
+from .capture import (
+    MAX_ABS_WEIGHT,
+    ROTATION_CHANNELS,
+    WeightStream,
+    _channel_columns,
+    _csv_rows,
+    _parse,
+    capture_path,
+    finish_stream,
+    plain_rows,
+    read_capture_chunks,
+    read_capture_text,
+)
 
 __all__ = ["KINDS", "detect_kind", "read_capture", "parse_capture", "describe_stream", "IFACIALMOCAP_FPS",
            "MAX_ABS_DEGREES", "MAX_JSON_BYTES"]

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..keyreduce import reduce_keys, reduce_keys_bezier_curves
 from ..blendshape import BlendshapeModel
 from ..errors import ErrorCode
 from ..headpose import bone_curves
+from ..keyreduce import reduce_keys, reduce_keys_bezier_curves
 from ..progress import ProgressFn, notify, scaled
 from ..result import ShapeSpaceError
 from ..validate import choice, non_negative, positive

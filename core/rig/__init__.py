@@ -2,8 +2,7 @@
 
 Pure numpy/SciPy; :mod:`bridge.rig` reads the channels from Blender and evaluates the rig through the depsgraph.
 """
-from .controls import (Channel, ChannelKind, ControlSet, quaternion_from_rotation_vector,
-                       rotation_vector_from_quaternion)
+from .controls import Channel, ChannelKind, ControlSet, quaternion_from_rotation_vector, rotation_vector_from_quaternion
 from .solve import RigSolveResult, broyden_update, finite_difference_jacobian, solve_controls
 from .take import RigTakeReport, RigTakeResult, solve_take, take_report
 

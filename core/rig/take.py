@@ -25,8 +25,8 @@ take (:class:`RigTakeReport`, the frames concerned listed in its issues).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np

@@ -1,7 +1,7 @@
 import bpy
 
 from ...bridge import facespace
-from ..polls import animated_object, active_rig
+from ..polls import active_rig, animated_object
 from ..progress import window_progress
 from ..reporting import FAILED, attempt
 

@@ -2,8 +2,8 @@ import bpy
 
 from ...bridge.posespace import masked
 from ..polls import psd_sculpt
-from ..reporting import FAILED, attempt
 from ..progress import window_progress
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_push_sculpt_masked(bpy.types.Operator):

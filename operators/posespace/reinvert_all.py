@@ -3,8 +3,8 @@ import bpy
 from ...bridge.posespace import finalshape
 from ...core.result import Status
 from ..polls import psd_mesh
-from ..reporting import FAILED, attempt
 from ..progress import window_progress
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_reinvert_all(bpy.types.Operator):

@@ -2,8 +2,8 @@ import bpy
 
 from ...bridge import posespace
 from ..polls import psd_mesh
-from ..reporting import FAILED, attempt
 from ..progress import window_progress
+from ..reporting import FAILED, attempt
 
 
 class SHAPESPACE_OT_psd_update(bpy.types.Operator):

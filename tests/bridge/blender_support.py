@@ -4,8 +4,8 @@ import os
 import tempfile
 import time
 
-import numpy as np
 import bpy
+import numpy as np
 
 import package  # tools/package.py
 

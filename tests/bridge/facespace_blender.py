@@ -2,6 +2,7 @@
 import os
 
 import numpy as np
+
 from blender_support import bpy, classify_operator_call, draw_panel, import_file, sphere_rig
 from shapespace.bridge import actions, shapekeys
 from support import ASSETS

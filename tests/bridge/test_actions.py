@@ -1,10 +1,10 @@
 """Keyframes on both action APIs, sampling at fractional frames, and transforms."""
 import numpy as np
 
-from support import shared
 from blender_support import bpy, evaluated, import_file, rel_error
 from shapespace.bridge import actions, meshes, shapekeys
 from shapespace.core import names as ss_names
+from support import shared
 
 
 def _facecap():

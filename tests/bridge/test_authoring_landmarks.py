@@ -18,10 +18,10 @@ skull and neck 8 mm.
 import numpy as np
 import pytest
 
-from support import shared
 from blender_support import bpy, import_file
 from shapespace.bridge import authoring
 from shapespace.core import authoring as core
+from support import shared
 
 SOURCES = {"facecap": (("facecap", "facecap_decoded.glb"), "Mesh_2"),
            "fbhead": (("llf_fbhead", "Live_Link_Face.blend"), "FBHead")}

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from blender_support import blend_fingerprint, bpy, esc_mid_way
-from test_authoring_transfer import _scene, _state
 from shapespace.bridge import authoring
 from shapespace.core import authoring as core
 from shapespace.core.progress import Cancelled
 from shapespace.core.result import ShapeSpaceError
+from test_authoring_transfer import _scene, _state
 
 
 def _preview_positions(tgt):

@@ -23,7 +23,6 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from support import ROOT, shared
 from blender_support import blend_fingerprint, bpy, esc_mid_way, evaluated, import_file, rel_error
 from shapespace.bridge import authoring, driven, named_landmarks, shapekeys
 from shapespace.bridge.meshes import triangles
@@ -31,6 +30,7 @@ from shapespace.core import authoring as core
 from shapespace.core.authoring import contacts, named
 from shapespace.core.progress import Cancelled
 from shapespace.core.result import ShapeSpaceError, Status
+from support import ROOT, shared
 
 RUN_CLI = os.path.join(ROOT, "tools", "run_cli.py")
 MASK_KEY, MASK_GROUP = "BrowDownLeft", "BrowMaskL"
@@ -557,8 +557,8 @@ def test_a_head_without_shapes_gets_landmarks_proposed_then_a_rig(registered):
 
 
 def test_panel_draws_settings_landmarks_and_every_operator(registered):
-    from shapespace.panels.authoring import SHAPESPACE_PT_transfer_shapes as Panel
     from blender_support import RecordingLayout as Layout
+    from shapespace.panels.authoring import SHAPESPACE_PT_transfer_shapes as Panel
     src, tgt = _rig_and_target()
     bpy.context.view_layer.objects.active = tgt
     assert Panel.poll(bpy.context)

@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from support import shared
 from blender_support import blend_fingerprint, bpy, import_file, sphere_rig
 from shapespace.bridge import inventory, shapekeys, skin
 from shapespace.core.blendshape import diagnose_model
 from shapespace.core.result import ShapeSpaceError
+from support import shared
 
 
 def _sphere(keys=0, name="Face"):

@@ -13,7 +13,9 @@ import tempfile
 import numpy as np
 import pytest
 
-from blender_support import OPERATOR_CALLS as OPERATORS, bpy, classify_operator_call, sphere_rig
+from blender_support import OPERATOR_CALLS as OPERATORS
+from blender_support import bpy, classify_operator_call, sphere_rig
+
 
 def _sphere(keys=3, name="Face"):
     return sphere_rig(keys, name)

@@ -7,11 +7,11 @@ import shutil
 import numpy as np
 import pytest
 
-from support import shared
 from blender_support import bpy, evaluated, import_file
 from shapespace.bridge import posespace
 from shapespace.core.pointcache import read_pc2
 from shapespace.ui import posespace_preview
+from support import shared
 
 
 def _rig():

@@ -14,10 +14,10 @@ import sys
 
 import numpy as np
 import pytest
+from mathutils import Matrix
 
 from blender_support import bpy, import_file
 from capture_files import load_llf_take, write_llf_csv
-from mathutils import Matrix
 from shapespace.bridge import actions, retarget
 from shapespace.bridge.live.rig import Pipeline
 from shapespace.core.live import CopySolver, SceneResampler, decode_llf, encode_llf

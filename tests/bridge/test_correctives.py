@@ -11,15 +11,14 @@ import os
 import numpy as np
 import pytest
 
-from support import shared
-from blender_support import (OPERATOR_CALLS, SS, blend_fingerprint, bpy, classify_operator_call, evaluated,
-                             import_file)
+from blender_support import OPERATOR_CALLS, SS, blend_fingerprint, bpy, classify_operator_call, evaluated, import_file
 from blender_support import RecordingLayout as Layout
 from shapespace.bridge import meshes, posespace, skin
 from shapespace.core.blendshape import bounding_box_diagonal
 from shapespace.core.pointcache import read_pc2
 from shapespace.core.result import ShapeSpaceError
 from shapespace.ui import posespace_preview
+from support import shared
 
 TOL = 1e-5
 

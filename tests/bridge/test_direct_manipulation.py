@@ -7,13 +7,20 @@ import re
 import numpy as np
 import pytest
 
-from support import ASSETS, shared
-from blender_support import (blend_fingerprint, bpy, classify_operator_call, evaluated, import_file, rel_error,
-                             sphere_rig)
+from blender_support import (
+    blend_fingerprint,
+    bpy,
+    classify_operator_call,
+    evaluated,
+    import_file,
+    rel_error,
+    sphere_rig,
+)
 from shapespace.bridge import actions, manipulation, meshes, shapekeys, skin
 from shapespace.bridge.manipulation import drag
 from shapespace.core.manipulation import DragResult, DragSession, Pin, pin_positions, solve_drag_reference
 from shapespace.core.result import ShapeSpaceError, Status
+from support import ASSETS, shared
 
 FACECAP = os.path.join(ASSETS, "facecap", "facecap_decoded.glb")
 
@@ -196,6 +203,7 @@ def _init_gpu():
 def test_overlay_draws_pins_offscreen(registered):
     import gpu
     from mathutils import Matrix
+
     from shapespace.ui import overlay
 
     _init_gpu()

@@ -1,13 +1,14 @@
 """In-between and combination shapes built with native drivers evaluate exactly as the core model."""
+import os
+
 import numpy as np
 import pytest
 
-from support import ASSETS
 from blender_support import blend_fingerprint, bpy, evaluated, import_file, rel_error
 from shapespace.bridge import driven, shapekeys
 from shapespace.core.manipulation import Pin, pin_positions, solve_drag
 from shapespace.core.result import ShapeSpaceError
-import os
+from support import ASSETS
 
 
 def _facecap():

@@ -9,11 +9,11 @@ import tempfile
 import numpy as np
 import pytest
 
-from support import ASSETS, ROOT
 from blender_support import blend_fingerprint, bpy, classify_operator_call
 from shapespace.bridge.export import export
 from shapespace.bridge.export import roundtrip as rt
 from shapespace.core.result import ShapeSpaceError
+from support import ASSETS, ROOT
 
 RUN_CLI = os.path.join(ROOT, "tools", "run_cli.py")
 #: glTF exports: on bpy < 5.0 the test process must end through os._exit (see tests/bridge/conftest.py).

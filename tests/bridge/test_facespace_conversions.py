@@ -6,9 +6,17 @@ import os
 
 import numpy as np
 import pytest
+
 from blender_support import bpy, classify_operator_call, evaluated, import_file, rel_error
-from facespace_blender import (damage_keyframe, draw_face_panel, face_sphere, facecap, facecap_action, run_on_face,
-                               set_sliders)
+from facespace_blender import (
+    damage_keyframe,
+    draw_face_panel,
+    face_sphere,
+    facecap,
+    facecap_action,
+    run_on_face,
+    set_sliders,
+)
 from shapespace.bridge import actions, facespace, retarget, shapekeys
 from shapespace.core.blendshape import bounding_box_diagonal
 from support import ASSETS, shared

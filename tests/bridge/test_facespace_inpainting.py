@@ -3,6 +3,7 @@ interpolation, through the operator on shape-key curves (every key outside the g
 around the gap."""
 import numpy as np
 import pytest
+
 from blender_support import blend_fingerprint, bpy, import_file
 from facespace_blender import damage_keyframe, face_sphere, facecap, facecap_action, key_curve, run_on_face
 from shapespace.bridge import actions, shapekeys

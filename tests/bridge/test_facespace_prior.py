@@ -5,9 +5,18 @@ import json
 
 import numpy as np
 import pytest
+
 from blender_support import bpy
-from facespace_blender import (damage_keyframe, draw_face_panel, face_sphere, facecap, facecap_action, key_curve,
-                               run_on_face, set_sliders)
+from facespace_blender import (
+    damage_keyframe,
+    draw_face_panel,
+    face_sphere,
+    facecap,
+    facecap_action,
+    key_curve,
+    run_on_face,
+    set_sliders,
+)
 from shapespace.bridge import actions, facespace, shapekeys
 from shapespace.core.result import ShapeSpaceError
 

@@ -6,6 +6,7 @@ import importlib
 
 import numpy as np
 import pytest
+
 from blender_support import bpy
 from facespace_blender import damage_keyframe, face_sphere, key_curve, run_on_face
 from shapespace.bridge import actions, facespace

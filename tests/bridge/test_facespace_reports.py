@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+
 from blender_support import bpy, evaluated
 from facespace_blender import draw_face_panel, face_sphere, facecap, facecap_action, run_on_face
 from shapespace.bridge import actions, facespace, shapekeys

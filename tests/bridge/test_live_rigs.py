@@ -7,14 +7,13 @@ import os
 import numpy as np
 import pytest
 
+import live_replay
 from blender_support import bpy, import_file
 from live_support import CSV, configure, replay_and_drain
 from shapespace.bridge import actions, retarget
 from shapespace.bridge.live import recording, session
 from shapespace.core.live import LLF_CURVES, euler_matrix, face_to_armature, rotation_power
 from support import ASSETS, shared
-
-import live_replay
 
 FACECAP = os.path.join(ASSETS, "facecap", "facecap_decoded.glb")
 BLEND = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")

@@ -353,6 +353,7 @@ def test_without_the_handlers_every_use_is_verified(registered):
 def test_ray_picking_matches_blenders_bvh(registered):
     from mathutils import Vector
     from mathutils.bvhtree import BVHTree
+
     from shapespace.bridge.manipulation import surface
 
     ob = _sphere()

@@ -14,12 +14,12 @@ import sys
 import numpy as np
 import pytest
 
-from support import ROOT, shared
 from blender_support import bpy, import_file
 from shapespace.bridge import authoring, named_landmarks, shapekeys
 from shapespace.bridge.meshes import triangles
 from shapespace.core.authoring.named import NAMES, load_head_file
 from shapespace.core.result import ShapeSpaceError
+from support import ROOT, shared
 
 RUN_CLI = os.path.join(ROOT, "tools", "run_cli.py")
 PLACED = os.path.join(ROOT, "tools", "landmarks", "fbhead.json")

@@ -9,9 +9,8 @@ import os
 import bpy
 import pytest
 
-from support import ASSETS
 from blender_support import draw_panel, import_file
-
+from support import ASSETS
 
 PANELS = ("SHAPESPACE_PT_rig", "SHAPESPACE_PT_direct", "SHAPESPACE_PT_correctives", "SHAPESPACE_PT_retarget",
           "SHAPESPACE_PT_face_space")

@@ -8,10 +8,10 @@ with every key removed (``_landmark_pairs`` places the landmarks by position, as
 import numpy as np
 import pytest
 
-from support import shared
 from blender_support import blend_fingerprint, bpy, evaluated, import_file
 from shapespace.bridge import authoring, part_objects, shapekeys
 from shapespace.core.result import ShapeSpaceError, Status
+from support import shared
 from test_authoring_transfer import _landmark_pairs, _place_landmarks
 
 PARTS = ("EyeLeft", "EyeRight", "Wolf3D_Teeth")
@@ -110,6 +110,7 @@ def test_command_line_parts_collection(registered, tmp_path):
     """``transfer --parts-collection NAME``: the collection's meshes are transferred as parts and listed in the
     JSON report; a collection that does not exist is refused by name (exit 1, nothing saved)."""
     import json
+
     from test_authoring_transfer import _cli
     src, tgt = _rpm_with_part_objects()
     tgt.shapespace_authoring.parts_collection = None                    # the command line names it

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from mathutils import Vector
 
-from support import shared
 from blender_support import bpy, evaluated, import_file
 from shapespace.bridge import meshes, skin
 from shapespace.bridge.posespace import finalshape
 from shapespace.core.blendshape import bounding_box_diagonal
+from support import shared
 
 TOL = 1e-5
 #: (bone index, pose) of the examples: an arm and a leg, far apart on the mesh

@@ -7,11 +7,11 @@ Every check is Blender's own depsgraph evaluation.
 import numpy as np
 import pytest
 
-from support import shared
 from blender_support import SS, blend_fingerprint, bpy, evaluated, import_file
 from shapespace.bridge import meshes
 from shapespace.bridge.posespace import finalshape, postdeform
 from shapespace.core.blendshape import bounding_box_diagonal
+from support import shared
 
 TOL = 1e-5
 QS = ((0.9, 0.3, 0.2, 0.1), (0.9, -0.3, 0.1, 0.2))

@@ -13,14 +13,14 @@ import sys
 import numpy as np
 import pytest
 
-from support import ASSETS, ROOT, shared
 from blender_support import blend_fingerprint, bpy, import_file
-from shapespace.bridge import actions, retarget, shapekeys
 from shapespace import cli
+from shapespace.bridge import actions, retarget, shapekeys
 from shapespace.bridge.retarget import dense as bridge_dense
 from shapespace.core.result import ShapeSpaceError
 from shapespace.core.retarget import performance
 from shapespace.core.retarget.capture import read_live_link_csv, resample
+from support import ASSETS, ROOT, shared
 
 CSV = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
 BLEND = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")

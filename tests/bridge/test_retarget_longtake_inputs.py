@@ -9,13 +9,13 @@ import sys
 import numpy as np
 import pytest
 
-from support import ASSETS, ROOT
 from blender_support import bpy, import_file
 from shapespace.bridge import actions, retarget, shapekeys
 from shapespace.core.keyreduce import reduce_keys_bezier, reduce_keys_bezier_curves
 from shapespace.core.result import ShapeSpaceError
 from shapespace.core.retarget import copy_weights, split_mapping
 from shapespace.core.retarget.capture import read_live_link_csv
+from support import ASSETS, ROOT
 
 CSV = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
 BLEND = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")

@@ -13,12 +13,12 @@ import time
 import numpy as np
 import pytest
 
-from support import ASSETS, ROOT
 from blender_support import blend_fingerprint, bpy, esc_mid_way, import_file
 from shapespace.bridge import actions, retarget, shapekeys
 from shapespace.core.progress import Cancelled
 from shapespace.core.result import ShapeSpaceError
 from shapespace.core.retarget.capture import read_live_link_csv, resample
+from support import ASSETS, ROOT
 
 CSV = os.path.join(ASSETS, "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
 BLEND = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")
@@ -307,8 +307,8 @@ def test_operator_report_names_clipped_frames(registered, tmp_path):
     assert bpy.ops.shapespace.retarget(filepath=CSV, method="copy") == {"FINISHED"}
     rep = retarget.last_report(ob)                          # what the panel shows, kept in the file
     assert _runs_to_frames(rep.clipped_frames) == [int(f) for f in frames[clipped]]
-    from shapespace.operators.retarget.run_retarget import result_message
     from shapespace.core.retarget.report import format_ranges
+    from shapespace.operators.retarget.run_retarget import result_message
     assert f"beyond the slider ranges at {format_ranges(rep.clipped_frames)}" in result_message(rep)
 
 

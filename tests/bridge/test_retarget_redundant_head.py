@@ -20,12 +20,12 @@ import os
 import numpy as np
 import pytest
 
-from support import ASSETS
 from blender_support import bpy
 from shapespace.bridge import assets, retarget, shapekeys
 from shapespace.core.blendshape import BlendshapeModel, normalised_unit
 from shapespace.core.result import Status
 from shapespace.core.retarget import performance
+from support import ASSETS
 from synthetic_rigs import RANK_RTOL, arkit_columns, redundant_head_rig
 
 BLEND = os.path.join(ASSETS, "llf_fbhead", "Live_Link_Face.blend")

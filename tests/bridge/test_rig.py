@@ -9,9 +9,9 @@ import pytest
 
 import rigs
 from blender_support import bpy
-from support import shared
 from shapespace.bridge import rig as brig
 from shapespace.core.result import Status
+from support import shared
 
 RECOVERY_TOL = 1e-3
 

@@ -8,8 +8,8 @@ import numpy as np
 
 import rigs
 from blender_support import bpy
-from support import shared
 from shapespace.bridge import rig as brig
+from support import shared
 
 
 def _head():

@@ -12,10 +12,10 @@ import pytest
 
 import rigs
 from blender_support import OPERATOR_CALLS, bpy, classify_operator_call, draw_panel
-from support import shared
 from shapespace.bridge import inventory
 from shapespace.bridge.rig import bind, control_set, proposal, stored
 from shapespace.core.rig.controls import ChannelKind
+from support import shared
 
 BUILDERS = {"hybrid": rigs.hybrid_rig, "driver": rigs.driver_rig, "rigify": rigs.rigify_rig}
 CONTROL_OPS = ("propose_controls", "add_control_bones", "add_control_property", "remove_control", "toggle_control",

@@ -7,9 +7,9 @@ import pytest
 
 import rigs
 from blender_support import bpy
-from support import shared
 from shapespace.bridge import rig as brig
 from shapespace.core.result import ShapeSpaceError
+from support import shared
 
 
 def _head():

@@ -10,12 +10,12 @@ import pytest
 
 import rigs
 from blender_support import bpy
-from support import shared
-from test_rig import _assert_same_state, _state
 from shapespace.bridge import rig as brig
 from shapespace.bridge.rig import take as btake
 from shapespace.core.progress import Cancelled
 from shapespace.core.result import ShapeSpaceError, Status
+from support import shared
+from test_rig import _assert_same_state, _state
 
 TAKE_TOL = 1e-3
 FRAMES = 40

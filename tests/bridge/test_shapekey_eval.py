@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from support import shared
 from blender_support import bpy, evaluated, import_file, rel_error
 from shapespace.bridge import shapekeys
 from shapespace.core.blendshape import diagnose_model
+from support import shared
 
 TOL = 1e-5  # of the bounding-box diagonal (issue #2)
 

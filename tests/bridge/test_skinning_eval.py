@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from support import shared
 from blender_support import bpy, evaluated, import_file, rel_error
 from shapespace.bridge import meshes, shapekeys, skin
 from shapespace.core import skinning
 from shapespace.core.blendshape import bounding_box_diagonal
+from support import shared
 
 TOL = 1e-5
 

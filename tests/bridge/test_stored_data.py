@@ -78,9 +78,10 @@ def test_every_operator_and_panel_survives_a_damaged_blob(registered, prop, dama
 
 
 def test_damaged_example_strings_are_named_and_nothing_breaks(registered):
-    from support import ASSETS
-    from blender_support import import_file
     import os
+
+    from blender_support import import_file
+    from support import ASSETS
     import_file(os.path.join(ASSETS, "cesium_man", "CesiumMan.glb"))
     ob = next(o for o in bpy.data.objects if o.type == "MESH")
     arm = next(o for o in bpy.data.objects if o.type == "ARMATURE")
@@ -211,6 +212,7 @@ def test_every_schema_of_every_module_of_the_add_on_is_registered(registered):
     dict, list or tuple, is one registered in core.blobs (the same object)."""
     import importlib
     import pkgutil
+
     import shapespace
     registered_ids = {id(s) for s in blobs.schemas()}
     seen, stray = 0, []

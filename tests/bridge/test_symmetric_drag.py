@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from blender_support import bpy, evaluated, import_file
-from support import ASSETS
 from shapespace.bridge import manipulation, meshes, shapekeys, symmetry
 from shapespace.core import symmetry as core_sym
 from shapespace.core.manipulation import Pin, pin_positions
+from support import ASSETS
 
 WEIGHTS = (0.6, 0.3, 0.1)
 

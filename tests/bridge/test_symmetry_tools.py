@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from blender_support import blend_fingerprint, bpy, evaluated, import_file
-from support import ASSETS, shared
 from shapespace.bridge import symmetry
 from shapespace.core import symmetry as core_sym
+from support import ASSETS, shared
 
 
 def _fbhead():
@@ -176,7 +176,7 @@ def test_stale_map_is_refused_after_a_topology_change_and_rebuild_works(register
     bpy.ops.mesh.delete(type="VERT")
     bpy.ops.object.mode_set(mode="OBJECT")
     assert symmetry.map_status(ob)["state"] == "stale"
-    from test_panels import _draw_all               # the Rig panel says so and offers the rebuild
+    from test_panels import _draw_all  # the Rig panel says so and offers the rebuild
     log = _draw_all(bpy.context)["SHAPESPACE_PT_rig"]
     assert any(kind == "label" and text.startswith("Mirror map is stale") for kind, text in log)
     assert ("operator", "shapespace.build_mirror_map") in log

@@ -7,13 +7,13 @@ import importlib
 import numpy as np
 import pytest
 
-from support import shared
 from blender_support import blend_fingerprint, bpy, evaluated, import_file
 from shapespace.bridge import posespace, skin
 from shapespace.core.blendshape import bounding_box_diagonal
 from shapespace.core.posespace.pairs import bone_pairs
 from shapespace.core.posespace.psd import skin_group_inputs, train_psd
 from shapespace.ui import posespace_preview
+from support import shared
 
 preview_module = importlib.import_module("shapespace.bridge.posespace.preview")
 QUATS = [(0.9, 0.3, 0.2, 0.1), (0.9, -0.3, 0.1, 0.2), (0.8, 0.1, -0.5, 0.3), (0.95, 0.0, 0.3, -0.1)]

@@ -10,8 +10,17 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from core import authoring
-from core.authoring import (LandmarkPairs, Transfer, check_landmarks, convert_name, landmarks_from_indices,
-                            landmarks_from_shared_shapes, register, transfer_shapes, triangulate)
+from core.authoring import (
+    LandmarkPairs,
+    Transfer,
+    check_landmarks,
+    convert_name,
+    landmarks_from_indices,
+    landmarks_from_shared_shapes,
+    register,
+    transfer_shapes,
+    triangulate,
+)
 from core.progress import Cancelled
 from core.result import ShapeSpaceError, Status
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from core.authoring.examples import STRENGTHS, SMOOTHS, mirror_partners, mirror_vertices, refine_with_examples
+from core.authoring.examples import SMOOTHS, STRENGTHS, mirror_partners, mirror_vertices, refine_with_examples
 from core.progress import Cancelled
 from core.result import ShapeSpaceError
 

@@ -10,8 +10,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from core.authoring import LandmarkPairs, landmarks_from_indices
-from core.authoring.job import (PreviewPlan, SourceRig, TargetMesh, TransferPlan, compute_preview, compute_transfer,
-                                map_weights)
+from core.authoring.job import (
+    PreviewPlan,
+    SourceRig,
+    TargetMesh,
+    TransferPlan,
+    compute_preview,
+    compute_transfer,
+    map_weights,
+)
 from core.progress import Cancelled
 from core.result import ShapeSpaceError, Status, exit_code
 from test_authoring import _head, _landmarks, _shapes

@@ -9,7 +9,6 @@ from core.authoring import LandmarkPairs, named, proposal
 from core.authoring.features import boundary_loops
 from core.errors import ErrorCode
 from core.result import ShapeSpaceError, Status
-
 from test_authoring import _five_shapes, _head
 
 

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core.authoring import landmarks_from_indices, register
-from core.authoring import contacts, parts, quality
+from core.authoring import contacts, landmarks_from_indices, parts, quality, register
 from core.authoring.transfer import Transfer
 from core.result import ShapeSpaceError, Status
 

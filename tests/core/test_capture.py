@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.retarget.capture import WeightStream, parse_timecode, read_live_link_csv, resample
 from core.names import ARKIT_52
 from core.result import ShapeSpaceError
+from core.retarget.capture import WeightStream, parse_timecode, read_live_link_csv, resample
 
 REPO = Path(__file__).resolve().parents[2]
 LLF_CSV = REPO / "assets" / "llf_fbhead" / "MySlate_3_Jason_Millers_iPhone.csv"

@@ -15,8 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from capture_files import (arkit_name, load_llf_take, write_audio2face, write_facecap, write_ifacialmocap,
-                           write_mediapipe_csv, write_mediapipe_json)
+from capture_files import (
+    arkit_name,
+    load_llf_take,
+    write_audio2face,
+    write_facecap,
+    write_ifacialmocap,
+    write_mediapipe_csv,
+    write_mediapipe_json,
+)
 from core.result import ShapeSpaceError
 from core.retarget.capture import MAX_FILE_BYTES, ROTATION_CHANNELS, read_live_link_csv, resample
 from core.retarget.formats import describe_stream, detect_kind, parse_capture, read_capture
@@ -319,6 +326,7 @@ def test_mediapipe_json_file_memory_is_bounded(take, tmp_path, monkeypatch):
     """A long MediaPipe JSON is read in pieces: the peak of traced memory (the weights and their copies) stays
     under half the file (the whole text, and its bytes besides, were held before: twice the file)."""
     import tracemalloc
+
     from capture_files import long_take
     from core.retarget import capture, formats
     monkeypatch.setattr(capture, "PLAIN_CHUNK", 1 << 16)

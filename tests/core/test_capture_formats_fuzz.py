@@ -10,12 +10,12 @@ import json
 import numpy as np
 from hypothesis import example, given
 from hypothesis import strategies as st
-from test_capture_fuzz import FUZZ, no_hang
 
 from core.errors import ErrorCode
 from core.names import ARKIT_52
 from core.result import ShapeSpaceError
 from core.retarget.formats import parse_capture
+from test_capture_fuzz import FUZZ, no_hang
 
 
 def check(text, kind=None):

@@ -9,6 +9,7 @@ import re
 import tomllib
 
 import pytest
+
 import run_tests  # tools/run_tests.py (tests/conftest.py puts tools/ on sys.path)
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), os.pardir, os.pardir))

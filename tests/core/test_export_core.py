@@ -6,12 +6,24 @@ import stat
 import numpy as np
 import pytest
 
-from core.export import (FORMATS, NEGATIVE_SUFFIX, chunk, check_format, check_output_path, export_range,
-                         format_of, match_vertices, merge_take_reports, recombine, roundtrip_error,
-                         sample_frames, split_weights, take_stem)
+from core.export import (
+    FORMATS,
+    NEGATIVE_SUFFIX,
+    check_format,
+    check_output_path,
+    chunk,
+    export_range,
+    format_of,
+    match_vertices,
+    merge_take_reports,
+    recombine,
+    roundtrip_error,
+    sample_frames,
+    split_weights,
+    take_stem,
+)
 from core.export.farm import batch_status
 from core.result import ShapeSpaceError, Status
-
 
 # -- weights ---------------------------------------------------------------------------------------------------
 

@@ -8,10 +8,26 @@ from scipy.optimize import minimize
 from core.blendshape import BlendshapeModel
 from core.errors import ErrorCode
 from core.facespace import coherence_image, coherence_matrix
-from core.facespace.job import (coherence_problem, coherence_step, compression_step, convex_step, inpaint_step,
-                                meter_step, neutral_key_names, pca_copy, prior_step, whole_face_plan)
-from core.facespace.report import (CoherenceReport, CompressionReport, ConvexReport, InpaintReport, MeterReport,
-                                   PriorReport)
+from core.facespace.job import (
+    coherence_problem,
+    coherence_step,
+    compression_step,
+    convex_step,
+    inpaint_step,
+    meter_step,
+    neutral_key_names,
+    pca_copy,
+    prior_step,
+    whole_face_plan,
+)
+from core.facespace.report import (
+    CoherenceReport,
+    CompressionReport,
+    ConvexReport,
+    InpaintReport,
+    MeterReport,
+    PriorReport,
+)
 from core.result import ShapeSpaceError, Status
 
 

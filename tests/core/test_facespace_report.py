@@ -6,8 +6,16 @@ from dataclasses import fields
 
 import pytest
 
-from core.facespace.report import (CoherenceReport, CompressionReport, ConvexReport, FaceSpaceReport, FillReport,
-                                   InpaintReport, MeterReport, PriorReport)
+from core.facespace.report import (
+    CoherenceReport,
+    CompressionReport,
+    ConvexReport,
+    FaceSpaceReport,
+    FillReport,
+    InpaintReport,
+    MeterReport,
+    PriorReport,
+)
 from core.result import Issue, Report, Status, exit_code
 
 #: The keys each verb's plain dict had (bridge/facespace.py before the reports), and the report that replaces it.

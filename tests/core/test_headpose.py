@@ -6,8 +6,16 @@ convention (mode ``'XYZ'`` applies X first: ``R = R_z R_y R_x``), and hand-count
 import numpy as np
 import pytest
 
-from core.headpose import (ROTATION_CHANNELS, BoneSpec, bone_curves, bone_values, eye_ypr_from_degrees,
-                           matrix_to_euler, unused_rotation_channels, ypr_from_degrees)
+from core.headpose import (
+    ROTATION_CHANNELS,
+    BoneSpec,
+    bone_curves,
+    bone_values,
+    eye_ypr_from_degrees,
+    matrix_to_euler,
+    unused_rotation_channels,
+    ypr_from_degrees,
+)
 
 ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
 

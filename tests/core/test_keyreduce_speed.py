@@ -8,8 +8,15 @@ import pytest
 from scipy.optimize import linprog
 
 from core import keyreduce
-from core.keyreduce import (_chebyshev_batch, _hermite_basis, _valid_segments, curve_slopes, hermite,
-                            reduce_keys_bezier, reduce_keys_bezier_curves)
+from core.keyreduce import (
+    _chebyshev_batch,
+    _hermite_basis,
+    _valid_segments,
+    curve_slopes,
+    hermite,
+    reduce_keys_bezier,
+    reduce_keys_bezier_curves,
+)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CSV = os.path.join(ROOT, "assets", "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
@@ -180,6 +187,7 @@ def test_long_take_csv_is_read_in_memory_linear_and_small(tmp_path):
     """36,000 rows of the shipped take (10 minutes at 60 fps): the reader streams the rows into one array of
     doubles, so its peak memory is a small multiple of the file, not of Python row lists."""
     import tracemalloc
+
     from core.retarget.capture import read_live_link_csv
     with open(CSV, encoding="utf-8") as fh:
         lines = fh.read().splitlines()

@@ -11,11 +11,35 @@ import struct
 import numpy as np
 import pytest
 
-from core.live import (FACECAP_52, LLF_BLENDSHAPES, LLF_CURVES, MAX_OSC_DEPTH, CopySolver, FaceCapAssembler,
-                       GeometricSolver, LearnedSolver, Neutral, OneEuroFilter, SceneResampler, bone_local, calibrate,
-                       check_osc_message, decode_ifacialmocap, decode_llf, encode_ifacialmocap, encode_llf,
-                       euler_matrix, face_to_armature, format_timecode, implausible_channel, matrix_euler,
-                       matrix_quaternion, osc_bundle_messages, quaternion_to_yaw_pitch_roll, rotation_power)
+from core.live import (
+    FACECAP_52,
+    LLF_BLENDSHAPES,
+    LLF_CURVES,
+    MAX_OSC_DEPTH,
+    CopySolver,
+    FaceCapAssembler,
+    GeometricSolver,
+    LearnedSolver,
+    Neutral,
+    OneEuroFilter,
+    SceneResampler,
+    bone_local,
+    calibrate,
+    check_osc_message,
+    decode_ifacialmocap,
+    decode_llf,
+    encode_ifacialmocap,
+    encode_llf,
+    euler_matrix,
+    face_to_armature,
+    format_timecode,
+    implausible_channel,
+    matrix_euler,
+    matrix_quaternion,
+    osc_bundle_messages,
+    quaternion_to_yaw_pitch_roll,
+    rotation_power,
+)
 from core.live import frames as live_frames
 from core.names import canonical_name
 from core.result import ShapeSpaceError

@@ -11,8 +11,19 @@ from scipy.optimize import minimize
 
 import core.manipulation as direct
 from core.blendshape import BlendshapeModel, Combination, InBetween
-from core.manipulation import (DragResult, DragSession, Pin, WeightPrior, drag_objective, pin_matrix,
-                               pin_positions, pin_rest_positions, solve_drag, solve_drag_reference, train_prior)
+from core.manipulation import (
+    DragResult,
+    DragSession,
+    Pin,
+    WeightPrior,
+    drag_objective,
+    pin_matrix,
+    pin_positions,
+    pin_rest_positions,
+    solve_drag,
+    solve_drag_reference,
+    train_prior,
+)
 from core.result import ShapeSpaceError, Status
 
 

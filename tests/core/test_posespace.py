@@ -4,8 +4,16 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from core.posespace.mirror import mirror_features, mirror_name, mirror_pose
-from core.posespace.readers import (READER_DIMS, PoseReader, feature_groups, pose_features, quaternion_distance,
-                                   quaternion_to_matrix, reader_features, swing_twist)
+from core.posespace.readers import (
+    READER_DIMS,
+    PoseReader,
+    feature_groups,
+    pose_features,
+    quaternion_distance,
+    quaternion_to_matrix,
+    reader_features,
+    swing_twist,
+)
 from core.result import ShapeSpaceError
 
 Y = np.array([0.0, 1.0, 0.0])

@@ -3,8 +3,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core.posespace.finalshape import (compare_fingerprints, decode_array, encode_array, lbs_affine_maps,
-                                       split_by_masks, touched_vertices, uncovered_vertices)
+from core.posespace.finalshape import (
+    compare_fingerprints,
+    decode_array,
+    encode_array,
+    lbs_affine_maps,
+    split_by_masks,
+    touched_vertices,
+    uncovered_vertices,
+)
 from core.posespace.inversion import invert_affine, invert_deformation
 from core.result import ShapeSpaceError, Status
 from core.skinning import ArmatureDeform, SkinningRig, SkinWeights, deform

@@ -13,8 +13,18 @@ from scipy.interpolate import LinearNDInterpolator, RBFInterpolator
 from scipy.spatial import Delaunay
 from scipy.spatial.distance import cdist
 
-from core.rbf import (KERNELS, NormalizedRBF, RBFInterpolant, Shepard, SimplexLinear, choose_epsilon,
-                      fit_normalized_rbf, fit_rbf, loo_errors, pairwise_distances)
+from core.rbf import (
+    KERNELS,
+    NormalizedRBF,
+    RBFInterpolant,
+    Shepard,
+    SimplexLinear,
+    choose_epsilon,
+    fit_normalized_rbf,
+    fit_rbf,
+    loo_errors,
+    pairwise_distances,
+)
 from core.result import ShapeSpaceError
 
 # singular systems are expected in several tests; LAPACK's warning about them is noise here

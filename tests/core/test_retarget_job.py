@@ -14,8 +14,16 @@ from core.headpose import BoneSpec
 from core.progress import Cancelled
 from core.result import ShapeSpaceError, Status
 from core.retarget import RetargetReport, performance, split_mapping
-from core.retarget.job import (LANDMARK_PREFIX, RetargetPlan, check_landmark_pairs, check_settings, compute_retarget,
-                               dense_positions, plan_curves, written_range)
+from core.retarget.job import (
+    LANDMARK_PREFIX,
+    RetargetPlan,
+    check_landmark_pairs,
+    check_settings,
+    compute_retarget,
+    dense_positions,
+    plan_curves,
+    written_range,
+)
 from core.retarget.performance import normalised_basis
 
 

@@ -10,8 +10,8 @@ from scipy.optimize import lsq_linear
 
 from core.blendshape import BlendshapeModel
 from core.retarget.metrics import slider_scales
-from core.retarget.perframe import fit_frames
 from core.retarget.performance import empty_keys, normalised_basis, retarget_weights
+from core.retarget.perframe import fit_frames
 from core.retarget.spacetime_solver import spacetime
 
 

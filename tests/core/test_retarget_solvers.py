@@ -11,9 +11,23 @@ from scipy.spatial.transform import Rotation
 
 from core.blendshape import BlendshapeModel, normalised_unit
 from core.result import Result, ShapeSpaceError, Status
-from core.retarget import (RetargetReport, SpacetimeResult, SpacetimeSystem, clipped_mask, fit_frames,
-                           learned_cloning, position_error_rms, retarget_positions, retarget_weights, slider_scales,
-                           spacetime, stabilise, suggest_key_frames, transfer_motion, velocity_error_rms)
+from core.retarget import (
+    RetargetReport,
+    SpacetimeResult,
+    SpacetimeSystem,
+    clipped_mask,
+    fit_frames,
+    learned_cloning,
+    position_error_rms,
+    retarget_positions,
+    retarget_weights,
+    slider_scales,
+    spacetime,
+    stabilise,
+    suggest_key_frames,
+    transfer_motion,
+    velocity_error_rms,
+)
 from core.retarget.spacetime_solver import banded_step, capacitance_step, cg_step
 
 

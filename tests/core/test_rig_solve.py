@@ -8,8 +8,16 @@ import pytest
 from scipy.optimize import least_squares
 
 from core.result import ShapeSpaceError, Status
-from core.rig import (Channel, ChannelKind, ControlSet, broyden_update, finite_difference_jacobian,
-                      quaternion_from_rotation_vector, rotation_vector_from_quaternion, solve_controls)
+from core.rig import (
+    Channel,
+    ChannelKind,
+    ControlSet,
+    broyden_update,
+    finite_difference_jacobian,
+    quaternion_from_rotation_vector,
+    rotation_vector_from_quaternion,
+    solve_controls,
+)
 
 
 # --------------------------------------------------------------------------- toy rigs

@@ -8,8 +8,14 @@ from core.errors import ErrorCode
 from core.result import ShapeSpaceError, Status
 from core.rig.controls import ChannelKind
 from core.rig.proposal import deformation, rank_channels
-from core.rig.stored import (StoredChannel, add_entries, blob_from_entries, entries_from_blob, mirror_entries,
-                             mirror_entry)
+from core.rig.stored import (
+    StoredChannel,
+    add_entries,
+    blob_from_entries,
+    entries_from_blob,
+    mirror_entries,
+    mirror_entry,
+)
 
 WHERE = "Object 'Face' ▸ shapespace_controls"
 

@@ -4,8 +4,16 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from core.result import ShapeSpaceError
-from core.skinning import (ArmatureDeform, SkinningRig, SkinWeights, deform, diagnose_weights,
-                           dual_quaternion_skinning, linear_blend_skinning, matrix_to_quaternion)
+from core.skinning import (
+    ArmatureDeform,
+    SkinningRig,
+    SkinWeights,
+    deform,
+    diagnose_weights,
+    dual_quaternion_skinning,
+    linear_blend_skinning,
+    matrix_to_quaternion,
+)
 
 ATOL = 1e-10
 

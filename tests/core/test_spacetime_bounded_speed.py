@@ -8,11 +8,10 @@ import numpy as np
 import pytest
 
 import core.retarget.spacetime_solver as st
-from core.retarget.spacetime_solver import bounded, kernels
 from core.progress import Cancelled
 from core.result import Status
 from core.retarget.perframe import fit_frames
-from core.retarget.spacetime_solver import BlockCholesky, SpacetimeSystem, run_peaks, spacetime
+from core.retarget.spacetime_solver import BlockCholesky, SpacetimeSystem, bounded, kernels, run_peaks, spacetime
 
 quadprog = pytest.importorskip("quadprog")
 

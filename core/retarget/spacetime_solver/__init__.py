@@ -75,10 +75,31 @@ exact reduced Newton steps), :mod:`.bounded` (the bounded methods) and :mod:`.so
 """
 from __future__ import annotations
 
-from .bounded import (PEAK_PATIENCE, SHALLOW_VIOLATION, active_set, clipped_solve, interior_point, peak_active_set,
-                      projected_newton, run_peaks, shallow_violation)
-from .kernels import (BANDED_FLOP_LIMIT, BLOCK_BYTES_LIMIT, BLOCK_KEEP_BYTES, PROGRESS_BLOCKS, BlockCholesky,
-                      banded_step, block_fits, block_step, capacitance_limit, capacitance_step, cg_step, reduced_step)
+from .bounded import (
+                      PEAK_PATIENCE,
+                      SHALLOW_VIOLATION,
+                      active_set,
+                      clipped_solve,
+                      interior_point,
+                      peak_active_set,
+                      projected_newton,
+                      run_peaks,
+                      shallow_violation,
+)
+from .kernels import (
+                      BANDED_FLOP_LIMIT,
+                      BLOCK_BYTES_LIMIT,
+                      BLOCK_KEEP_BYTES,
+                      PROGRESS_BLOCKS,
+                      BlockCholesky,
+                      banded_step,
+                      block_fits,
+                      block_step,
+                      capacitance_limit,
+                      capacitance_step,
+                      cg_step,
+                      reduced_step,
+)
 from .solve import DEGENERATE_RATIO, DRIFT_BETA, END_RIDGE, SpacetimeResult, spacetime
 from .system import CHUNK_ROWS, GREEN_TABLE_LIMIT, GreenTables, SpacetimeSystem
 
