@@ -117,7 +117,7 @@ class RigDrag:
         except BaseException:
             ev.restore()
             raise
-        self.ev = ev
+        self.ev, self.jacobian_cache, self.result = ev, None, None
         return self.points.copy()
 
     def _evaluate_with(self, ev, c) -> np.ndarray:
