@@ -17,13 +17,22 @@ Metrics per rig ``<rig>``:
   evaluated vertices (pins spread over the channels) are the targets of a solve from the rest pose; the solved
   controls are written and the rig evaluated again by the depsgraph; the largest pin distance over all poses,
   divided by the evaluated head's bounding-box diagonal.  Goal ≤ 1e-3.
+  The drag is the pin-and-drag session (``bridge/rig/drag.py``, :class:`RigDrag`): ``begin`` on the pins at the
+  rest pose, one ``move`` to the targets.
+- ``rig_drag_overhead_ms_<rig>``: a drag toward a random pose's pins in 20 small mouse moves (each 1/20 of the
+  way, every one a :meth:`RigDrag.move`, the first one computing the Jacobian); per move, the move's wall time
+  minus Blender's own re-evaluation of the rig measured in the same loop (the previous controls written and
+  evaluated untimed, then the move's controls written and the depsgraph updated, timed); the median of those
+  paired differences, in ms.  Goal ≤ 3 ms.  ``rig_drag_move_ms_median_<rig>`` and
+  ``rig_drag_reeval_ms_median_<rig>``: the medians of the two.
 - ``rig_first_use_s_<rig>``: wall time of the first Jacobian at the rest pose, median over repetitions: shape-key
   slider columns analytic where they apply (linear-blend armature after the keys, ``bridge/rig/analytic.py``;
   building that path — vertex groups, key deltas — is included), every other channel by finite differences
   (one depsgraph update per channel); ``rig_first_use_fd_s_<rig>`` the same Jacobian by finite differences
   only (what the first use cost before the analytic path); ``rig_first_use_ms_per_channel_<rig>`` the first
   use per channel; ``rig_check_s_<rig>`` the refusal checks and natural-scale probe (two updates per channel).
-- ``rig_solve_s_median_<rig>``: a whole solve (checks, Jacobians, verified steps), median over poses;
+- ``rig_solve_s_median_<rig>``: a whole solve (the drag's begin — checks, probe — and its move: Jacobians,
+  verified steps), median over poses;
   ``rig_eval_ms_<rig>``: one evaluation of the rig after a channel changed (write controls, depsgraph update,
   read), median.
 - ``rig_solve_ok_frac_<rig>``: fraction of solves that reported OK.
@@ -104,13 +113,18 @@ def _measure(name: str, build, poses: int, reps: int) -> dict:
         targets = rig.world_points()[pins]
         brig.apply_controls(rig.controls, c0)
         t0 = time.perf_counter()
-        res = brig.solve_pins(rig.mesh, rig.controls, pins, targets)
+        drag = brig.RigDrag(rig.mesh, rig.controls)
+        drag.begin(pins)
+        res = drag.move(targets)
         times.append(time.perf_counter() - t0)
         ok += int(res.status == 0)
-        brig.apply_controls(rig.controls, res.x)
         errs.append(float(np.linalg.norm(rig.world_points()[pins] - targets, axis=1).max() / diag))
-        brig.apply_controls(rig.controls, c0)
+        drag.cancel()
+    overhead, moves_ms, reeval_ms = _drag_overhead(rig, pins, rng)
     return {f"rig_drag_pin_err_max_{name}": max(errs),
+            f"rig_drag_overhead_ms_{name}": overhead,
+            f"rig_drag_move_ms_median_{name}": moves_ms,
+            f"rig_drag_reeval_ms_median_{name}": reeval_ms,
             f"rig_first_use_s_{name}": float(np.median(first)),
             f"rig_first_use_fd_s_{name}": float(np.median(first_fd)),
             f"rig_first_use_ms_per_channel_{name}": float(np.median(first)) / n * 1e3,
@@ -121,6 +135,40 @@ def _measure(name: str, build, poses: int, reps: int) -> dict:
             f"rig_channels_{name}": n,
             f"rig_pins_{name}": int(len(pins)),
             f"rig_vertices_{name}": len(rig.mesh.data.vertices)}
+
+
+def _drag_overhead(rig, pins, rng, moves: int = 20) -> tuple:
+    """``rig_drag_overhead_ms_<rig>`` (module doc): (median paired difference, median move, median re-evaluation)
+    in ms over ``moves`` mouse moves of a drag toward a random pose's pins."""
+    import bpy
+    from shapespace.bridge import rig as brig
+    bindings = brig.bind(rig.controls)
+
+    def write(c):
+        for b, v in zip(bindings, c):
+            b.set(v)
+
+    c0 = brig.read_controls(rig.controls)
+    brig.apply_controls(rig.controls, rig.random_pose(rng))
+    targets = rig.world_points()[pins]
+    brig.apply_controls(rig.controls, c0)
+    drag = brig.RigDrag(rig.mesh, rig.controls)
+    start = drag.begin(pins)
+    diffs, move_t, reeval_t = [], [], []
+    for k in range(1, moves + 1):
+        before = drag.controls_now.copy()
+        t0 = time.perf_counter()
+        drag.move(start + (targets - start) * k / moves)
+        move_t.append(time.perf_counter() - t0)
+        write(before)                                  # Blender's own re-evaluation of the same change
+        bpy.context.view_layer.update()
+        t0 = time.perf_counter()
+        write(drag.controls_now)
+        bpy.context.evaluated_depsgraph_get().update()
+        reeval_t.append(time.perf_counter() - t0)
+        diffs.append(move_t[-1] - reeval_t[-1])
+    drag.cancel()
+    return (float(np.median(diffs)) * 1e3, float(np.median(move_t)) * 1e3, float(np.median(reeval_t)) * 1e3)
 
 
 def _self_take(rig, rng, frames: int) -> tuple:

@@ -1,5 +1,6 @@
 """Any face rig in Blender (issue #25): its channels as a control set, evaluated through the depsgraph."""
 from .channels import Binding, bind, bone_channel, bone_channels, control_set, property_channel, shape_key_channel
+from .drag import RigDrag
 from .evaluate import RigEvaluator, apply_controls, read_controls, solve_pins
 from .take import (
                        TakeOutcome,
@@ -11,6 +12,6 @@ from .take import (
                        write_take,
 )
 
-__all__ = ["Binding", "RigEvaluator", "TakeOutcome", "apply_controls", "bind", "bone_channel", "bone_channels",
-           "compute_take", "control_set", "property_channel", "read_controls", "rest_controls", "restore_previous",
-           "retarget_take", "shape_key_channel", "shape_key_targets", "solve_pins", "write_take"]
+__all__ = ["Binding", "RigDrag", "RigEvaluator", "TakeOutcome", "apply_controls", "bind", "bone_channel",
+           "bone_channels", "compute_take", "control_set", "property_channel", "read_controls", "rest_controls",
+           "restore_previous", "retarget_take", "shape_key_channel", "shape_key_targets", "solve_pins", "write_take"]

@@ -1,0 +1,220 @@
+"""Pin-and-drag on any face rig (issue #25, item 2): one interactive drag in the rig's control space.
+
+A :class:`RigDrag` is what a drag keeps from mouse-down to release on a face deformed by a rig that is not a
+linear shape-key model (bones, drivers, hybrids): a :class:`~bridge.rig.evaluate.RigEvaluator` opened once
+(refusals, natural scales, finite-difference steps), the pins as surface points (a vertex, or barycentric
+weights on 1–3 vertices, :class:`core.manipulation.Pin`), the controls at mouse-down and after the last move,
+and the last Jacobian of the pins.
+
+- :meth:`RigDrag.begin` opens the evaluator (Edit Mode, linked data, locked or inert channels, invalid drivers,
+  non-deterministic rigs refused by name) and returns where Blender draws the pins now (world space).
+- :meth:`RigDrag.move` is one mouse move: one bounded Levenberg–Marquardt solve
+  (:func:`core.rig.solve.solve_controls`) warm-started from the last controls and their verified evaluation,
+  starting from the cached Jacobian (Broyden-updated by the solve, recomputed when a step stalls), stopping when
+  the pins are within ``pin_tol`` or the next step would move no pin by more than ``xtol``; every
+  accepted step is an evaluation by Blender's depsgraph (the objective never increases), and the controls
+  the solve ends on are live on the rig, so the pins land where the viewport draws them.
+- :meth:`RigDrag.release` keeps the controls and (``autokey``) keys the channels that changed on their
+  datablocks' actions at the current frame (a bone in ``QUATERNION`` / ``AXIS_ANGLE`` mode: all four
+  components); :meth:`RigDrag.cancel` writes every channel back exactly as it was at mouse-down.  Nothing is
+  keyed by a move, a failure or a cancel; a move that fails puts the last accepted controls back.
+
+A pure shape-key face keeps the exact linear path of :mod:`bridge.manipulation.drag`.
+"""
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from ...core.errors import ErrorCode
+from ...core.manipulation import Pin
+from ...core.manipulation.pins import _pin_arrays
+from ...core.result import ShapeSpaceError
+from ...core.rig import ChannelKind, ControlSet, RigSolveResult, solve_controls
+from .. import actions
+from .channels import EULER_MODES
+from .evaluate import RigEvaluator
+from .take import CHANGED_REL_TOL, PIN_TOL_REL, _animated
+
+__all__ = ["RigDrag"]
+
+#: A move stops when the bounded Gauss–Newton step on the current (cached, Broyden-updated) Jacobian would move
+#: no pin by more than this fraction of the evaluated diagonal (a tenth of the recovery goal, 0.03 mm on a 30 cm
+#: head): a small mouse move then costs one or two rig evaluations instead of fresh Jacobians chasing a target the
+#: rig cannot reach exactly; the next move goes on from there.
+DRAG_XTOL_REL = 1e-4
+
+
+def _pins(pins, n_vertices: int) -> tuple:
+    """Pins (vertex indices or :class:`Pin` s) as (vertices (m,), barycentric matrix (p, m)) of distinct
+    vertices; refused by pin index when malformed."""
+    pins = [Pin.at_vertex(int(p)) if isinstance(p, (int, np.integer)) else p for p in pins]
+    idx, bary = _pin_arrays(pins, n_vertices)
+    verts, inverse = np.unique(idx, return_inverse=True)
+    B = np.zeros((len(pins), verts.size))
+    np.add.at(B, (np.repeat(np.arange(len(pins)), 3), inverse.reshape(-1)), bary.reshape(-1))
+    return verts, B
+
+
+class RigDrag:
+    """One drag of pins on ``mesh_obj`` through the channels of ``controls`` (module doc).
+
+    Parameters
+    ----------
+    mesh_obj : bpy.types.Object
+        The deformed face mesh.
+    controls : ControlSet
+        The channels the drag may move.
+    mu : float
+        Regularisation toward the controls at mouse-down (:func:`core.rig.solve.solve_controls`).
+    pin_tol : float, optional
+        A move stops once every pin is this close to its target (default 1e-5 of the evaluated diagonal).
+    xtol : float, optional
+        A move also stops when the Gauss–Newton step would move no pin by more than this distance (default
+        :data:`DRAG_XTOL_REL` of the evaluated diagonal).
+    max_iter : int
+        Trial steps per move.
+
+    Attributes
+    ----------
+    start : ndarray (n,)
+        Controls at mouse-down.
+    controls_now : ndarray (n,)
+        Controls after the last move (live on the rig).
+    points : ndarray (p, 3)
+        Blender's evaluation of the pins at ``controls_now`` (world space).
+    result : RigSolveResult or None
+        The last move's.
+    """
+
+    def __init__(self, mesh_obj, controls: ControlSet, *, mu: float = 1e-6, pin_tol: float | None = None,
+                 xtol: float | None = None, max_iter: int = 20):
+        self.mesh_obj, self.controls = mesh_obj, controls
+        self.mu, self.pin_tol, self.xtol, self.max_iter = mu, pin_tol, xtol, max_iter
+        self.ev = None
+        self.B = None
+        self.start = self.controls_now = self.points = None
+        self.jacobian_cache = None
+        self.result = None
+        self._last = None
+
+    # -- lifecycle -----------------------------------------------------------------------------------------
+    def begin(self, pins) -> np.ndarray:
+        """Open the drag on ``pins`` (vertex indices or :class:`Pin` s); return the pins' world positions (p, 3)
+        as Blender draws them.  Refusals leave the rig exactly as it was."""
+        if self.ev is not None:
+            raise ShapeSpaceError("the drag has already begun", ErrorCode.INVALID)
+        if self.mesh_obj is None or self.mesh_obj.type != "MESH":
+            raise ShapeSpaceError(f"{getattr(self.mesh_obj, 'name', self.mesh_obj)!r} is not a mesh object",
+                                  ErrorCode.NOT_MESH)
+        verts, self.B = _pins(pins, len(self.mesh_obj.data.vertices))
+        ev = RigEvaluator(self.mesh_obj, self.controls, verts, check=False)
+        try:
+            ev.check()
+            self.start = ev.c0.copy()
+            self.controls_now = self.start.copy()
+            self.points = self._evaluate_with(ev, self.start)
+        except BaseException:
+            ev.restore()
+            raise
+        self.ev, self.jacobian_cache, self.result = ev, None, None
+        return self.points.copy()
+
+    def _evaluate_with(self, ev, c) -> np.ndarray:
+        verts = ev.evaluate(c)
+        self._last = (np.array(c, dtype=np.float64), verts)
+        return self.B @ verts
+
+    def _open(self) -> RigEvaluator:
+        if self.ev is None:
+            raise ShapeSpaceError("the drag is not active (begin it first)", ErrorCode.INVALID)
+        return self.ev
+
+    # -- the solve -----------------------------------------------------------------------------------------
+    def _evaluate(self, c) -> np.ndarray:
+        return self._evaluate_with(self.ev, c)
+
+    def _jacobian(self, c, base=None) -> np.ndarray:
+        """Jacobian of the pins (3p, n): the evaluator's vertex Jacobian through the barycentric rows."""
+        last = self._last
+        verts = last[1] if last is not None and np.array_equal(last[0], c) else None
+        Jv = self.ev.jacobian(c, verts).reshape(-1, 3, len(c))
+        self._last = None                     # the finite differences left other controls evaluated last
+        return np.einsum("pm,mkn->pkn", self.B, Jv).reshape(-1, len(c))
+
+    def move(self, targets) -> RigSolveResult:
+        """One mouse move: bring the pins toward world-space ``targets`` (p, 3); the controls found are live.
+
+        Returns the solve's result (``points``: Blender's evaluation of the pins at ``value``; the diagnostics'
+        ``objective_history`` never increases).  On failure the last accepted controls are put back and the
+        error re-raised.
+        """
+        ev = self._open()
+        t = np.array(targets, dtype=np.float64)
+        if t.shape != self.points.shape:
+            raise ShapeSpaceError(f"targets: expected {self.points.shape}, got {t.shape}", ErrorCode.SHAPE)
+        bad = np.flatnonzero(~np.isfinite(t).all(axis=1))
+        if bad.size:
+            raise ShapeSpaceError(f"target of pin {int(bad[0])} is not finite", ErrorCode.NON_FINITE)
+        lo, hi = ev.controls.solve_bounds(ev.c0)
+        tol = PIN_TOL_REL * ev.diagonal if self.pin_tol is None else self.pin_tol
+        xtol = DRAG_XTOL_REL * ev.diagonal if self.xtol is None else self.xtol
+        try:
+            res = solve_controls(self._evaluate, self.controls_now, t, lo=lo, hi=hi, scale=ev.controls.scale,
+                                 jacobian=self._jacobian, steps=ev.steps, reference=self.start, mu=self.mu,
+                                 pin_tol=tol, xtol=xtol, max_iter=self.max_iter, first_jacobian=self.jacobian_cache,
+                                 first_points=self.points)
+            if self._last is None or not np.array_equal(self._last[0], res.x):
+                self._evaluate(res.x)                 # the rig shows the result (its points were verified)
+        except BaseException:
+            self._evaluate(self.controls_now)
+            raise
+        self.controls_now, self.points, self.jacobian_cache = res.x.copy(), res.points, res.jacobian
+        self.result = res
+        return res
+
+    # -- the end of a drag ---------------------------------------------------------------------------------
+    def changed(self) -> list:
+        """Indices of the channels the drag changed (surface motion above 1e-7 of the diagonal)."""
+        ev = self._open()
+        moved = np.abs(self.controls_now - self.start) * ev.controls.scale
+        return [int(i) for i in np.flatnonzero(moved > CHANGED_REL_TOL * ev.diagonal)]
+
+    def _key_curves(self, changed) -> list:
+        """``(datablock, data path, index, group, value)`` of every F-Curve key for the ``changed`` channels."""
+        curves, done = [], set()
+        for i in changed:
+            b = self.ev.bindings[i]
+            ch = b.channel
+            idb, path = _animated(b)
+            group = path.split('"')[1] if path.startswith("pose.bones[") else ""
+            if ch.kind == ChannelKind.ROTATION and ch.rotation_mode not in EULER_MODES:
+                if (idb.as_pointer(), path) not in done:
+                    done.add((idb.as_pointer(), path))
+                    curves += [(idb, path, k, group, float(v)) for k, v in enumerate(b.raw())]
+                continue
+            value = b.raw()
+            value = value if ch.index < 0 else value[ch.index]
+            curves.append((idb, path, max(ch.index, 0), group, float(value)))
+        return curves
+
+    def release(self, autokey: bool = True, frame: int | None = None) -> list:
+        """End the drag keeping the controls; with ``autokey`` key the changed channels at ``frame`` (the scene's
+        current frame by default).  Returns the names of the channels keyed."""
+        self._open()
+        changed = self.changed()
+        keyed = []
+        if autokey and changed:
+            f = bpy.context.scene.frame_current if frame is None else frame
+            curves = self._key_curves(changed)                   # everything read before anything is written
+            for idb, path, index, group, value in curves:
+                actions.insert_key(idb, path, f, value, index=index, group=group)
+            keyed = [self.ev.bindings[i].channel.name for i in changed]
+        self.ev = None
+        return keyed
+
+    def cancel(self) -> None:
+        """End the drag putting every channel back exactly as it was at mouse-down (nothing keyed)."""
+        ev = self._open()
+        self.ev = None
+        ev.restore()
