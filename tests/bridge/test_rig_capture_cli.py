@@ -23,6 +23,8 @@ import pytest
 
 import rigs
 from blender_support import bpy
+from capture_files import WRITERS, load_llf_take
+from test_capture_sources import EXT
 from support import ROOT, shared
 from test_rig import _assert_same_state, _state
 from shapespace.bridge import rig as brig
@@ -217,3 +219,23 @@ def test_shape_key_action_source_is_reproduced_through_the_jaw_and_sliders():
     err, left_out = _rms(played, ref, axis=1), _rms(jawless, ref, axis=1)
     assert err[0] <= 1e-5 * diag                                          # rest frame: nothing moves
     assert np.all(err <= 0.6 * left_out + 1e-5 * diag), (err / diag, left_out / diag)
+
+
+def test_every_capture_format_gives_the_rig_route_the_same_weights(tmp_path):
+    """Face Cap, iFacialMocap, Audio2Face and MediaPipe recordings of the Live Link Face take (written by
+    tools/capture_files.py, as tests/bridge/test_capture_sources.py) read as the same weights on the face's keys
+    (MediaPipe has no tongueOut channel)."""
+    names, t, w, rot = load_llf_take(_csv())
+    take = (names, np.arange(t.size) / 60.0, w, rot)
+    ob = rigs.load_head(_head())
+    got = {}
+    for kind, ext in EXT.items():
+        path = tmp_path / f"take_{kind}{ext}"
+        path.write_text(WRITERS[kind](take), encoding="utf-8")
+        got[kind] = brig.capture_weights(ob, str(path))
+    keys, frames, ref, _ = got.pop("llf_csv")
+    assert len(keys) == 52 and "jawOpen" in keys
+    for kind, (k, f, W, _) in got.items():
+        assert set(keys) - set(k) <= ({"tongueOut"} if kind.startswith("mediapipe") else set()), kind
+        np.testing.assert_array_equal(f, frames, err_msg=kind)
+        np.testing.assert_allclose(W, ref[:, [keys.index(n) for n in k]], atol=1e-6, err_msg=kind)
