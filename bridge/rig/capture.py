@@ -10,6 +10,10 @@ of a frame is then the face's linear shape-key model at those weights (thesis Eq
 :func:`bridge.rig.take.shape_key_targets`) at a deterministic vertex sample, and the rig's controls are solved
 frame by frame to reproduce it (:func:`bridge.rig.take.compute_take`) and keyed (:func:`bridge.rig.take.write_take`).
 
+The target is the keys' model alone (sliders the source does not map stay at 0 in it); the rig is evaluated as
+it is apart from its controls, so sliders that are not controls should rest at 0 and datablocks without a
+control should play no action (the actions of datablocks that own controls are set aside while it solves).
+
 So the rig may replace a key by a bone (a jaw bone for ``jawOpen``), drive keys through drivers, or be any mix:
 what is matched is the surface the face's own keys would make.  Nothing is written before every frame is solved;
 a failure or :class:`~core.progress.Cancelled` leaves the file as it was.

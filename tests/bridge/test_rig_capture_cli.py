@@ -28,6 +28,7 @@ from test_capture_sources import EXT
 from support import ROOT, shared
 from test_rig import _assert_same_state, _state
 from shapespace.bridge import rig as brig
+from shapespace.cli.controls import control_set_of, parse_specs
 from shapespace.core.progress import Cancelled
 from shapespace.core.result import ShapeSpaceError, Status
 
@@ -239,3 +240,22 @@ def test_every_capture_format_gives_the_rig_route_the_same_weights(tmp_path):
         assert set(keys) - set(k) <= ({"tongueOut"} if kind.startswith("mediapipe") else set()), kind
         np.testing.assert_array_equal(f, frames, err_msg=kind)
         np.testing.assert_allclose(W, ref[:, [keys.index(n) for n in k]], atol=1e-6, err_msg=kind)
+
+
+def test_specs_resolve_to_the_driver_rigs_own_channels():
+    """Bone locations and rotations with axes, a custom property on the armature and a slider: the same channels
+    (names, paths, bounds) the test rig builds by hand; an object name with ``:`` in it is split where it names an
+    object; a locked axis asked for by name is kept (and refused by the evaluator, not silently dropped)."""
+    rig = rigs.driver_rig(_head())
+    rig.armature.name = "rig:Controls"
+    specs = [f"rig:Controls:{n}:location:y" for n in ("ctl_jaw", "ctl_smile_L", "ctl_smile_R")]
+    specs += ["rig:Controls:ctl_brow:rotation", 'rig:Controls:["blink"]', "key:cheekPuff"]
+    got = control_set_of(parse_specs(specs), rig.mesh)
+    expected = [*rig.controls.channels, brig.shape_key_channel(rig.mesh, "cheekPuff")]
+    assert [(c.name, c.owner, c.path, c.index, c.lo, c.hi) for c in got.channels] == \
+        [(c.name.replace("Controls[", "rig:Controls["), "rig:Controls" if c.owner != MESH else MESH, c.path,
+          c.index, c.lo, c.hi) for c in expected]
+    (locked,) = control_set_of(parse_specs(["rig:Controls:ctl_jaw:location:x"]), rig.mesh).channels
+    assert locked.locked
+    with pytest.raises(ShapeSpaceError, match="listed twice"):
+        control_set_of(parse_specs(["key:cheekPuff", "key:cheekPuff"]), rig.mesh)
