@@ -12,7 +12,8 @@ A SPEC is one of::
 AXES is a subset of ``xyz`` (default: every unlocked axis).  An object or bone name may itself contain ``:``
 (``mixamorig:Head``): the split that names an existing object is taken.  :func:`parse_specs` checks the
 syntax before any work (a malformed SPEC is a usage error, exit 2); :func:`control_set_of` resolves them on
-the opened file (a missing object, bone, property or key is refused naming the SPEC and it, exit 1).
+the opened file (a missing object, bone, property or key, or a locked axis named in AXES, is refused naming the
+SPEC and it, exit 1).
 """
 from __future__ import annotations
 
@@ -97,7 +98,12 @@ def _channels(spec: Spec, mesh_obj) -> list:
         return [brig.property_channel(arm, spec.what, bone)]
     arm, bone = _armature_and_bone(spec)
     if spec.axes is not None:
-        return [brig.bone_channel(arm, bone, spec.what, a) for a in spec.axes]
+        chans = [brig.bone_channel(arm, bone, spec.what, a) for a in spec.axes]
+        locked = [c.name for c in chans if c.locked]
+        if locked:
+            raise ShapeSpaceError(f"{locked[0]!r} is locked on its bone (unlock it or leave the axis out)",
+                                  ErrorCode.INVALID)
+        return chans
     chans = brig.bone_channels(arm, [bone], (spec.what,))
     if not chans:
         raise ShapeSpaceError(f"bone {bone!r}: every {spec.what} axis is locked", ErrorCode.INVALID)

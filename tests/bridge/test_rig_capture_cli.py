@@ -245,7 +245,7 @@ def test_every_capture_format_gives_the_rig_route_the_same_weights(tmp_path):
 def test_specs_resolve_to_the_driver_rigs_own_channels():
     """Bone locations and rotations with axes, a custom property on the armature and a slider: the same channels
     (names, paths, bounds) the test rig builds by hand; an object name with ``:`` in it is split where it names an
-    object; a locked axis asked for by name is kept (and refused by the evaluator, not silently dropped)."""
+    object; a locked axis asked for by name is refused before any work (not silently dropped)."""
     rig = rigs.driver_rig(_head())
     rig.armature.name = "rig:Controls"
     specs = [f"rig:Controls:{n}:location:y" for n in ("ctl_jaw", "ctl_smile_L", "ctl_smile_R")]
@@ -255,7 +255,7 @@ def test_specs_resolve_to_the_driver_rigs_own_channels():
     assert [(c.name, c.owner, c.path, c.index, c.lo, c.hi) for c in got.channels] == \
         [(c.name.replace("Controls[", "rig:Controls["), "rig:Controls" if c.owner != MESH else MESH, c.path,
           c.index, c.lo, c.hi) for c in expected]
-    (locked,) = control_set_of(parse_specs(["rig:Controls:ctl_jaw:location:x"]), rig.mesh).channels
-    assert locked.locked
+    with pytest.raises(ShapeSpaceError, match=r"'rig:Controls:ctl_jaw:location:xy'.*'ctl_jaw location X' is locked"):
+        control_set_of(parse_specs(["rig:Controls:ctl_jaw:location:xy"]), rig.mesh)
     with pytest.raises(ShapeSpaceError, match="listed twice"):
         control_set_of(parse_specs(["key:cheekPuff", "key:cheekPuff"]), rig.mesh)
