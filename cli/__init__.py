@@ -54,6 +54,13 @@ Scene range: the scene's frame range is widened to include every frame a result 
 playback and exporters see the whole take; --keep-scene-range leaves it as it is. Each report gives the
 frame_range written and the clipped_frames (scene frames where the source leaves the slider ranges) as
 [first, last] runs.
+Rig controls (--controls): each source's weights are played on the --object mesh's own shape keys (ARKit
+names, mapped as for the sliders) and the rig's channels are solved frame by frame to reproduce that surface,
+then keyed (only the channels that move) in new actions on their owners (armature/object, the mesh's Key);
+each result is the take's report (rms, pin_error_max in scene units, keyed_channels, actions). A malformed
+SPEC is a usage error (exit 2); a SPEC naming an object, bone, property or key the file lacks is refused by
+name before any work (exit 1). Not with --key-poses, --head-bone/--neck-bone/--eye-bones or --key-shape
+LINEAR; the scene's frame range is left as it is.
 stdout carries only the JSON (without --report); progress and log lines go to stderr."""
 
 
@@ -95,12 +102,20 @@ def build_parser() -> argparse.ArgumentParser:
                     help="capture recording (Live Link Face CSV, Face Cap TXT, iFacialMocap, Audio2Face JSON, "
                     "MediaPipe JSON/CSV), action name, or an animated mesh object (repeat for a batch)")
     rt.add_argument("--object", help="target mesh (default: the only mesh with shape keys)")
-    rt.add_argument("--method", choices=("copy", "learned", "perframe", "spacetime"), default="spacetime")
+    rt.add_argument("--method", choices=("copy", "learned", "perframe", "spacetime"),
+                    help="copy, learned, perframe or spacetime (default: spacetime; with --controls only perframe)")
+    rt.add_argument("--controls", nargs="+", metavar="SPEC",
+                    help="retarget onto these rig channels instead of the sliders (any face rig: bones, custom "
+                    "properties, sliders; per-frame, through the --object mesh's own ARKit shape keys): "
+                    "ARMATURE:BONE:rotation[:AXES], ARMATURE:BONE:location[:AXES], ARMATURE:BONE:scale[:AXES], "
+                    "OBJECT:[\"prop\"], ARMATURE:BONE:[\"prop\"], key:NAME (AXES: e.g. xz; default every "
+                    "unlocked axis); capture recordings and shape-key actions only")
     rt.add_argument("--key-poses", help="learned method: the action keying the target at its key poses")
     rt.add_argument("--lam", type=_number(positive=True), default=1e-7,
                     help="space-time regulariser λ > 0, relative to the data (small: the motion is kept)")
     rt.add_argument("--key-tolerance", type=_number(positive=False), default=0.0,
-                    help="reduce keys to this max slider error ≥ 0 (0 keeps every frame)")
+                    help="reduce keys to this max slider error ≥ 0 (0 keeps every frame; with --controls: max "
+                    "surface error, in scene units)")
     rt.add_argument("--key-shape", choices=("BEZIER", "LINEAR"), default="BEZIER",
                     help="reduced keys: smooth Bezier (fewest keys) or linear")
     rt.add_argument("--head-bone", help="bone keyed from the recording's head rotation (HeadYaw/Pitch/Roll)")

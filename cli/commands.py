@@ -114,6 +114,54 @@ def _one_source(obj, src: str, args, bones=None) -> tuple:
         {"source": src, "ok": False, "error": message}
 
 
+def _one_rig_source(obj, controls, src: str, args) -> tuple:
+    """Retarget one source onto the rig ``controls`` (``--controls``): ``(its report, JSON)`` as
+    :func:`_one_source` (a ``FAILED`` report and its one-line error when it failed; the batch goes on)."""
+    from ..bridge import rig as brig
+    from ..core.rig import RigTakeReport
+    try:
+        source_obj = bpy.data.objects.get(src)
+        if source_obj is not None and source_obj.type == "MESH":
+            raise ShapeSpaceError(f"{src!r} is a mesh performance: onto --controls only capture recordings and "
+                                  "shape-key actions are retargeted", ErrorCode.METHOD)
+        name = f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}"
+        rep = brig.retarget_capture_onto_rig(obj, controls, src, key_tolerance=args.key_tolerance,
+                                             action_name=name, progress=_ProgressLines(src))
+        for issue in rep.issues:
+            _say(f"warning: {src}: {issue.message}")
+        return rep, {**rep.to_json(), "ok": True}
+    except MemoryError:
+        message = "not enough memory for this source (split the take)"
+    except ShapeSpaceError as exc:
+        message = str(exc)
+    except Exception as exc:  # one bad source never aborts the batch; SHAPESPACE_TRACEBACK=1 shows it
+        if os.environ.get("SHAPESPACE_TRACEBACK"):
+            raise
+        message = f"unexpected {type(exc).__name__}: {(str(exc).strip().splitlines() or [''])[-1]}"
+    if not message.startswith(src):
+        message = f"{src}: {message}"
+    print(f"shapespace: error: {message}", file=sys.stderr, flush=True)
+    return RigTakeReport(status=Status.FAILED, source=src), {"source": src, "ok": False, "error": message}
+
+
+def _rig_specs(args) -> list | None:
+    """``--controls`` parsed (syntax only, before any work) and the options it excludes refused: usage errors."""
+    from .controls import parse_specs
+    if not args.controls:
+        args.method = args.method or "spacetime"
+        return None
+    if args.method not in (None, "perframe"):
+        raise ShapeSpaceError(f"--controls retargets per frame: --method {args.method} is not available with it",
+                              ErrorCode.USAGE)
+    excluded = [flag for flag, given in (("--key-poses", args.key_poses), ("--head-bone", args.head_bone),
+                                         ("--neck-bone", args.neck_bone), ("--eye-bones", args.eye_bones),
+                                         ("--key-shape LINEAR", args.key_shape != "BEZIER")) if given]
+    if excluded:
+        raise ShapeSpaceError(f"{excluded[0]} is not available with --controls", ErrorCode.USAGE)
+    args.method = "perframe"
+    return parse_specs(args.controls)
+
+
 def _head_eye_bones(args):
     """The ``--head-bone/--neck-bone/--eye-bones/--armature`` choice (``None`` when no bone is named)."""
     from ..bridge.retarget import HeadEyeBones
@@ -160,6 +208,7 @@ def retarget(args, inputs: list) -> tuple:
         raise ShapeSpaceError("retarget: give --out FILE.blend to save the results, or --dry-run to only report "
                               "them" if not args.out else "retarget: --out and --dry-run exclude each other",
                               ErrorCode.USAGE)
+    specs = _rig_specs(args)
     opened = args.target or bpy.data.filepath or (inputs[0] if inputs else "")
     sources = [s for s in args.source if os.path.isfile(s)]
     read = [p for p in (bpy.data.filepath, args.target, *inputs, *sources) if p]
@@ -169,17 +218,23 @@ def retarget(args, inputs: list) -> tuple:
         assets.load(args.target)
     obj = _target_object(args.object, opened)
     bones = _head_eye_bones(args)
+    controls = None
+    if specs is not None:
+        from .controls import control_set_of
+        controls = control_set_of(specs, obj)
     reports, results = [], []
     for k, src in enumerate(args.source, start=1):
         _say(f"[{k}/{len(args.source)}] {src} → {obj.name} ({args.method})")
         start = time.perf_counter()
-        rep, result = _one_source(obj, src, args, bones)
+        rep, result = (_one_source(obj, src, args, bones) if controls is None
+                       else _one_rig_source(obj, controls, src, args))
         reports.append(rep)
         results.append(result)
         if results[-1]["ok"]:
             _say(_progress_line(src, results[-1].get("frames"), time.perf_counter() - start))
     done = sum(r["ok"] for r in results)
-    payload = {"target": obj.name, "method": args.method, "results": results,
+    payload = {"target": obj.name, "method": args.method,
+               **({"controls": controls.names} if controls is not None else {}), "results": results,
                "saved": out.path if out is not None and done else None}
     text = json.dumps(payload, indent=2)
     if report is not None:

@@ -141,6 +141,7 @@ def _drag_overhead(rig, pins, rng, moves: int = 20) -> tuple:
     """``rig_drag_overhead_ms_<rig>`` (module doc): (median paired difference, median move, median re-evaluation)
     in ms over ``moves`` mouse moves of a drag toward a random pose's pins."""
     import bpy
+
     from shapespace.bridge import rig as brig
     bindings = brig.bind(rig.controls)
 

@@ -100,6 +100,10 @@ class RigTakeReport(Report):
         Each channel's underlying property before the write (restored with the previous actions).
     key_fraction : float
         Fraction of the dense keys kept by key reduction (1 without reduction).
+    source : str
+        The capture or action retargeted (``''`` for a take given as target positions).
+    mapped_channels : int
+        Shape keys of the face the source's channels map to (capture route; 0 otherwise).
     """
 
     frames: int = 0
@@ -115,6 +119,8 @@ class RigTakeReport(Report):
     actions: list = field(default_factory=list)
     values_before: list = field(default_factory=list)
     key_fraction: float = 1.0
+    source: str = ""
+    mapped_channels: int = 0
 
 
 def _targets(targets: ArrayLike) -> np.ndarray:

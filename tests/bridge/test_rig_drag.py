@@ -10,12 +10,12 @@ import pytest
 
 import rigs
 from blender_support import bpy
-from support import shared
-from test_rig import _assert_same_state, _state
 from shapespace.bridge import actions
 from shapespace.bridge import rig as brig
 from shapespace.core.manipulation import Pin
 from shapespace.core.result import ShapeSpaceError
+from support import shared
+from test_rig import _assert_same_state, _state
 
 RECOVERY_TOL = 1e-3
 
