@@ -258,106 +258,142 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         raise ShapeSpaceError(f"mu = {mu} must be a non-negative number", ErrorCode.RANGE)
     if max_iter < 1:
         raise ShapeSpaceError(f"max_iter = {max_iter} must be at least 1", ErrorCode.RANGE)
-    sw = np.repeat(np.sqrt(w), 3)
-    reg_w = mu * s * s
     h = 1e-3 / s if steps is None else np.array(steps, dtype=np.float64).reshape(-1)
     if h.shape != c.shape or not np.all(np.isfinite(h) & (h > 0)):
         raise ShapeSpaceError(f"steps: expected {c.size} positive numbers", ErrorCode.RANGE)
-    counts = {"evaluations": 0, "jacobians": 0}
+    run = _LevenbergMarquardt(evaluate, jacobian, t, lo, hi, s, w, ref, mu, h)
+    run.start(c, first_points, first_jacobian)
+    status, message = Status.NOT_CONVERGED, ""
+    while True:
+        stop = run.converged(pin_tol, ftol, xtol)
+        if stop is not None:
+            status, message = Status.OK, stop
+            break
+        if run.it >= max_iter:
+            message = (f"stopped after {run.it} steps, pins up to "
+                       f"{np.max(np.linalg.norm(run.P - t, axis=1)):.3g} away")
+            break
+        run.it += 1
+        stop = run.trial()
+        if stop is not None:
+            status, message = stop
+            break
+        run.lam = max(run.lam, 1e-12)
+    return run.result(status, message)
 
-    def points(x):
-        counts["evaluations"] += 1
-        out = np.asarray(evaluate(x), dtype=np.float64)
-        if out.shape != t.shape:
-            raise ShapeSpaceError(f"the rig evaluated {out.shape} points, expected {t.shape}", ErrorCode.SHAPE)
+
+class _LevenbergMarquardt:
+    """The state and steps of one :func:`solve_controls` run (inputs already checked)."""
+
+    def __init__(self, evaluate, jacobian, t, lo, hi, s, w, ref, mu, h):
+        self.evaluate, self.jacobian = evaluate, jacobian
+        self.t, self.lo, self.hi, self.s, self.ref, self.h = t, lo, hi, s, ref, h
+        self.sw = np.repeat(np.sqrt(w), 3)
+        self.reg_w = mu * s * s
+        self.evaluations = self.jacobians = 0
+        self.lam, self.it = 1e-3, 0
+
+    # ---------------------------------------------------------------- the rig
+    def points(self, x):
+        self.evaluations += 1
+        out = np.asarray(self.evaluate(x), dtype=np.float64)
+        if out.shape != self.t.shape:
+            raise ShapeSpaceError(f"the rig evaluated {out.shape} points, expected {self.t.shape}", ErrorCode.SHAPE)
         if not np.all(np.isfinite(out)):
             raise ShapeSpaceError("the rig evaluated non-finite points for controls "
                                   f"{np.round(x, 6).tolist()}", ErrorCode.NON_FINITE)
         return out
 
-    def jac(x, px):
-        counts["jacobians"] += 1
-        if jacobian is not None:
-            out = np.asarray(jacobian(x, px), dtype=np.float64)
+    def jac(self, x, px):
+        self.jacobians += 1
+        if self.jacobian is not None:
+            out = np.asarray(self.jacobian(x, px), dtype=np.float64)
         else:
-            out = finite_difference_jacobian(points, x, h, lo, hi, base=px)
-        if out.shape != (t.size, c.size) or not np.all(np.isfinite(out)):
-            raise ShapeSpaceError(f"Jacobian: expected finite ({t.size}, {c.size}), got {out.shape}",
+            out = finite_difference_jacobian(self.points, x, self.h, self.lo, self.hi, base=px)
+        if out.shape != (self.t.size, x.size) or not np.all(np.isfinite(out)):
+            raise ShapeSpaceError(f"Jacobian: expected finite ({self.t.size}, {x.size}), got {out.shape}",
                                   ErrorCode.SHAPE)
-        return out * sw[:, None]
+        return out * self.sw[:, None]
 
-    def objective(px, x):
-        e = (px - t).reshape(-1) * sw
-        return e, float(e @ e + np.sum(reg_w * (x - ref) ** 2))
+    def objective(self, px, x):
+        e = (px - self.t).reshape(-1) * self.sw
+        return e, float(e @ e + np.sum(self.reg_w * (x - self.ref) ** 2))
 
-    P = points(c) if first_points is None else np.array(first_points, dtype=np.float64).reshape(t.shape)
-    e, f = objective(P, c)
-    f_start = f
-    if first_jacobian is not None:
-        J, fresh = np.array(first_jacobian, dtype=np.float64).reshape(t.size, c.size) * sw[:, None], False
-    else:
-        J, fresh = jac(c, P), True
-    lam = 1e-3
-    status, message, it = Status.NOT_CONVERGED, "", 0
-    history = [f]
-    while True:
-        if pin_tol > 0 and np.max(np.linalg.norm(P - t, axis=1)) <= pin_tol:
-            status, message = Status.OK, "every pin within tolerance"
-            break
-        D2 = np.maximum(np.einsum("ij,ij->j", J, J) + reg_w, 1e-12 * np.max(s * s))
-        if fresh or xtol > 0:
-            d_gn = _step(J, e, reg_w, c, ref, 1e-9, D2, lo, hi)
-            if fresh and f - _model(J, e, reg_w, c, ref, d_gn) <= ftol * f + 1e-300:
-                status, message = Status.OK, "stationary on the bounds"
-                break
-            moved = (J @ d_gn / np.where(sw > 0, sw, 1.0)).reshape(-1, 3) if xtol > 0 else None
-            if moved is not None and np.max(np.linalg.norm(moved, axis=1)) <= xtol:
-                status, message = Status.OK, "the Gauss–Newton step moves no pin by more than xtol"
-                break
-        if it >= max_iter:
-            message = f"stopped after {it} steps, pins up to {np.max(np.linalg.norm(P - t, axis=1)):.3g} away"
-            break
-        it += 1
-        d = _step(J, e, reg_w, c, ref, lam, D2, lo, hi)
-        was_fresh = fresh
-        pred = f - _model(J, e, reg_w, c, ref, d)
-        if not np.any(d) or pred <= 0.0:
-            if not fresh:
-                J, fresh = jac(c, P), True
-                continue
-            if lam > 1e12:
-                message = "stalled: no step decreases the objective although the model predicts one"
-                break
-            lam *= 10.0
-            continue
-        c_new = np.clip(c + d, lo, hi)
-        P_new = points(c_new)
-        e_new, f_new = objective(P_new, c_new)
-        J = broyden_update(J, c_new - c, e_new - e)
-        rho = (f - f_new) / pred
-        if f_new <= f:
-            c, P, e, f = c_new, P_new, e_new, f_new
-            history.append(f)
-            fresh = False
-            lam = lam / 3.0 if rho > 0.75 else (lam * 2.0 if rho < 0.25 else lam)
-            if rho < 0.25 and not was_fresh:
-                J, fresh = jac(c, P), True
+    def refresh(self):
+        self.J, self.fresh = self.jac(self.c, self.P), True
+
+    # ---------------------------------------------------------------- the iteration
+    def start(self, c, first_points, first_jacobian):
+        self.c = c
+        self.P = self.points(c) if first_points is None else \
+            np.array(first_points, dtype=np.float64).reshape(self.t.shape)
+        self.e, self.f = self.objective(self.P, c)
+        self.f_start = self.f
+        self.history = [self.f]
+        if first_jacobian is not None:
+            self.J = np.array(first_jacobian, dtype=np.float64).reshape(self.t.size, c.size) * self.sw[:, None]
+            self.fresh = False
         else:
-            if not fresh:
-                J, fresh = jac(c, P), True
-            elif np.all(np.abs(c_new - c) <= h):
-                status, message = Status.OK, "stationary to the resolution of the Jacobian"
-                break
-            else:
-                lam *= 4.0
-                if lam > 1e12:
-                    message = "stalled: no step decreases the objective although the model predicts one"
-                    break
-        lam = max(lam, 1e-12)
-    errs = np.linalg.norm(P - t, axis=1)
-    J /= np.where(sw > 0, sw, 1.0)[:, None]
-    return RigSolveResult(c, status=status, message=message, iterations=it, points=P, pin_errors=errs,
-                          objective=f, objective_start=f_start, evaluations=counts["evaluations"],
-                          jacobians=counts["jacobians"], jacobian=J,
-                          diagnostics={"lambda": lam, "pin_error_max": float(errs.max()),
-                                       "objective_history": history})
+            self.refresh()
+
+    def converged(self, pin_tol, ftol, xtol):
+        """The reason to stop with ``OK`` before the next trial step, or None."""
+        if pin_tol > 0 and np.max(np.linalg.norm(self.P - self.t, axis=1)) <= pin_tol:
+            return "every pin within tolerance"
+        J, e, c = self.J, self.e, self.c
+        self.D2 = np.maximum(np.einsum("ij,ij->j", J, J) + self.reg_w, 1e-12 * np.max(self.s * self.s))
+        if not (self.fresh or xtol > 0):
+            return None
+        d_gn = _step(J, e, self.reg_w, c, self.ref, 1e-9, self.D2, self.lo, self.hi)
+        if self.fresh and self.f - _model(J, e, self.reg_w, c, self.ref, d_gn) <= ftol * self.f + 1e-300:
+            return "stationary on the bounds"
+        if xtol > 0:
+            moved = (J @ d_gn / np.where(self.sw > 0, self.sw, 1.0)).reshape(-1, 3)
+            if np.max(np.linalg.norm(moved, axis=1)) <= xtol:
+                return "the Gauss–Newton step moves no pin by more than xtol"
+        return None
+
+    def trial(self):
+        """One trial step (verified by evaluating the rig); ``(status, message)`` when the run must stop."""
+        stalled = (Status.NOT_CONVERGED, "stalled: no step decreases the objective although the model predicts one")
+        d = _step(self.J, self.e, self.reg_w, self.c, self.ref, self.lam, self.D2, self.lo, self.hi)
+        was_fresh = self.fresh
+        pred = self.f - _model(self.J, self.e, self.reg_w, self.c, self.ref, d)
+        if not np.any(d) or pred <= 0.0:
+            if not self.fresh:
+                self.refresh()
+                return None
+            if self.lam > 1e12:
+                return stalled
+            self.lam *= 10.0
+            return None
+        c_new = np.clip(self.c + d, self.lo, self.hi)
+        P_new = self.points(c_new)
+        e_new, f_new = self.objective(P_new, c_new)
+        self.J = broyden_update(self.J, c_new - self.c, e_new - self.e)
+        rho = (self.f - f_new) / pred
+        if f_new <= self.f:
+            self.c, self.P, self.e, self.f = c_new, P_new, e_new, f_new
+            self.history.append(f_new)
+            self.fresh = False
+            self.lam = self.lam / 3.0 if rho > 0.75 else (self.lam * 2.0 if rho < 0.25 else self.lam)
+            if rho < 0.25 and not was_fresh:
+                self.refresh()
+        elif not self.fresh:
+            self.refresh()
+        elif np.all(np.abs(c_new - self.c) <= self.h):
+            return Status.OK, "stationary to the resolution of the Jacobian"
+        else:
+            self.lam *= 4.0
+            if self.lam > 1e12:
+                return stalled
+        return None
+
+    def result(self, status, message) -> RigSolveResult:
+        errs = np.linalg.norm(self.P - self.t, axis=1)
+        J = self.J / np.where(self.sw > 0, self.sw, 1.0)[:, None]
+        return RigSolveResult(self.c, status=status, message=message, iterations=self.it, points=self.P,
+                              pin_errors=errs, objective=self.f, objective_start=self.f_start,
+                              evaluations=self.evaluations, jacobians=self.jacobians, jacobian=J,
+                              diagnostics={"lambda": self.lam, "pin_error_max": float(errs.max()),
+                                           "objective_history": self.history})
