@@ -522,7 +522,11 @@ def _hinge(S, w, d, n, chin, up, fallback):
     return (pivot, axis, e1, e2, lo, hi) if lip_is_lo else (pivot, axis, e1, e2, hi, lo)
 
 
-def _sector(th, radius, w, step=np.radians(2.0)):
+#: The angular bin of :func:`_sector` (2°).
+_SECTOR_BIN = float(np.radians(2.0))
+
+
+def _sector(th, radius, w, step=_SECTOR_BIN):
     """Angles (lo, hi) around 0 over which the outer profile (the farthest midline point of each 2° bin:
     lips and chin, not the throat behind them) moves with the jaw by more than half."""
     bins = np.round(th / step).astype(int)
