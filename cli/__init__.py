@@ -109,7 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "properties, sliders; per-frame, through the --object mesh's own ARKit shape keys): "
                     "ARMATURE:BONE:rotation[:AXES], ARMATURE:BONE:location[:AXES], ARMATURE:BONE:scale[:AXES], "
                     "OBJECT:[\"prop\"], ARMATURE:BONE:[\"prop\"], key:NAME (AXES: e.g. xz; default every "
-                    "unlocked axis); capture recordings and shape-key actions only")
+                    "unlocked axis), or `stored` alone: the control set stored on the --object mesh (Rig ▸ "
+                    "Controls); capture recordings and shape-key actions only")
     rt.add_argument("--key-poses", help="learned method: the action keying the target at its key poses")
     rt.add_argument("--lam", type=_number(positive=True), default=1e-7,
                     help="space-time regulariser λ > 0, relative to the data (small: the motion is kept)")

@@ -8,6 +8,7 @@ A SPEC is one of::
     OBJECT:["prop"]                  a float custom property of an object
     ARMATURE:BONE:["prop"]           … of a pose bone
     key:NAME                         a shape-key slider of the --object mesh
+    stored                           the control set stored on the --object mesh (Rig ▸ Controls), alone
 
 AXES is a subset of ``xyz`` (default: every unlocked axis).  An object or bone name may itself contain ``:``
 (``mixamorig:Head``): the split that names an existing object is taken.  :func:`parse_specs` checks the
@@ -23,6 +24,7 @@ from dataclasses import dataclass
 import bpy
 
 from ..bridge import rig as brig
+from ..bridge.rig import stored as stored_controls
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
 
@@ -73,7 +75,13 @@ def _parse(text: str) -> Spec:
 
 
 def parse_specs(texts) -> list:
-    """Every SPEC parsed (syntax only, no Blender data read); the first malformed one is a usage error."""
+    """Every SPEC parsed (syntax only, no Blender data read); the first malformed one is a usage error.
+    ``stored`` (the face's stored control set) stands alone."""
+    texts = list(texts)
+    if "stored" in texts:
+        if len(texts) > 1:
+            raise _usage("stored", "the stored control set stands alone: give it or channel SPECs, not both")
+        return [Spec("stored", "stored", "")]
     return [_parse(t) for t in texts]
 
 
@@ -112,7 +120,10 @@ def _channels(spec: Spec, mesh_obj) -> list:
 
 def control_set_of(specs, mesh_obj):
     """The :class:`core.rig.ControlSet` of parsed ``specs`` on the open file (sliders on ``mesh_obj``); a SPEC
-    naming what the file lacks is refused with the SPEC and the missing name in the message."""
+    naming what the file lacks is refused with the SPEC and the missing name in the message; ``stored``: the
+    enabled channels of the control set stored on ``mesh_obj`` (refused by name when it has none)."""
+    if specs and specs[0].form == "stored":
+        return stored_controls.control_set(mesh_obj)
     chans = []
     for spec in specs:
         try:

@@ -33,8 +33,8 @@ def _channel(entry):
 
 
 class SHAPESPACE_PT_controls(ShapeSpaceSidebar, bpy.types.Panel):
-    """The face's control set: the channels pin-and-drag and retargeting move on a bone-, driver- or hybrid-rigged
-face"""
+    """The face's control set: the channels a capture is retargeted onto (`retarget --controls stored`) on a bone-,
+driver- or hybrid-rigged face"""
 
     bl_label = "Controls"
     bl_idname = "SHAPESPACE_PT_controls"

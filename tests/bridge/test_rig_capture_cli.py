@@ -25,6 +25,7 @@ import rigs
 from blender_support import bpy
 from capture_files import WRITERS, load_llf_take
 from shapespace.bridge import rig as brig
+from shapespace.bridge.rig import stored
 from shapespace.cli.controls import control_set_of, parse_specs
 from shapespace.core.progress import Cancelled
 from shapespace.core.result import ShapeSpaceError, Status
@@ -259,3 +260,18 @@ def test_specs_resolve_to_the_driver_rigs_own_channels():
         control_set_of(parse_specs(["rig:Controls:ctl_jaw:location:xy"]), rig.mesh)
     with pytest.raises(ShapeSpaceError, match="listed twice"):
         control_set_of(parse_specs(["key:cheekPuff", "key:cheekPuff"]), rig.mesh)
+
+
+def test_stored_spec_is_the_faces_stored_control_set():
+    """``--controls stored`` resolves to the control set stored on the face (Rig ▸ Controls): the same channels,
+    read back from the rig; with nothing stored it is refused naming the face, and it cannot be mixed with SPECs."""
+    rig = rigs.driver_rig(_head())
+    with pytest.raises(ShapeSpaceError, match=repr(rig.mesh.name)):
+        control_set_of(parse_specs(["stored"]), rig.mesh)
+    stored.add_entries_of(rig.mesh, rig.armature.name, rig.controls.channels)
+    got = control_set_of(parse_specs(["stored"]), rig.mesh)
+    assert [(c.name, c.path, c.index, c.lo, c.hi) for c in got.channels] == \
+        [(c.name, c.path, c.index, c.lo, c.hi) for c in rig.controls.channels]
+    with pytest.raises(ShapeSpaceError, match="stands alone") as err:
+        parse_specs(["stored", "key:cheekPuff"])
+    assert err.value.code == "usage"
