@@ -48,7 +48,8 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from ..errors import ErrorCode
 from ..names import canonical_name
 from ..result import ShapeSpaceError
-from .mesh import bbox_diagonal, closest_on_triangles, inv3, symmetry_plane, triangle_parts
+from ..surface import TriangleSurface
+from .mesh import bbox_diagonal, inv3, symmetry_plane, triangle_parts
 from .transfer import frames
 
 __all__ = ["KINDS", "UNSURE", "EYE_LOOK_DEGREES", "PartPlan", "propose_parts", "plan_for_transfer", "move_parts",
@@ -157,16 +158,16 @@ def fit_rigid(X: np.ndarray, Y: np.ndarray, w: np.ndarray) -> tuple:
 
 
 class _Skin:
-    """The skin part's triangles and a tree of their centroids, built once per call (closest-point queries)."""
+    """The skin part's triangles prepared once per call for closest-point queries."""
 
     def __init__(self, V, TT, labels):
         self.V = V
         self.tris = TT[labels[TT[:, 0]] == 0]
-        self.tree = cKDTree(V[self.tris].mean(axis=1))
+        self.surface = TriangleSurface(V, self.tris)
 
     def closest(self, points):
         """(tri into ``self.tris``, bary, point, distance) of each point."""
-        return closest_on_triangles(points, self.V, self.tris, tree=self.tree)
+        return self.surface.closest(points)
 
 
 def jaw_membership(verts: np.ndarray, labels: np.ndarray, jaw_delta: np.ndarray | None) -> np.ndarray:

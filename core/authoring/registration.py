@@ -39,6 +39,7 @@ from ..errors import ErrorCode
 from ..progress import ProgressFn, notify
 from ..rbf import fit_rbf
 from ..result import Result, ShapeSpaceError, Status
+from ..surface import TriangleSurface
 from .landmarks import LandmarkPairs, check_landmarks, layout
 from .mesh import (
     bbox_diagonal,
@@ -354,8 +355,10 @@ class Registration:
 
     def surface_groups(self) -> None:
         """The target triangles each source part may be pulled onto: ``groups`` of (source vertices, target
-        faces, tree of their centroids); the target's face parts, boundary and face normals."""
+        faces, the :class:`~core.surface.TriangleSurface` of those faces in units of the diagonal); the target's face
+        parts, boundary and face normals."""
         T, TT = self.T, self.TT
+        self.Tn = T / self.diag
         self.t_face_part = self.t_part[TT[:, 0]]
         self.t_bnd = boundary_vertices(T.shape[0], TT)
         _, t_area = face_normals(T, TT)
@@ -369,7 +372,9 @@ class Registration:
             faces = np.flatnonzero(np.isin(self.t_face_part, ps) & (t_area > 0))
             verts = np.flatnonzero(self.s_part == q)
             if faces.size and verts.size:
-                self.groups.append((verts, faces, cKDTree(T[TT[faces]].mean(axis=1) / self.diag)))
+                tree = cKDTree(T[TT[faces]].mean(axis=1) / self.diag)
+                self.groups.append((verts, faces, TriangleSurface(self.Tn, TT[faces], tree)))
+        self.warm = [{} for _ in self.groups]          # candidate sets re-used between ICP steps
 
     # ---- step 4: non-rigid ICP
     def system(self) -> None:
@@ -394,9 +399,9 @@ class Registration:
         self.eps = 1e-4
         self.Yn0 = self.Y0 / diag
         self.Y = self.Yn0.copy()
-        self.Tn = self.T / diag
         self.lm_rhs = (self.landmark_weight ** 2) * (self.P.T @ self.lm_dst)
         self.lm_A = (self.landmark_weight ** 2) * PtP
+        self.LtL_Y0 = self.LtL @ self.Yn0           # constant part of the right-hand side (× α²)
         self.cap = max(1, int(self.iterations))
         self.w = np.zeros(n)
         self.c = np.zeros((n, 3))
@@ -410,8 +415,8 @@ class Registration:
         ok_all = np.zeros(n, dtype=bool)
         cc = Y.copy()
         vn = vertex_normals(Y, self.ST) if accept else None
-        for verts, faces, tree in self.groups:
-            tri, bary, pt, dist = closest_on_triangles(Y[verts], self.Tn, self.TT[faces], candidates=6, tree=tree)
+        for (verts, faces, surface), warm in zip(self.groups, self.warm):
+            tri, bary, pt, dist = surface.closest(Y[verts], candidates=6, warm=warm)
             cc[verts] = pt
             if accept:
                 f = faces[tri]
@@ -467,8 +472,7 @@ class Registration:
             e_prev = e_now
             if lu is None:
                 lu = _spd_lu((alpha * alpha) * self.LtL + sp.diags(w + self.eps) + self.lm_A)
-            Y_new = lu.solve((alpha * alpha) * (self.LtL @ self.Yn0) + w[:, None] * c + self.eps * self.Yn0
-                             + self.lm_rhs)
+            Y_new = lu.solve((alpha * alpha) * self.LtL_Y0 + w[:, None] * c + self.eps * self.Yn0 + self.lm_rhs)
             self.move = float(np.abs(Y_new - Y).max())
             notify(self.progress, 0.8 * min(1.0, (li + k / self.cap) / len(self.stiffness)))
             if frozen and (self.move < self.tol or abs(rel_change) < self.tol):
@@ -512,8 +516,8 @@ class Registration:
     def residuals(self) -> np.ndarray:
         """Registered-source → target-surface distances (target units) of the accepted pairs after the last solve."""
         res = []
-        for verts, faces, tree in self.groups:
-            _, _, _, dist = closest_on_triangles(self.Y[verts], self.Tn, self.TT[faces], candidates=6, tree=tree)
+        for (verts, faces, surface), warm in zip(self.groups, self.warm):
+            _, _, _, dist = surface.closest(self.Y[verts], candidates=6, warm=warm)
             acc = self.w[verts] > 0
             res.append(dist[acc] * self.diag)
         return np.concatenate(res) if res else np.zeros(0)
@@ -539,14 +543,14 @@ class Registration:
             faces = np.flatnonzero((s_face_part == q) & (s_area > 0)) if p >= 0 else matched_src_faces
             if faces.size == 0:
                 continue
-            tree = cKDTree(registered[ST[faces]].mean(axis=1))
+            surface = TriangleSurface(registered, ST[faces])
             vi = np.flatnonzero(self.t_part == p)
             if vi.size:
-                k, b, _, d = closest_on_triangles(T[vi], registered, ST[faces], candidates=8, tree=tree)
+                k, b, _, d = surface.closest(T[vi], candidates=8)
                 tri[vi], bary[vi], dist[vi] = faces[k], b, d
             fi = np.flatnonzero(self.t_face_part == p) if p >= 0 else np.zeros(0, dtype=int)
             if fi.size:
-                k, _, _, _ = closest_on_triangles(centroids[fi], registered, ST[faces], candidates=8, tree=tree)
+                k, _, _, _ = surface.closest(centroids[fi], candidates=8)
                 face_tri[fi] = faces[k]
         return tri, bary, dist, face_tri
 
