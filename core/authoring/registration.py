@@ -516,7 +516,7 @@ class Registration:
     def residuals(self) -> np.ndarray:
         """Registered-source → target-surface distances (target units) of the accepted pairs after the last solve."""
         res = []
-        for (verts, faces, surface), warm in zip(self.groups, self.warm):
+        for (verts, _faces, surface), warm in zip(self.groups, self.warm):
             _, _, _, dist = surface.closest(self.Y[verts], candidates=6, warm=warm)
             acc = self.w[verts] > 0
             res.append(dist[acc] * self.diag)
