@@ -84,7 +84,8 @@ def _one_source(obj, src: str, args, bones=None) -> tuple:
     ``FAILED`` report and its one-line error (``ok`` false)."""
     from ..bridge import retarget as bridge
     from ..core.retarget import RetargetReport
-    try:
+
+    def work():
         name = f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}"
         source_obj = bpy.data.objects.get(src)
         settings = dict(lam=args.lam, key_tolerance=args.key_tolerance, action_name=name, key_shape=args.key_shape,
@@ -93,25 +94,13 @@ def _one_source(obj, src: str, args, bones=None) -> tuple:
             rep = bridge.retarget_dense(obj, source_obj, args.method, **settings)
         else:
             rep = bridge.retarget(obj, src, args.method, key_pose_action=args.key_poses, bones=bones, **settings)
-        for issue in rep.issues:
-            _say(f"warning: {src}: {issue.message}")
         if rep.status == Status.NOT_CONVERGED:
             _say(f"warning: {src}: the space-time solver did not converge ({rep.solver_message}); "
                  "the result is its last iterate")
-        return rep, {**rep.to_json(), "ok": True}
-    except MemoryError:
-        message = "not enough memory for this source (split the take, or use --method copy)"
-    except ShapeSpaceError as exc:
-        message = str(exc)
-    except Exception as exc:  # one bad source never aborts the batch; SHAPESPACE_TRACEBACK=1 shows it
-        if os.environ.get("SHAPESPACE_TRACEBACK"):
-            raise
-        message = f"unexpected {type(exc).__name__}: {(str(exc).strip().splitlines() or [''])[-1]}"
-    if not message.startswith(src):
-        message = f"{src}: {message}"
-    print(f"shapespace: error: {message}", file=sys.stderr, flush=True)
-    return RetargetReport(source=src, method=args.method, status=Status.FAILED), \
-        {"source": src, "ok": False, "error": message}
+        return rep
+
+    return _batch_item(src, work, RetargetReport(source=src, method=args.method, status=Status.FAILED),
+                       "not enough memory for this source (split the take, or use --method copy)")
 
 
 def _one_rig_source(obj, controls, src: str, args) -> tuple:
@@ -119,29 +108,41 @@ def _one_rig_source(obj, controls, src: str, args) -> tuple:
     :func:`_one_source` (a ``FAILED`` report and its one-line error when it failed; the batch goes on)."""
     from ..bridge import rig as brig
     from ..core.rig import RigTakeReport
-    try:
+
+    def work():
         source_obj = bpy.data.objects.get(src)
         if source_obj is not None and source_obj.type == "MESH":
             raise ShapeSpaceError(f"{src!r} is a mesh performance: onto --controls only capture recordings and "
                                   "shape-key actions are retargeted", ErrorCode.METHOD)
         name = f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}"
-        rep = brig.retarget_capture_onto_rig(obj, controls, src, key_tolerance=args.key_tolerance,
-                                             action_name=name, progress=_ProgressLines(src))
+        return brig.retarget_capture_onto_rig(obj, controls, src, key_tolerance=args.key_tolerance,
+                                              action_name=name, progress=_ProgressLines(src))
+
+    return _batch_item(src, work, RigTakeReport(status=Status.FAILED, source=src),
+                       "not enough memory for this source (split the take)")
+
+
+def _batch_item(src: str, work, failed, memory_message: str) -> tuple:
+    """Run one source of a batch: ``(report, JSON)`` — ``work()``'s report (its issues said on stderr) and its JSON
+    with ``ok`` true, or, when it raised, the ``failed`` report and the one-line error (``ok`` false): one bad
+    source never aborts the batch (``SHAPESPACE_TRACEBACK=1`` shows an unexpected error's traceback)."""
+    try:
+        rep = work()
         for issue in rep.issues:
             _say(f"warning: {src}: {issue.message}")
         return rep, {**rep.to_json(), "ok": True}
     except MemoryError:
-        message = "not enough memory for this source (split the take)"
+        message = memory_message
     except ShapeSpaceError as exc:
         message = str(exc)
-    except Exception as exc:  # one bad source never aborts the batch; SHAPESPACE_TRACEBACK=1 shows it
+    except Exception as exc:
         if os.environ.get("SHAPESPACE_TRACEBACK"):
             raise
         message = f"unexpected {type(exc).__name__}: {(str(exc).strip().splitlines() or [''])[-1]}"
     if not message.startswith(src):
         message = f"{src}: {message}"
     print(f"shapespace: error: {message}", file=sys.stderr, flush=True)
-    return RigTakeReport(status=Status.FAILED, source=src), {"source": src, "ok": False, "error": message}
+    return failed, {"source": src, "ok": False, "error": message}
 
 
 def _rig_specs(args) -> list | None:
