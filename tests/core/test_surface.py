@@ -3,26 +3,13 @@ every triangle, and fresh queries for the warm-started ones of an iterative clos
 import numpy as np
 
 from core.surface import TriangleSurface, closest_on_triangles
+from test_authoring_parts import _sphere as uv_sphere
 
 
 def _sphere(n_lat=14, n_lon=22):
     """A bumpy closed surface (uneven triangles): (verts, tris)."""
-    lat = np.linspace(0, np.pi, n_lat + 1)[1:-1]
-    lon = np.linspace(0, 2 * np.pi, n_lon, endpoint=False)
-    th, ph = np.meshgrid(lat, lon, indexing="ij")
-    d = np.stack([np.sin(th) * np.sin(ph), np.cos(th), np.sin(th) * np.cos(ph)], axis=-1).reshape(-1, 3)
-    d = np.vstack([[0, 1, 0], d, [0, -1, 0]])
-    V = d * (1.0 + 0.15 * np.sin(3 * d[:, :1]) * np.cos(2 * d[:, 1:2]))
-    ring = lambda i: 1 + i * n_lon  # noqa: E731
-    T = [[0, ring(0) + (j + 1) % n_lon, ring(0) + j] for j in range(n_lon)]
-    for i in range(n_lat - 2):
-        for j in range(n_lon):
-            a, b = ring(i) + j, ring(i) + (j + 1) % n_lon
-            c, e = ring(i + 1) + j, ring(i + 1) + (j + 1) % n_lon
-            T += [[a, b, e], [a, e, c]]
-    last = len(V) - 1
-    T += [[last, ring(n_lat - 2) + j, ring(n_lat - 2) + (j + 1) % n_lon] for j in range(n_lon)]
-    return V, np.array(T, dtype=np.int64)
+    d, T = uv_sphere(n_lat, n_lon)
+    return d * (1.0 + 0.15 * np.sin(3 * d[:, :1]) * np.cos(2 * d[:, 1:2])), T
 
 
 def _brute_force(points, V, T):
