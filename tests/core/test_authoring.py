@@ -427,3 +427,27 @@ def test_registration_converges_on_a_deformed_remeshed_head(head):
     # the known correspondence (the deformation of each source vertex, which lies on the same smooth surface)
     err = np.linalg.norm(reg - _deform(V), axis=1)
     assert np.median(err) < 0.02 * diag and np.percentile(err, 95) < 0.05 * diag
+
+
+def test_stiffer_levels_are_warm_starts_and_the_last_level_converges_as_tight(head):
+    """The stiffer levels stop at ``level_tol`` after ``level_inner`` pair re-estimations (one factorisation each);
+    only the last level converges to ``tol``.  Against the tight schedule (every level at ``tol`` with ``inner``
+    re-estimations) on the remeshed, bent head: fewer factorisations and steps, and each registered vertex nearly
+    as near to where the known map sends it (the independent reference): measured median 0.43 % vs 0.40 % of the
+    diagonal, 95th percentile 1.25 % vs 0.98 % (vertices slide along the surface less in the short stiff levels;
+    on the shared heads the transfers' relative error moves by at most ±0.02 either way)."""
+    V, T, _, lm = head
+    V2, T2 = _head(23, 35)
+    TV = _deform(V2)
+    pairs = LandmarkPairs(V[lm], _deform(V[lm]), lm, np.full(len(lm), -1))
+    fast = register(V, T, TV, T2, pairs)
+    tight = register(V, T, TV, T2, pairs, level_tol=1e-4, level_inner=3)
+    assert fast.status == Status.OK and tight.status == Status.OK
+    levels = len(fast.diagnostics["level_iterations"])
+    assert fast.diagnostics["factorisations"] <= (levels - 1) + 4          # one per stiffer level, ≤ 4 in the last
+    assert fast.diagnostics["factorisations"] <= tight.diagnostics["factorisations"]
+    assert fast.iterations < tight.iterations
+    err_fast = np.linalg.norm(fast.value.registered - _deform(V), axis=1)
+    err_tight = np.linalg.norm(tight.value.registered - _deform(V), axis=1)
+    assert np.median(err_fast) <= 1.15 * np.median(err_tight)
+    assert np.percentile(err_fast, 95) <= 1.35 * np.percentile(err_tight, 95)
