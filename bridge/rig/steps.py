@@ -11,26 +11,44 @@ step (``finish_*``) runs on a job that completed.
 - :func:`start_proposal` / :func:`finish_proposal` — Propose Controls: the candidates of
   :func:`bridge.rig.proposal.candidates` probed a few channels per step (the same probe and ranking as
   :func:`bridge.rig.proposal.propose`), then the proposed channels stored on the face.
+- :func:`start_retarget` / :func:`finish_retarget` — a capture recording or shape-key action retargeted per frame
+  onto a control set (the Retarget panel's *Rig Controls* route; the steps of
+  :func:`bridge.rig.capture.retarget_capture_onto_rig`): the take is solved in consecutive runs of frames by
+  :func:`bridge.rig.take.compute_take`, each run warm-started from the last controls of the one before (the rig's
+  channels are set there between runs and put back exactly at the end), then keyed by
+  :func:`bridge.rig.take.write_take` with its key reduction.  Each run re-measures the rig (its check, natural
+  scales and first Jacobian: about 3 evaluations per channel), so the take is cut into at most
+  :data:`RETARGET_RUNS` runs.
 """
 from __future__ import annotations
 
 import time
 
+import bpy
 import numpy as np
 
 from ...core.errors import ErrorCode
 from ...core.progress import Cancelled
-from ...core.result import ShapeSpaceError
+from ...core.result import ShapeSpaceError, Status
+from ...core.rig import RigTakeResult
 from ...core.rig.controls import ControlSet
 from ...core.rig.proposal import deformation, rank_channels
 from . import stored
+from .capture import capture_weights, sample_vertices
+from .channels import bind
 from .evaluate import RigEvaluator, check_editable
 from .proposal import candidates
+from .take import TakeOutcome, compute_take, rest_controls, shape_key_targets, write_take
 
-__all__ = ["PROBE_CHUNK", "SteppedJob", "finish_proposal", "proposal_steps", "start_proposal"]
+__all__ = ["PROBE_CHUNK", "RETARGET_RUNS", "SteppedJob", "finish_proposal", "finish_retarget", "proposal_steps",
+           "retarget_steps", "start_proposal", "start_retarget", "summary"]
 
 #: Channels probed per step of a stepped proposal (a step is a few dozen rig evaluations).
 PROBE_CHUNK = 8
+#: Runs of frames a stepped retarget is cut into at most (one step each: Esc is seen between runs).
+RETARGET_RUNS = 20
+#: Frames per run at least.
+RETARGET_MIN_RUN = 8
 
 
 class SteppedJob:
@@ -163,3 +181,87 @@ def finish_proposal(job: SteppedJob, face, arm=None) -> tuple:
     _check_proposal(face, arm)
     added = stored.add_entries_of(face, arm.name if arm is not None else "", chans) if chans else []
     return report, added
+
+
+# -- Retarget onto a rig's controls ------------------------------------------------------------------------------
+
+def _joined(parts) -> RigTakeResult:
+    """One take result from the results of consecutive runs of frames."""
+    status = np.concatenate([p.frame_status for p in parts])
+    bad = np.flatnonzero(status != Status.OK)
+    message = f"{bad.size} of {status.size} frames did not converge" if bad.size else f"{status.size} frames solved"
+    return RigTakeResult(np.concatenate([p.value for p in parts]),
+                         status=Status.NOT_CONVERGED if bad.size else Status.OK, message=message,
+                         frame_status=status, rms=np.concatenate([p.rms for p in parts]),
+                         pin_error_max=np.concatenate([p.pin_error_max for p in parts]),
+                         evaluations=sum(p.evaluations for p in parts), jacobians=sum(p.jacobians for p in parts),
+                         diagnostics={"runs": len(parts)})
+
+
+def retarget_steps(mesh_obj, controls: ControlSet, source, *, scene=None, reg: float = 1e-6, max_iter: int = 20,
+                   action_name: str | None = None, runs: int = RETARGET_RUNS):
+    """Generator: the capture ``source`` solved onto ``controls`` per frame, one run of frames per step (module
+    doc; yields the fraction done).  Returns ``(TakeOutcome, issues, mapped key names)``; nothing is written and
+    the rig's channels are put back exactly (also when the generator is closed: Esc)."""
+    names, frames, W, issues = capture_weights(mesh_obj, source, scene)
+    idx = sample_vertices(mesh_obj, names)
+    targets = shape_key_targets(mesh_obj, names, W, idx)
+    rest = rest_controls(controls)
+    name = action_name or f"{mesh_obj.name} rig take"
+    bindings = bind(controls)
+    saved = [b.raw() for b in bindings]
+    F = len(frames)
+    if F == 0:
+        raise ShapeSpaceError(f"{getattr(source, 'name', source)!r} has no frames to retarget", ErrorCode.EMPTY)
+    size = max(RETARGET_MIN_RUN, -(-F // max(1, runs)))
+    parts = []
+    try:
+        yield 0.05
+        for a in range(0, F, size):
+            b = min(F, a + size)
+            if parts:
+                for binding, v in zip(bindings, parts[-1].result.value[-1]):
+                    binding.set(v)                                  # warm start: the last run's last controls
+            parts.append(compute_take(mesh_obj, controls, idx, targets[a:b], frames[a:b], reg=reg, rest=rest,
+                                      max_iter=max_iter, action_name=name))
+            yield 0.05 + 0.9 * b / F
+    finally:
+        for binding, raw in zip(bindings, saved):
+            binding.set_raw(raw)
+        bpy.context.view_layer.update()
+    result = _joined([p.result for p in parts])
+    first = parts[0]
+    outcome = TakeOutcome(first.controls, np.asarray(frames, dtype=np.float64), result.value, result, first.diagonal,
+                          name)
+    return outcome, issues, names
+
+
+def start_retarget(mesh_obj, controls: ControlSet, source, *, scene=None, action_name: str | None = None
+                   ) -> SteppedJob:
+    """The retarget-onto-controls job (:func:`retarget_steps`), not started: the modal timer steps it."""
+    return SteppedJob(retarget_steps(mesh_obj, controls, source, scene=scene, action_name=action_name),
+                      "Retarget onto rig controls")
+
+
+def finish_retarget(job: SteppedJob, mesh_obj, source, key_tolerance: float = 0.0):
+    """Key a completed retarget (:func:`bridge.rig.take.write_take`, with key reduction in surface units), keep its
+    one-line summary for the Retarget panel (``Object.shapespace_retarget.rig_result``) and return its
+    :class:`~core.rig.RigTakeReport`; a cancelled job raises :class:`~core.progress.Cancelled`, writing nothing."""
+    outcome, issues, names = job.result()
+    report = write_take(outcome, key_tolerance)
+    report.issues = list(issues) + report.issues
+    report.source = str(getattr(source, "name", source))
+    report.mapped_channels = len(names)
+    mesh_obj.shapespace_retarget.rig_result = summary(report)
+    return report
+
+
+def summary(report) -> str:
+    """One line for the user: the actions written, frames, surface error, keys kept, frames not converged."""
+    acts = ", ".join(a["action"] for a in report.actions) or "no action (nothing moved)"
+    text = (f"{acts}: {report.frames} frames onto {len(report.channels)} controls ({len(report.keyed_channels)} "
+            f"keyed), surface RMS {report.rms:.3g} (worst frame {report.rms_max:.3g}, scene units), "
+            f"{100 * report.key_fraction:.0f} % of the keys kept")
+    if report.not_converged:
+        text += f"; {len(report.not_converged)} frames not converged"
+    return text
