@@ -94,6 +94,12 @@ def test_pin_tool_drags_a_rig_face_lands_the_pin_holds_the_others_and_keys_the_c
     assert np.linalg.norm(shown[index] - target) / diag <= RECOVERY_TOL
     assert np.linalg.norm(shown[:index] - held_at, axis=1).max() / diag <= RECOVERY_TOL
     assert tool.report_text(drag)[0] in ("INFO", "WARNING")
+    # the overlay draws the pins where Blender evaluates them, each its own target
+    from shapespace.ui import overlay
+    current, goal, still = overlay.pin_world_points(ob, bpy.context.evaluated_depsgraph_get())
+    np.testing.assert_allclose(current, shown, atol=1e-6 * diag)
+    np.testing.assert_array_equal(goal, current)
+    assert still.tolist() == [True] * len(held) + [False]
     surface = rig.world_points()
     keyed = tool.finish(drag, ob, 5, autokey=True)                              # release with auto-key
     after = brig.read_controls(rig.controls)
