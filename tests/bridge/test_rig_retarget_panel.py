@@ -45,7 +45,7 @@ def test_panel_route_keys_the_take_on_the_armature_as_the_one_shot_route_does(re
     job = steps.start_retarget(rig.mesh, stored.control_set(rig.mesh), _csv(), action_name="panel")
     while not job.step(0.0):                                                   # the modal timer ticks
         pass
-    assert job.reported == sorted(job.reported) and len(job.reported) >= 10 and job.fraction == 1.0
+    assert job.reported == sorted(job.reported) and len(job.reported) >= 5 and job.fraction == 1.0
     rep = steps.finish_retarget(job, rig.mesh, _csv(), key_tolerance=0.0)
     assert rep.mapped_channels == 52 and "jaw rotation X" in rep.keyed_channels
     assert {a["id"] for a in rep.actions} == {"OBJECT", "KEY"}
