@@ -1,6 +1,7 @@
 import bpy
 
 from ..bridge import retarget
+from ..bridge.rig import stored
 from ..core.result import ShapeSpaceError
 from ..core.retarget.report import format_ranges
 from .base import ShapeKeyPanel
@@ -16,6 +17,10 @@ class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
         layout = self.layout
         ob = context.active_object
         st = ob.shapespace_retarget
+        layout.row().prop(st, "target", expand=True)
+        if st.target == "CONTROLS":
+            _draw_onto_controls(layout, ob, st)
+            return
         layout.prop(st, "source_kind", text="")
         source = {"CSV": "csv_path", "ACTION": "action", "MESH": "source_object"}[st.source_kind]
         layout.prop(st, source, text="")
@@ -44,6 +49,33 @@ class SHAPESPACE_PT_retarget(ShapeKeyPanel, bpy.types.Panel):
         _draw_result(layout, ob)
         _draw_mapping(layout, ob)
         _draw_landmarks(layout, ob, st)
+
+
+def _draw_onto_controls(layout, ob, st):
+    """The route onto the face's stored control set: a recording or a shape-key action, per frame, its last result."""
+    _armature, entries, problem = stored.status(ob)
+    if problem:
+        layout.label(text=problem, icon="ERROR")
+    elif not entries:
+        layout.label(text="No control set: propose or add one (Rig ▸ Controls)", icon="INFO")
+    else:
+        layout.label(text=f"{sum(e.enabled for e in entries)} enabled controls", icon="BONE_DATA")
+    layout.prop(st, "source_kind", text="")
+    if st.source_kind == "MESH":
+        layout.label(text="Onto rig controls: capture recordings and shape-key actions only", icon="ERROR")
+        return
+    layout.prop(st, "csv_path" if st.source_kind == "CSV" else "action", text="")
+    col = layout.column(align=True)
+    col.label(text="Method: per frame (space-time onto rig controls is not available yet)")
+    col.prop(st, "rig_key_tolerance")
+    op = layout.operator("shapespace.retarget_controls", icon="ACTION")
+    op.filepath = bpy.path.abspath(st.csv_path) if st.source_kind == "CSV" else ""
+    op.action = st.action.name if st.source_kind == "ACTION" and st.action else ""
+    op.key_tolerance = st.rig_key_tolerance
+    if st.rig_result:
+        box = layout.box()
+        for part in st.rig_result.split("; "):
+            box.label(text=part)
 
 
 def _draw_bones(layout, st, op):

@@ -43,3 +43,14 @@ class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
     eye_right_bone: bpy.props.StringProperty(name="Right Eye", description="The character's right eye bone")
     mirror: bpy.props.BoolProperty(name="Mirror", default=False,
                                    description="Swap left and right (a mirrored, selfie-view capture)")
+    target: bpy.props.EnumProperty(
+        name="Onto", default="SHAPE_KEYS",
+        items=[("SHAPE_KEYS", "Shape Keys", "Retarget onto this mesh's shape-key sliders"),
+               ("CONTROLS", "Rig Controls", "Retarget onto the control set stored on this face (bones, custom "
+                                            "properties, sliders: Rig ▸ Controls), keyed on their actions")])
+    rig_key_tolerance: bpy.props.FloatProperty(
+        name="Key Tolerance", default=0.0, min=0.0, max=0.01, precision=5, subtype="DISTANCE",
+        description="Rig controls: keep the fewest keys whose surface stays within this distance of every frame "
+                    "(0: a key on every frame)")
+    rig_result: bpy.props.StringProperty(name="Rig Result",
+                                         description="The last retarget onto this face's rig controls")

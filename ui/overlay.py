@@ -18,6 +18,7 @@ from bpy.app.handlers import persistent
 from gpu_extras.batch import batch_for_shader
 
 from ..bridge import compat, manipulation, meshes
+from ..bridge.rig import tool as rig_tool
 
 PIN_COLOR = (1.0, 0.55, 0.0, 1.0)
 STILL_COLOR = (0.2, 0.6, 1.0, 1.0)
@@ -58,7 +59,14 @@ HANDLERS = DrawHandlers()
 
 
 def pin_world_points(obj, depsgraph):
-    """World-space pin positions, target positions (both on the deformed surface) and stationary flags."""
+    """World-space pin positions, target positions (both on the deformed surface) and stationary flags.
+
+    On a face the Pin tool drags through its rig (:func:`bridge.rig.tool.uses_rig`) a pin is held where it is
+    drawn (its stored target is in no rig's space): the target shown is the pin itself."""
+    if rig_tool.uses_rig(obj):
+        state = manipulation.read_pin_state(obj)
+        world = meshes.to_world(obj, manipulation.deformed_pin_positions(obj, depsgraph, state))
+        return world, world.copy(), state.stationary
     current, goal, still = manipulation.overlay_points(obj, depsgraph)
     return meshes.to_world(obj, current), meshes.to_world(obj, goal), still
 

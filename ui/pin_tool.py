@@ -7,7 +7,8 @@ class SHAPESPACE_TL_pin(bpy.types.WorkSpaceTool):
     bl_context_mode = "OBJECT"
     bl_idname = "shapespace.pin_tool"
     bl_label = "ShapeSpace Pin"
-    bl_description = ("Click the face to pin a point and drag it; the shape-key sliders follow.\n"
+    bl_description = ("Click the face to pin a point and drag it; the shape-key sliders follow (on a face driven "
+                      "by its stored control set, the rig's bones and properties; release keys them with auto-key).\n"
                       "Shift-click pins a point in place. With Symmetric on (Direct Manipulation panel) a "
                       "new pin also pins its mirror point and a pin's mirror follows it; cancel restores both")
     bl_icon = "ops.generic.cursor"

@@ -3,8 +3,9 @@ import numpy as np
 from bpy_extras import view3d_utils
 
 from ...bridge import manipulation, meshes
-from ..polls import pinnable_rig
+from ...bridge.rig import tool
 from ..reporting import FAILED, attempt
+from ._polls import pin_face
 
 PICK_RADIUS_PX = 12.0
 
@@ -12,7 +13,9 @@ PICK_RADIUS_PX = 12.0
 class SHAPESPACE_OT_drag_pins(bpy.types.Operator):
     """Click the face to pin a point and drag it; the sliders follow live.
 Click near a pin to drag it, Shift-click to pin a point in place, right-click or Esc cancels the drag.
-With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follows it (cancel restores both)"""
+With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follows it (cancel restores both).
+On a face driven by its stored control set (bones, drivers, hybrids) the rig's controls follow and release keys the
+changed channels (auto-key)"""
 
     bl_idname = "shapespace.drag_pins"
     bl_label = "Drag Pins"
@@ -22,7 +25,7 @@ With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follow
 
     @classmethod
     def poll(cls, context):
-        if pinnable_rig(cls, context) is None:
+        if pin_face(cls, context) is None:
             return False
         if context.area is None or context.area.type != "VIEW_3D":
             cls.poll_message_set("Use the ShapeSpace Pin tool in the 3D Viewport")
@@ -44,7 +47,7 @@ With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follow
         ob = context.active_object
         region, rv3d = context.region, context.region_data
         depsgraph = context.evaluated_depsgraph_get()
-        self.drag = manipulation.Drag(ob)       # the rig from the cache, the prior, the sliders to go back to
+        self.drag = tool.drag_for(ob)     # the linear rig from the cache (or the face's rig), the prior, the start
         index = self._pick(ob, depsgraph, region, rv3d, mouse)
         created = index is None
         if created:
@@ -54,7 +57,7 @@ With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follow
             if hit is None:
                 return {"CANCELLED", "PASS_THROUGH"}
             pin, self.anchor_world = hit
-            index = manipulation.add_pin(ob, pin, None, self.stationary, model=self.drag.model)
+            index = tool.add_pin(ob, self.drag, pin, self.stationary)
             if self.stationary:
                 return {"FINISHED"}
         else:
@@ -88,12 +91,13 @@ With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follow
                 return self._end(context, {"CANCELLED"})
             return {"RUNNING_MODAL"}
         if event.type == "LEFTMOUSE" and event.value == "RELEASE":
-            if context.scene.tool_settings.use_keyframe_insert_auto:
-                self.drag.key(ob, context.scene.frame_current)
-            if self.drag.result is not None:
-                level, text = manipulation.report_text(self.drag.result)
-                if level != "INFO":
-                    self.report({level}, text)
+            autokey = context.scene.tool_settings.use_keyframe_insert_auto
+            if attempt(self, tool.finish, self.drag, ob, context.scene.frame_current, autokey) is FAILED:
+                self.drag.cancel(ob)
+                return self._end(context, {"CANCELLED"})
+            said = tool.report_text(self.drag)
+            if said is not None and said[0] != "INFO":
+                self.report({said[0]}, said[1])
             return self._end(context, {"FINISHED"})
         return {"RUNNING_MODAL"}
 
@@ -108,7 +112,7 @@ With Symmetric on, a new pin comes with its mirror pin and a pin's mirror follow
         region, rv3d = context.region, context.region_data
         world = view3d_utils.region_2d_to_location_3d(region, rv3d, mouse, self.anchor_world)
         result = self.drag.move(ob, context.evaluated_depsgraph_get(), world)
-        context.area.header_text_set(manipulation.drag_status_line(result))
+        context.area.header_text_set(tool.status_line(self.drag, result))
 
     def cancel(self, context):
         if getattr(self, "drag", None) is not None:

@@ -1,28 +1,40 @@
+"""Propose Controls: probe what moves the face, a few channels per modal timer tick (Esc cancels, nothing written).
+
+Probing evaluates the rig through Blender's depsgraph, which only the main thread may drive: the job is a
+:class:`bridge.rig.steps.SteppedJob` stepped from the modal timer of :class:`operators.progress.JobModal` (progress
+on the cursor and in the status bar, Esc cancels and the rig is put back exactly).  Scripts, redo and
+``EXEC_DEFAULT`` run the same steps in one go with window-manager progress.
+"""
 import bpy
 
-from ...bridge.rig import proposal, stored
+from ...bridge.rig import steps, stored
 from ..polls import control_face
-from ..progress import window_progress
+from ..progress import JobModal, window_progress
 from ..reporting import FAILED, attempt
 
+#: Seconds of probing per timer tick (the UI stays responsive in between).
+STEP_BUDGET = 0.05
 
-class SHAPESPACE_OT_propose_controls(bpy.types.Operator):
+
+class SHAPESPACE_OT_propose_controls(JobModal, bpy.types.Operator):
     """Find the channels that move the face (bone rotation and location axes, shape-key sliders, custom properties
-drivers read), probing each through Blender's evaluation, and add them to the face's control set"""
+drivers read), probing each through Blender's evaluation, and add them to the face's control set (Esc cancels;
+nothing is written then)"""
 
     bl_idname = "shapespace.propose_controls"
     bl_label = "Propose Controls"
     bl_options = {"REGISTER", "UNDO"}
+    job_title = "Propose Controls"
 
     @classmethod
     def poll(cls, context):
         return control_face(cls, context) is not None
 
-    def execute(self, context):
+    def _targets(self, context):
         face = control_face(self, context)
-        arm = stored.armature_for(face, context.active_object)
-        with window_progress(context) as progress:
-            found = attempt(self, proposal.propose_and_store, face, arm, progress)
+        return face, stored.armature_for(face, context.active_object)
+
+    def _done(self, face, found):
         if found is FAILED:
             return {"CANCELLED"}
         report, added = found
@@ -31,3 +43,26 @@ drivers read), probing each through Blender's evaluation, and add them to the fa
             return {"CANCELLED"}
         self.report({"INFO"}, f"{face.name}: {report.summary()}; {len(added)} added")
         return {"FINISHED"}
+
+    def execute(self, context):
+        face, arm = self._targets(context)
+        job = steps.start_proposal(face, arm)
+        with window_progress(context) as progress:
+            while not job.step():
+                progress(job.fraction)
+        return self._done(face, attempt(self, steps.finish_proposal, job, face, arm))
+
+    def invoke(self, context, event):
+        if getattr(context, "window", None) is None:          # no event loop to poll from: run it here
+            return self.execute(context)
+        self._face, self._arm = self._targets(context)
+        return self.start_job(context, steps.start_proposal(self._face, self._arm),
+                              f"Proposing the controls of {self._face.name}")
+
+    def modal(self, context, event):
+        if event.type == "TIMER" and not self._job.done:
+            self._job.step(STEP_BUDGET)
+        return JobModal.modal(self, context, event)
+
+    def job_finished(self, context, job):
+        return self._done(self._face, attempt(self, steps.finish_proposal, job, self._face, self._arm))

@@ -201,6 +201,7 @@ OPERATOR_CALLS = {
     "propose_controls": {}, "add_control_bones": {}, "add_control_property": {"data_path": '["x"]'},
     "remove_control": {"index": 0}, "toggle_control": {"index": 0, "enabled": False},
     "set_control_bounds": {"index": 0, "use_min": True, "min": -0.5}, "clear_controls": {}, "mirror_controls": {},
+    "retarget_controls": {"filepath": _CSV},
     "export_for_engines": {"filepath": os.path.join(tempfile.mkdtemp(prefix="ss-export-"), "face.fbx"),
                            "format": "FBX"},
 }

@@ -1,0 +1,114 @@
+"""Retarget panel route onto a face's stored control set (issue #25 item 3 in the UI): the Live Link Face take onto the
+hybrid rig, per frame, with progress, Esc and key reduction.
+
+As in ``test_retarget_progress_cancel.py`` the modal path is driven step by step through the bridge job functions its
+handler calls (``bridge.rig.steps``: the timer is ``job.step()``, Esc is ``job.cancel()``); the scripted operator call
+is the synchronous path.  Ground truth is Blender's evaluation of the keyed actions: the take retarget in one go by
+the CLI's entry point (:func:`bridge.rig.retarget_capture_onto_rig`) and the panel's route give the same surfaces.
+"""
+import numpy as np
+import pytest
+
+import rigs
+from blender_support import blend_fingerprint, bpy, draw_panel
+from shapespace.bridge import actions
+from shapespace.bridge import rig as brig
+from shapespace.bridge.rig import steps, stored
+from shapespace.core.progress import Cancelled
+from support import shared
+from test_rig import _assert_same_state, _state
+
+
+def _csv():
+    return shared("llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+
+
+def _face():
+    rig = rigs.hybrid_rig(shared(*rigs.FACECAP.split("/")))
+    stored.add_entries_of(rig.mesh, rig.armature.name, rig.controls.channels)
+    bpy.ops.object.select_all(action="DESELECT")
+    rig.mesh.select_set(True)
+    bpy.context.view_layer.objects.active = rig.mesh
+    return rig
+
+
+def _surfaces(rig, frames):
+    out = []
+    for f in frames:
+        bpy.context.scene.frame_set(int(f))
+        out.append(rig.world_points())
+    return np.stack(out)
+
+
+def test_panel_route_keys_the_take_on_the_armature_as_the_one_shot_route_does(registered):
+    rig = _face()
+    job = steps.start_retarget(rig.mesh, stored.control_set(rig.mesh), _csv(), action_name="panel")
+    while not job.step(0.0):                                                   # the modal timer ticks
+        pass
+    assert job.reported == sorted(job.reported) and len(job.reported) >= 5 and job.fraction == 1.0
+    rep = steps.finish_retarget(job, rig.mesh, _csv(), key_tolerance=0.0)
+    assert rep.mapped_channels == 52 and "jaw rotation X" in rep.keyed_channels
+    assert {a["id"] for a in rep.actions} == {"OBJECT", "KEY"}
+    arm_action = actions.active_action(rig.armature)
+    assert arm_action is not None and arm_action.name.startswith("panel")        # on the armature's action
+    first, last = rep.frame_range
+    frames = np.unique(np.linspace(first, last, 9).round())
+    diag = rigs.diagonal(rig.world_points())
+    panel = _surfaces(rig, frames)
+    assert rig.mesh.shapespace_retarget.rig_result.startswith(", ".join(a["action"] for a in rep.actions))
+    brig.restore_previous(rep, stored.control_set(rig.mesh))                   # back to before, then in one go
+    one = brig.retarget_capture_onto_rig(rig.mesh, stored.control_set(rig.mesh), _csv(), action_name="one")
+    assert rep.frames == one.frames and rep.keyed_channels == one.keyed_channels
+    assert rep.rms <= 1.05 * one.rms + 1e-6 * diag
+    shot = _surfaces(rig, frames)
+    assert np.abs(panel - shot).max() <= 1e-3 * diag                           # the same motion, as Blender draws
+
+
+def test_key_reduction_keeps_the_surface_within_the_tolerance(registered):
+    rig = _face()
+    tol = 2e-4
+    assert bpy.ops.shapespace.retarget_controls(filepath=_csv(), key_tolerance=0.0) == {"FINISHED"}
+    arm_dense = actions.active_action(rig.armature)
+    dense_keys = sum(len(fc.keyframe_points) for fc in actions.action_fcurves(arm_dense))
+    first, last = int(arm_dense.frame_range[0]), int(arm_dense.frame_range[1])
+    frames = np.arange(first, last + 1, 7)
+    dense = _surfaces(rig, frames)
+    assert bpy.ops.shapespace.retarget_controls(filepath=_csv(), key_tolerance=tol) == {"FINISHED"}
+    arm_sparse = actions.active_action(rig.armature)
+    assert arm_sparse != arm_dense
+    sparse_keys = sum(len(fc.keyframe_points) for fc in actions.action_fcurves(arm_sparse))
+    assert sparse_keys < 0.5 * dense_keys
+    keyed = [fc for fc in actions.action_fcurves(arm_sparse)] + \
+        [fc for fc in actions.action_fcurves(actions.active_action(rig.mesh.data.shape_keys))]
+    # each keyed curve stays within the tolerance in surface units (write_take): their sum bounds the surface
+    assert np.linalg.norm(_surfaces(rig, frames) - dense, axis=-1).max() <= 1.01 * tol * len(keyed)
+    assert "% of the keys kept" in rig.mesh.shapespace_retarget.rig_result
+
+
+def test_esc_mid_way_leaves_rig_and_file_exactly_as_before(registered):
+    rig = _face()
+    bpy.context.scene.frame_current = 4
+    before, fingerprint = _state(rig), blend_fingerprint()
+    job = steps.start_retarget(rig.mesh, stored.control_set(rig.mesh), _csv())
+    while job.fraction < 0.4:
+        assert not job.step(0.0)
+    job.cancel()                                                               # Esc
+    with pytest.raises(Cancelled):
+        steps.finish_retarget(job, rig.mesh, _csv())
+    _assert_same_state(before, _state(rig))
+    assert blend_fingerprint() == fingerprint and rig.mesh.shapespace_retarget.rig_result == ""
+    assert bpy.context.scene.frame_current == 4
+
+
+def test_panel_offers_the_route_and_the_operator_names_what_is_missing(registered):
+    from shapespace.panels.retarget import SHAPESPACE_PT_retarget
+    rig = _face()
+    st = rig.mesh.shapespace_retarget
+    st.target, st.csv_path = "CONTROLS", _csv()
+    log = draw_panel(SHAPESPACE_PT_retarget, bpy.context)
+    assert ("operator", "shapespace.retarget_controls") in log.log
+    assert any("per frame" in t and "space-time" in t for t in log.labels)
+    assert ("operator", "shapespace.retarget") not in log.log
+    stored.clear(rig.mesh)
+    with pytest.raises(RuntimeError, match="has no control set"):
+        bpy.ops.shapespace.retarget_controls(filepath=_csv())
