@@ -219,10 +219,12 @@ def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map
     kinds, conf, why = {0: "skin"}, {0: 1.0}, {0: "the largest part"}
     skin = _Skin(V, TT, lab)
     frame = _face_frame(V, lab, jaw, None if jaw_delta is None else np.asarray(jaw_delta, dtype=np.float64))
+    closed = _closed_parts(TT, lab)
     for p in np.unique(lab[lab > 0]):
         p = int(p)
-        kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, jaw)
+        kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, p in closed)
     _beside_eyes(V, lab, kinds, conf, why, diag)
+    _teeth_rows(V, lab, PartPlan(lab, kinds, conf, why, frame), diag)
     for p in np.unique(lab[lab > 0]):
         p = int(p)
         q = (part_map or {}).get(p, -1)
@@ -270,13 +272,62 @@ def _beside_eyes(V, lab, kinds, conf, why, diag):
                 kinds[p], conf[p], why[p] = "follow", 0.6, "touches an eyeball: follows the lids"
 
 
-def _classify(V, skin, frame, lab, idx, diag, jaw):
+def _face_up(V, lab, plan):
+    """The face's up from its eyes' gaze (:func:`_eye_gaze`, mean over the eyes), the frame's without eyes."""
+    frame = plan.frame
+    ups = [_eye_gaze(V, lab, plan, p, frame, _eye_centre(V, lab, plan, p, frame))[0]
+           for p, k in plan.kinds.items() if k == "eye"]
+    up = np.mean(ups, axis=0) if ups else frame.up
+    return up / max(np.linalg.norm(up), 1e-300)
+
+
+def _teeth_rows(V, lab, plan, diag):
+    """Split the rigid parts (jaw or skull by the sector) into the lower and the upper row (in place): the
+    heights of their medians along the face's up (:func:`_face_up`) fall into two groups (the threshold
+    that minimises the spread within the groups, Otsu's), the lower with the jaw, the upper with the skull.
+    Used where both rows have at least two parts and the groups lie at least 1 % of the diagonal apart
+    (the sector alone misjudges rows on a hinge estimated from the skin: Face Cap's lower teeth)."""
+    rigid = [p for p, k in plan.kinds.items() if k in ("jaw", "skull")]
+    if len(rigid) < 4:
+        return
+    up = _face_up(V, lab, plan)
+    h = np.array([float(np.median(V[lab == p] @ up)) for p in rigid])
+    order = np.argsort(h)
+    hs = h[order]
+    cost = [np.var(hs[:i]) * i + np.var(hs[i:]) * (len(hs) - i) for i in range(2, len(hs) - 1)]
+    if not cost:
+        return
+    i = 2 + int(np.argmin(cost))
+    if hs[i:].mean() - hs[:i].mean() < 0.01 * diag:
+        return
+    cut = 0.5 * (hs[i - 1] + hs[i])
+    sure = float(np.clip((hs[i] - hs[i - 1]) / (0.01 * diag), 0.3, 1.0))
+    rows = {True: ("jaw", "inside, in the lower row (moves with the jaw)"),
+            False: ("skull", "inside, in the upper row (stays with the skull)")}
+    for p, hp in zip(rigid, h):
+        kind, why = rows[bool(hp < cut)]
+        plan.kinds[p], plan.confidence[p], plan.reasons[p] = kind, sure, why
+
+
+def _closed_parts(TT, lab):
+    """Parts whose surface is closed (every edge shared by two of its triangles): teeth, gums, a tongue — solids,
+    not the sheets (lashes, brows, eyelines) or the open bag (mouth cavity) that follow the skin."""
+    part = lab[TT[:, 0]]
+    E = np.sort(np.concatenate([TT[:, [0, 1]], TT[:, [1, 2]], TT[:, [2, 0]]]), axis=1)
+    pe = np.tile(part, 3)
+    key = E[:, 0] * (int(E.max()) + 1) + E[:, 1]
+    _, first, counts = np.unique(key, return_index=True, return_counts=True)
+    open_parts = set(np.unique(pe[first[counts == 1]]).tolist())
+    return {int(p) for p in np.unique(part) if p > 0 and int(p) not in open_parts}
+
+
+def _classify(V, skin, frame, lab, idx, diag, closed):
     eye = _eye_likeness(V, frame, idx, diag)
     if eye > 0:
         return "eye", eye, "a round part off the mirror plane"
     _, _, _, dist = skin.closest(V[idx])
     med, low = float(np.median(dist)) / diag, float(dist.min()) / diag
-    if med < FOLLOW_MEDIAN or low < TOUCH:
+    if (med < FOLLOW_MEDIAN or low < TOUCH) and not closed:
         why = "lies on the skin" if med < FOLLOW_MEDIAN else "touches the skin"
         return "follow", float(np.clip(1.0 - med / (2 * FOLLOW_MEDIAN), 0.3, 1.0)), why
     inside, sure = frame.in_jaw(V[idx])
@@ -355,7 +406,7 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
     canon = [canonical_name(n) for n in names]
     jaw_delta = deltas[canon.index("jawOpen")] if "jawOpen" in canon else None
     jaw = jaw_membership(V, lab, jaw_delta)
-    jaw_motion = _jaw_motions(V, lab, deltas, jaw)                     # (k, 3, 3), (k, 3)
+    jaw_motion = _jaw_motions(V, lab, deltas, jaw, canon)                   # (k, 3, 3), (k, 3)
     follow = np.flatnonzero(np.isin(lab, [p for p, k in plan.kinds.items() if k == "follow"]))
     if follow.size:
         deltas[:, follow] = _follow(V, _Skin(V, TT, lab), follow, deltas, jaw, jaw_motion)
@@ -371,14 +422,20 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
             deltas[:, idx] = np.einsum("kij,vj->kvi", R, V[idx]) + t[:, None, :] - V[idx][None]
         elif kind == "eye":
             frame = frame or _face_frame(V, lab, jaw, jaw_delta, face_forward)
-            deltas[:, idx] = _eye_turns(V, idx, deltas, canon, frame, _eye_centre(V, lab, plan, p, frame))
+            centre = _eye_centre(V, lab, plan, p, frame)
+            axes = _eye_gaze(V, lab, plan, p, frame, centre)
+            deltas[:, idx] = _eye_turns(V, idx, deltas, canon, frame, centre, axes)
     moved = {int(p): float(np.linalg.norm(deltas[:, lab == p], axis=2).max()) if deltas.shape[0] else 0.0
              for p in plan.kinds}
     return deltas, moved
 
 
-def _jaw_motions(V, lab, deltas, jaw):
-    """Per shape the jaw's rigid motion fitted to the chin (weights ``jaw⁴``): R (k, 3, 3), t (k, 3)."""
+def _jaw_motions(V, lab, deltas, jaw, canon=()):
+    """Per shape the jaw's rigid motion fitted to the chin (weights ``jaw⁴``): R (k, 3, 3), t (k, 3).
+
+    In an ARKit rig only the ``jaw*`` shapes move the jaw (``mouthClose`` closes the lips over an open jaw,
+    ``mouthFunnel`` … move the lips alone): where the names have ``jaw*`` shapes, every other shape keeps the
+    jaw still — a fit to the chin would take the lower lip's motion for the jaw's."""
     k = deltas.shape[0]
     w = jaw ** 4
     sel = np.flatnonzero(w > 1e-3)
@@ -386,7 +443,10 @@ def _jaw_motions(V, lab, deltas, jaw):
     if sel.size < 3:
         return R, t
     X = V[sel]
+    named = any(n.startswith("jaw") for n in canon)
     for s in range(k):
+        if named and not canon[s].startswith("jaw"):
+            continue
         R[s], t[s] = fit_rigid(X, X + deltas[s, sel], w[sel])
     return R, t
 
@@ -423,9 +483,34 @@ def _eye_centre(V, lab, plan, part, frame):
     return centre
 
 
-def _eye_turns(V, idx, deltas, canon, frame, centre):
-    """Eyeball vertices ``idx`` turned about ``centre`` for the ``eyeLook*`` shapes (k, m, 3)."""
-    up, left = frame.up, frame.left
+def _eye_gaze(V, lab, plan, part, frame, centre):
+    """The eye's own (up, left) for ``part``: its gaze is the direction from ``centre`` to the centroid of each
+    eye part on that side (an eyeball's front — cornea, iris — bulges forward, or is all there is of it), summed
+    with the sign of the face's forward and weighted by the offset; the face frame's ``up`` is only known up to
+    the tilt of the chin's drop in ``jawOpen`` (30–40° on the shared heads), the gaze is not.  Falls back to the
+    face frame when the offset is under 2 % of the eye's size."""
+    side = np.sign((V[lab == part].mean(axis=0) - frame.centre) @ frame.left)
+    gaze, size = np.zeros(3), 0.0
+    for p, k in plan.kinds.items():
+        P = V[lab == p]
+        if k != "eye" or P.size == 0 or np.sign((P.mean(axis=0) - frame.centre) @ frame.left) != side:
+            continue
+        g = P.mean(axis=0) - centre
+        gaze += g * (len(P) if g @ frame.forward >= 0 else -len(P))
+        size += len(P) * float(np.ptp(P, axis=0).max())
+    left = frame.left
+    gaze -= (gaze @ left) * left
+    if size <= 0 or np.linalg.norm(gaze) < 0.02 * size:
+        return frame.up, left
+    up = np.cross(gaze, left)
+    up /= np.linalg.norm(up)
+    return (up if up @ frame.up >= 0 else -up), left
+
+
+def _eye_turns(V, idx, deltas, canon, frame, centre, axes=None):
+    """Eyeball vertices ``idx`` turned about ``centre`` for the ``eyeLook*`` shapes (k, m, 3); ``axes`` (up,
+    left) of the eye (default: the face frame's)."""
+    up, left = axes if axes is not None else (frame.up, frame.left)
     side = "Left" if (centre - frame.centre) @ left > 0 else "Right"
     out = np.zeros((deltas.shape[0], idx.size, 3))
     X = V[idx] - centre
