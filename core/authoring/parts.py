@@ -60,7 +60,7 @@ KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
 # eyeLook* at weight 1, degrees (ARKit documents the direction only); measured as the mean of the turns the
 # artists of ICT FaceKit and Ready Player Me authored on their eyeballs, rounded
 EYE_LOOK_DEGREES = {"Up": 20.0, "Down": 25.0, "In": 25.0, "Out": 30.0}
-FOLLOW_RADIUS = 0.02          # × diagonal: binding falloff
+FOLLOW_RADIUS = 0.01          # × diagonal: binding falloff (2 % carried lip motion deep into the cavity)
 FOLLOW_MEDIAN = 0.012         # × diagonal: a part whose median distance to the skin is below this follows it
 TOUCH = 0.003                 # × diagonal: a part closer than this somewhere touches the skin (cavity)
 EYE_RESIDUAL = 0.06           # relative RMS of a sphere fit below which a part is an eyeball
@@ -88,10 +88,12 @@ class PartPlan:
     confidence: dict = field(default_factory=dict)
     reasons: dict = field(default_factory=dict)
     frame: object = field(default=None, repr=False, compare=False)      # the face frame the proposal used
+    extents: dict = field(default_factory=dict, repr=False, compare=False)    # part → its extent / diagonal
 
     def with_kinds(self, kinds: dict) -> PartPlan:
         """A copy with some parts' kinds set by the user (confidence 1)."""
-        out = PartPlan(self.labels, dict(self.kinds), dict(self.confidence), dict(self.reasons), self.frame)
+        out = PartPlan(self.labels, dict(self.kinds), dict(self.confidence), dict(self.reasons), self.frame,
+                       self.extents)
         for p, k in kinds.items():
             p = int(p)
             if p not in out.kinds:
@@ -225,13 +227,27 @@ def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map
         kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, p in closed)
     _beside_eyes(V, lab, kinds, conf, why, diag)
     _teeth_rows(V, lab, PartPlan(lab, kinds, conf, why, frame), diag)
+    extents = {int(p): float(np.ptp(V[lab == p], axis=0).max()) / diag for p in np.unique(lab[lab >= 0])}
+    plan = PartPlan(lab, kinds, conf, why, frame, extents)
     for p in np.unique(lab[lab > 0]):
         p = int(p)
         q = (part_map or {}).get(p, -1)
-        same = source_plan is not None and source_plan.kinds.get(q) == kinds[p]
-        if q > 0 and same and q in set(source_moving):
+        if q > 0 and q in set(source_moving) and _same_part(plan, p, source_plan, q):
             kinds[p], conf[p], why[p] = "source", conf[p], f"the source has it and moves it (source part {q})"
-    return PartPlan(lab, kinds, conf, why, frame)
+    return plan
+
+
+def _same_part(plan, p, source_plan, q):
+    """Whether target part ``p`` and the source part ``q`` the registration matched it to are the same part:
+    the same kind for the same reason (a mouth cavity touching the lips is not a row of teeth lying behind
+    them, though both follow the skin) and extents (relative to each head's diagonal) within a factor 2 (a
+    tongue is not a tooth)."""
+    if source_plan is None or source_plan.kinds.get(q) != plan.kinds[p]:
+        return False
+    if plan.kinds[p] == "follow" and source_plan.reasons.get(q) != plan.reasons[p]:
+        return False
+    a, b = plan.extents.get(p, 0.0), source_plan.extents.get(q, 0.0)
+    return a > 0 and b > 0 and 0.5 <= a / b <= 2.0
 
 
 def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: np.ndarray, names: Sequence[str],
@@ -283,7 +299,8 @@ def _face_up(V, lab, plan):
 
 def _teeth_rows(V, lab, plan, diag):
     """Split the rigid parts (jaw or skull by the sector) into the lower and the upper row (in place): the
-    heights of their medians along the face's up (:func:`_face_up`) fall into two groups (the threshold
+    heights of their lowest tenths (a tongue reaches back and up, it rests low) along the face's up
+    (:func:`_face_up`) fall into two groups (the threshold
     that minimises the spread within the groups, Otsu's), the lower with the jaw, the upper with the skull.
     Used where both rows have at least two parts and the groups lie at least 1 % of the diagonal apart
     (the sector alone misjudges rows on a hinge estimated from the skin: Face Cap's lower teeth)."""
@@ -291,7 +308,7 @@ def _teeth_rows(V, lab, plan, diag):
     if len(rigid) < 4:
         return
     up = _face_up(V, lab, plan)
-    h = np.array([float(np.median(V[lab == p] @ up)) for p in rigid])
+    h = np.array([float(np.percentile(V[lab == p] @ up, 10)) for p in rigid])
     order = np.argsort(h)
     hs = h[order]
     cost = [np.var(hs[:i]) * i + np.var(hs[i:]) * (len(hs) - i) for i in range(2, len(hs) - 1)]
