@@ -69,3 +69,41 @@ def test_eyes_turn_about_their_own_vertical_axis(head, name, toward_left):
     ang = np.degrees(np.arctan2(after[front, 0], after[front, 2]) - np.arctan2(before[front, 0], before[front, 2]))
     want = parts.EYE_LOOK_DEGREES["Out" if toward_left else "In"] * (1 if toward_left else -1)
     assert abs(ang - want) < 1e-6
+
+
+def test_teeth_rows_split_by_height_where_the_sector_misjudges_them(head):
+    """Two lower teeth above the chin's lip line (out of the jaw's sector, as Face Cap's) and two upper teeth
+    above them: the lower row goes with the jaw, the upper with the skull."""
+    V0, T0, _, _, _, _ = head
+    skin_eye = int(np.flatnonzero(parts.triangle_parts(len(V0), T0)[0] >= 2)[0])    # skin and eye come first
+    meshes = [(V0[:skin_eye], T0[np.all(T0 < skin_eye, axis=1)])]
+    rows = {"lower": -0.25, "upper": 0.05}
+    for y in rows.values():
+        for x in (-0.15, 0.15):
+            meshes.append(_sphere(4, 8, r=0.06, centre=(x, y, 0.6), scale=(1.0, 0.4, 0.6)))
+    V, T = _assemble(*meshes)
+    lab, _ = parts.triangle_parts(len(V), T)
+    rot = Rotation.from_euler("x", 15, degrees=True).as_matrix()
+    pivot = np.array([0.0, 0.0, -0.3])
+    jaw = np.zeros_like(V)
+    chin = (lab == 0) & (V[:, 1] < -0.3) & (V[:, 2] > 0.0)
+    jaw[chin] = (V[chin] - pivot) @ rot.T + pivot - V[chin]
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    for name, y in rows.items():
+        for x in (-0.15, 0.15):
+            assert plan.kinds[_part_of(V, lab, (x, y, 0.6))] == {"lower": "jaw", "upper": "skull"}[name]
+
+
+def test_a_source_part_is_the_same_part_only_at_a_similar_extent(head):
+    """The registration matched the target's lower teeth to a source part of the same kind: its motion is
+    transferred when the source part is the same size, not when it is three times larger (a tongue, a cavity)."""
+    V, T, lab, jaw, _, _ = head
+    lower = _part_of(V, lab, (0.0, -0.63, 0.83))
+    src = parts.propose_parts(V, T, lab, None, jaw)
+    assert parts.propose_parts(V, T, lab, {lower: lower}, jaw, src, [lower]).kinds[lower] == "source"
+    big = V.copy()
+    c = V[lab == lower].mean(axis=0)
+    big[lab == lower] = c + 3.0 * (V[lab == lower] - c)
+    src_big = parts.propose_parts(big, T, lab, None, jaw)
+    assert src_big.kinds[lower] == "jaw"
+    assert parts.propose_parts(V, T, lab, {lower: lower}, jaw, src_big, [lower]).kinds[lower] == "jaw"
