@@ -226,7 +226,7 @@ def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map
         p = int(p)
         kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, p in closed)
     _beside_eyes(V, lab, kinds, conf, why, diag)
-    _teeth_rows(V, lab, PartPlan(lab, kinds, conf, why, frame), diag)
+    _teeth_rows(V, lab, PartPlan(lab, kinds, conf, why, frame), diag, _mouth_sheets(V, skin, lab, kinds, why, jaw))
     extents = {int(p): float(np.ptp(V[lab == p], axis=0).max()) / diag for p in np.unique(lab[lab >= 0])}
     plan = PartPlan(lab, kinds, conf, why, frame, extents)
     for p in np.unique(lab[lab > 0]):
@@ -297,14 +297,29 @@ def _face_up(V, lab, plan):
     return up / max(np.linalg.norm(up), 1e-300)
 
 
-def _teeth_rows(V, lab, plan, diag):
+def _mouth_sheets(V, skin, lab, kinds, why, jaw):
+    """Open parts lying on the skin of the mouth (the skin under them moves with the jaw by more than a fifth
+    in ``jawOpen``): rows of teeth modelled as sheets behind the lips (Ready Player Me's), not lashes."""
+    out = []
+    for p, k in kinds.items():
+        if k == "follow" and why[p] == "lies on the skin":
+            tri, bary, _, _ = skin.closest(V[lab == p])
+            if np.median(np.sum(bary * jaw[skin.tris[tri]], axis=1)) > 0.2:
+                out.append(p)
+    return out
+
+
+def _teeth_rows(V, lab, plan, diag, sheets=()):
     """Split the rigid parts (jaw or skull by the sector) into the lower and the upper row (in place): the
     heights of their lowest tenths (a tongue reaches back and up, it rests low) along the face's up
     (:func:`_face_up`) fall into two groups (the threshold
     that minimises the spread within the groups, Otsu's), the lower with the jaw, the upper with the skull.
     Used where both rows have at least two parts and the groups lie at least 1 % of the diagonal apart
-    (the sector alone misjudges rows on a hinge estimated from the skin: Face Cap's lower teeth)."""
-    rigid = [p for p, k in plan.kinds.items() if k in ("jaw", "skull")]
+    (the sector alone misjudges rows on a hinge estimated from the skin: Face Cap's lower teeth).  ``sheets``
+    (:func:`_mouth_sheets`) join the split: in the upper row they stay with the skull (the lips in front of
+    them move with every mouth shape, the upper teeth do not), in the lower row they keep following the skin
+    (lower lip and teeth both move with the jaw)."""
+    rigid = [p for p, k in plan.kinds.items() if k in ("jaw", "skull")] + list(sheets)
     if len(rigid) < 4:
         return
     up = _face_up(V, lab, plan)
@@ -323,6 +338,10 @@ def _teeth_rows(V, lab, plan, diag):
             False: ("skull", "inside, in the upper row (stays with the skull)")}
     for p, hp in zip(rigid, h):
         kind, why = rows[bool(hp < cut)]
+        if p in sheets:
+            if kind == "jaw":
+                continue
+            why = "lies behind the upper lip, in the upper row (stays with the skull)"
         plan.kinds[p], plan.confidence[p], plan.reasons[p] = kind, sure, why
 
 

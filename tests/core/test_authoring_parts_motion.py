@@ -107,3 +107,29 @@ def test_a_source_part_is_the_same_part_only_at_a_similar_extent(head):
     src_big = parts.propose_parts(big, T, lab, None, jaw)
     assert src_big.kinds[lower] == "jaw"
     assert parts.propose_parts(V, T, lab, {lower: lower}, jaw, src_big, [lower]).kinds[lower] == "jaw"
+
+
+def test_a_sheet_of_upper_teeth_behind_the_lips_stays_with_the_skull(head):
+    """Teeth modelled as open sheets just behind the lips (Ready Player Me's) lie on the skin like a lash: the
+    upper row stays with the skull (the lips in front of it move in every mouth shape), not bound to the lips."""
+    V0, T0, _, _, _, _ = head
+    skin_eye = int(np.flatnonzero(parts.triangle_parts(len(V0), T0)[0] >= 2)[0])
+    skin = (V0[:skin_eye], T0[np.all(T0 < skin_eye, axis=1)])
+    n = np.array([0.0, -0.34, 0.94]) / np.linalg.norm([0.0, -0.34, 0.94])
+    cap = skin[1][np.all(np.linalg.norm(skin[0][skin[1]] / np.linalg.norm(skin[0][skin[1]], axis=2,
+                                                                          keepdims=True) - n, axis=2) < 0.25, axis=1)]
+    used, inv = np.unique(cap, return_inverse=True)
+    sheet = (skin[0][used] * 0.997, inv.reshape(-1, 3))
+    lowers = [_sphere(4, 8, r=0.1, centre=(x, -0.63, 0.7), scale=(1.0, 0.4, 0.3)) for x in (-0.12, 0.12)]
+    upper = _sphere(4, 8, r=0.1, centre=(0.0, -0.36, 0.6), scale=(1.0, 0.4, 0.6))
+    V, T = _assemble(skin, sheet, *lowers, upper)
+    lab, _ = parts.triangle_parts(len(V), T)
+    rot = Rotation.from_euler("x", 15, degrees=True).as_matrix()
+    pivot = np.array([0.0, 0.0, -0.3])
+    jaw = np.zeros_like(V)
+    chin = (lab == 0) & (V[:, 1] < -0.3) & (V[:, 2] > 0.0)
+    jaw[chin] = (V[chin] - pivot) @ rot.T + pivot - V[chin]
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    s = int(lab[len(skin[0])])                                   # the sheet follows skin and eye
+    assert "lies behind the upper lip" in plan.reasons[s] and plan.kinds[s] == "skull"
+    assert all(plan.kinds[_part_of(V, lab, (x, -0.63, 0.7))] == "jaw" for x in (-0.12, 0.12))
