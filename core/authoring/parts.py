@@ -10,18 +10,22 @@ moved here, as an artist would rig it:
     lashes, brows, eyelines, the mouth cavity: each vertex is bound to its closest point ``p`` on the skin
     (triangle, barycentric coordinates, offset ``x − p``), like a surface binding: its displacement is the
     skin's at ``p`` plus the offset turned by the skin triangle's rotation (polar factor of its deformation
-    gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with ``r`` 2 % of
+    gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with ``r`` 1 % of
     the head's diagonal, towards the jaw/skull motion of that vertex (the back of a mouth cavity is carried
     by the jaw, not by the lip it hangs from).
 ``jaw``
     lower teeth, lower gums, tongue: the rigid motion of the jaw, fitted per shape (weighted Procrustes,
-    Umeyama) to the transferred motion of the chin — the skin that the transferred ``jawOpen`` moves most.
+    Umeyama) to the transferred motion of the chin — the skin that the transferred ``jawOpen`` moves most —
+    in the ``jaw*`` shapes only where the rig has them (ARKit: ``mouthClose`` closes the lips over a still
+    jaw; a fit to the chin would take the lower lip's motion for the jaw's).
 ``skull``
     upper teeth and gums: still.
 ``eye``
     eyeballs: turned about their centre for the ``eyeLook*`` shapes by :data:`EYE_LOOK_DEGREES` (ARKit
-    names the direction, not the angle), in the head frame given by the skin (left: the mirror plane's
-    normal; up: against the chin's motion in ``jawOpen``; forward: towards the chin; see ``_face_frame``).
+    names the direction, not the angle), about the eye's own axes: left the mirror plane's normal, up
+    perpendicular to the eye's gaze (from the sphere's centre to the centroid of the eye's parts: a cornea,
+    an iris or a front-only eyeball), see ``_eye_gaze``; the face frame's up (against the chin's drop in
+    ``jawOpen``, 30–40° off the vertical on the shared heads) only where the gaze is not known.
 ``source``
     parts the source has too: deformation transfer already moved them.
 ``still``
@@ -30,11 +34,16 @@ moved here, as an artist would rig it:
     the largest part.
 
 The proposal (:func:`propose_parts`) classifies by geometry only: a near-spherical part off the mirror plane
-is an eye; a part lying within 1.2 % of the diagonal of the skin (median), or touching it (closer than
-0.3 %), follows it; any other part is rigid: with the jaw if most of it lies in the jaw's sector (seen along
-the hinge of the rigid motion fitted to the transferred ``jawOpen``, the angles where the front midline moves
-with the jaw by more than half: from the lip line round the chin), else with the skull.  Each kind carries a
-confidence and a reason; the user corrects it (:meth:`PartPlan.with_kinds`).
+is an eye; an open part lying within 1.2 % of the diagonal of the skin (median), or touching it (closer
+than 0.3 %), follows it; any other part — and every closed one: teeth and gums are solids, even right behind
+the lips — is rigid: with the jaw if most of it lies in the jaw's sector (seen along the hinge of the rigid
+motion fitted to the transferred ``jawOpen``, the angles where the front midline moves with the jaw by more
+than half: from the lip line round the chin), else with the skull; where there are at least four rigid
+parts, the rows decide instead (their heights along the face's up fall into a lower row, with the jaw, and
+an upper one, with the skull; open sheets of teeth lying on the mouth's skin join the split and stay with
+the skull in the upper row).  A target part is ``source`` only where the source's matched part is the same
+part: the same kind for the same reason, at a similar extent.  Each kind carries a confidence and a reason;
+the user corrects it (:meth:`PartPlan.with_kinds`).
 """
 from __future__ import annotations
 
