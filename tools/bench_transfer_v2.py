@@ -7,8 +7,10 @@ each in world space, keys of one name on several objects joined.  Per pair ``<sr
 - ``transfer_rel_energy_<pair>``: ‖ΔT − ΔA‖ / ‖ΔA‖ jointly over every key the target authored (peak at least
   5 % of its largest) and all its vertices; ``transfer_rel_median_<pair>`` the per-key median;
 - ``transfer_parts_moved_frac_<pair>``: the share of the target's authored motion on its parts (every
-  connected part but the skin) that the transfer reproduces, ``max(0, 1 − ‖ΔT − ΔA‖ / ‖ΔA‖)`` on the parts
-  (``None`` for a target without authored part motion: FBHead is one surface);
+  connected part but the skin; vertices in no triangle are no part) that the transfer reproduces,
+  ``max(0, 1 − ‖ΔT − ΔA‖ / ‖ΔA‖)`` jointly over the same keys and the parts' vertices on objects that have
+  shape keys (an object without keys authored nothing: Face Cap's eye meshes turn by their transforms)
+  (``None`` for a target without authored part motion: FBHead is one surface and 661 loose vertices);
 - ``transfer_blink_gap_frac_<pair>``: the lid gap left at eyeBlink weight 1 as a fraction of the target's open
   gap (widest remaining over widest open, ``core.authoring.contacts.gap_left``), the worse of L and R
   (``transfer_blink_gap_frac_authored_<head>``: the target's own authored blink);
@@ -42,6 +44,12 @@ HEADS = {"facecap": ("facecap/facecap_decoded.glb", ("Mesh_2", "Mesh_0", "Mesh_1
 
 def read_head(tag):
     """(neutral (n, 3), triangles (f, 3), deltas (k, n, 3), canonical names) of a whole head, world space."""
+    head = read_head_keyed(tag)
+    return None if head is None else head[0]
+
+
+def read_head_keyed(tag):
+    """(:func:`read_head`'s tuple, keyed (n,) bool: the vertex is on an object that has shape keys), or None."""
     import bpy
 
     from shapespace.bridge import assets, shapekeys
@@ -72,7 +80,8 @@ def read_head(tag):
     for model, L, o, n in models:
         for j, name in enumerate(model.names if model is not None else ()):
             D[names.index(canonical_name(name)), o:o + n] = model.deltas[j] @ L.T
-    return np.concatenate(verts), np.concatenate(tris), D, names
+    keyed = np.concatenate([np.full(n, model is not None) for model, _, _, n in models])
+    return (np.concatenate(verts), np.concatenate(tris), D, names), keyed
 
 
 def _openings(src_tag, S, ST, dst_tag, T, TT):
@@ -84,7 +93,7 @@ def _openings(src_tag, S, ST, dst_tag, T, TT):
     return contacts.openings_from_named(S, ST, ls, T, TT, lt)
 
 
-def _scores(T, TD, TN, DT, SN, t_part, openings):
+def _scores(T, TD, TN, DT, SN, t_part, openings, keyed=None):
     from shapespace.core.authoring import contacts
     idx = {n: i for i, n in enumerate(SN)}
     peaks = np.abs(TD).reshape(len(TN), -1).max(axis=1)
@@ -92,7 +101,9 @@ def _scores(T, TD, TN, DT, SN, t_part, openings):
     A = TD[keep]
     X = np.stack([DT[idx[TN[j]]] for j in keep])
     per = np.linalg.norm((X - A).reshape(len(keep), -1), axis=1) / np.linalg.norm(A.reshape(len(keep), -1), axis=1)
-    on = t_part != 0
+    on = t_part > 0                 # the parts: not the skin (0), nor vertices in no triangle (−1: no part)
+    if keyed is not None:           # nor objects without shape keys: nothing is authored there (Face Cap's eyes)
+        on &= keyed
     authored = np.linalg.norm(A[:, on])
     parts_frac = max(0.0, 1.0 - np.linalg.norm(X[:, on] - A[:, on]) / authored) if authored > 0 else None
     out = {"transfer_rel_energy": float(np.linalg.norm(X - A) / np.linalg.norm(A)),
@@ -128,8 +139,9 @@ def transferred(src, dst, src_tag, dst_tag):
     return DT, t_part, openings, plan, moved
 
 
-def pair(src, dst, src_tag, dst_tag):
-    """Metrics of one ordered pair (keys without the pair suffix) and the target's authored blink gap."""
+def pair(src, dst, src_tag, dst_tag, keyed=None):
+    """Metrics of one ordered pair (keys without the pair suffix) and the target's authored blink gap
+    (``keyed``: the target's vertices on objects with shape keys, see :func:`read_head_keyed`)."""
     from shapespace.core.authoring import quality
     S, ST, SD, SN = src
     T, TT, TD, TN = dst
@@ -138,7 +150,7 @@ def pair(src, dst, src_tag, dst_tag):
     seconds = time.perf_counter() - t0
     _, _, status = quality.check_keys(S, SD, SN, T, DT, openings=openings, plan=plan, moved=moved, src_tris=ST,
                                       dst_tris=TT)
-    m, authored_gap = _scores(T, TD, TN, DT, SN, t_part, openings)
+    m, authored_gap = _scores(T, TD, TN, DT, SN, t_part, openings, keyed)
     m["transfer_s"] = seconds
     m["transfer_report_status"] = status.name
     return m, authored_gap
@@ -146,13 +158,14 @@ def pair(src, dst, src_tag, dst_tag):
 
 def run(quick: bool = False) -> dict:
     """Every key of every ordered pair (``quick`` computes the same: the suite has no repetitions)."""
-    heads = {tag: read_head(tag) for tag in HEADS}
+    loaded = {tag: read_head_keyed(tag) for tag in HEADS}
+    heads = {tag: None if h is None else h[0] for tag, h in loaded.items()}
     out = {}
     for s in HEADS:
         for d in HEADS:
             if s == d or heads[s] is None or heads[d] is None:
                 continue
-            m, authored = pair(heads[s], heads[d], s, d)
+            m, authored = pair(heads[s], heads[d], s, d, loaded[d][1])
             out.update({f"{k}_{s}_{d}": v for k, v in m.items()})
             out[f"transfer_blink_gap_frac_authored_{d}"] = authored
             print(f"bench transfer v2: {s} -> {d}: rel energy {m['transfer_rel_energy']:.3f} median "

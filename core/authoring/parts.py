@@ -10,18 +10,22 @@ moved here, as an artist would rig it:
     lashes, brows, eyelines, the mouth cavity: each vertex is bound to its closest point ``p`` on the skin
     (triangle, barycentric coordinates, offset ``x − p``), like a surface binding: its displacement is the
     skin's at ``p`` plus the offset turned by the skin triangle's rotation (polar factor of its deformation
-    gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with ``r`` 2 % of
+    gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with ``r`` 1 % of
     the head's diagonal, towards the jaw/skull motion of that vertex (the back of a mouth cavity is carried
     by the jaw, not by the lip it hangs from).
 ``jaw``
     lower teeth, lower gums, tongue: the rigid motion of the jaw, fitted per shape (weighted Procrustes,
-    Umeyama) to the transferred motion of the chin — the skin that the transferred ``jawOpen`` moves most.
+    Umeyama) to the transferred motion of the chin — the skin that the transferred ``jawOpen`` moves most —
+    in the ``jaw*`` shapes only where the rig has them (ARKit: ``mouthClose`` closes the lips over a still
+    jaw; a fit to the chin would take the lower lip's motion for the jaw's).
 ``skull``
     upper teeth and gums: still.
 ``eye``
     eyeballs: turned about their centre for the ``eyeLook*`` shapes by :data:`EYE_LOOK_DEGREES` (ARKit
-    names the direction, not the angle), in the head frame given by the skin (left: the mirror plane's
-    normal; up: against the chin's motion in ``jawOpen``; forward: towards the chin; see ``_face_frame``).
+    names the direction, not the angle), about the eye's own axes: left the mirror plane's normal, up
+    perpendicular to the eye's gaze (from the sphere's centre to the centroid of the eye's parts: a cornea,
+    an iris or a front-only eyeball), see ``_eye_gaze``; the face frame's up (against the chin's drop in
+    ``jawOpen``, 30–40° off the vertical on the shared heads) only where the gaze is not known.
 ``source``
     parts the source has too: deformation transfer already moved them.
 ``still``
@@ -30,11 +34,16 @@ moved here, as an artist would rig it:
     the largest part.
 
 The proposal (:func:`propose_parts`) classifies by geometry only: a near-spherical part off the mirror plane
-is an eye; a part lying within 1.2 % of the diagonal of the skin (median), or touching it (closer than
-0.3 %), follows it; any other part is rigid: with the jaw if most of it lies in the jaw's sector (seen along
-the hinge of the rigid motion fitted to the transferred ``jawOpen``, the angles where the front midline moves
-with the jaw by more than half: from the lip line round the chin), else with the skull.  Each kind carries a
-confidence and a reason; the user corrects it (:meth:`PartPlan.with_kinds`).
+is an eye; an open part lying within 1.2 % of the diagonal of the skin (median), or touching it (closer
+than 0.3 %), follows it; any other part — and every closed one: teeth and gums are solids, even right behind
+the lips — is rigid: with the jaw if most of it lies in the jaw's sector (seen along the hinge of the rigid
+motion fitted to the transferred ``jawOpen``, the angles where the front midline moves with the jaw by more
+than half: from the lip line round the chin), else with the skull; where there are at least four rigid
+parts, the rows decide instead (their heights along the face's up fall into a lower row, with the jaw, and
+an upper one, with the skull; open sheets of teeth lying on the mouth's skin join the split and stay with
+the skull in the upper row).  A target part is ``source`` only where the source's matched part is the same
+part: the same kind for the same reason, at a similar extent.  Each kind carries a confidence and a reason;
+the user corrects it (:meth:`PartPlan.with_kinds`).
 """
 from __future__ import annotations
 
@@ -60,7 +69,7 @@ KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
 # eyeLook* at weight 1, degrees (ARKit documents the direction only); measured as the mean of the turns the
 # artists of ICT FaceKit and Ready Player Me authored on their eyeballs, rounded
 EYE_LOOK_DEGREES = {"Up": 20.0, "Down": 25.0, "In": 25.0, "Out": 30.0}
-FOLLOW_RADIUS = 0.02          # × diagonal: binding falloff
+FOLLOW_RADIUS = 0.01          # × diagonal: binding falloff (2 % carried lip motion deep into the cavity)
 FOLLOW_MEDIAN = 0.012         # × diagonal: a part whose median distance to the skin is below this follows it
 TOUCH = 0.003                 # × diagonal: a part closer than this somewhere touches the skin (cavity)
 EYE_RESIDUAL = 0.06           # relative RMS of a sphere fit below which a part is an eyeball
@@ -88,10 +97,12 @@ class PartPlan:
     confidence: dict = field(default_factory=dict)
     reasons: dict = field(default_factory=dict)
     frame: object = field(default=None, repr=False, compare=False)      # the face frame the proposal used
+    extents: dict = field(default_factory=dict, repr=False, compare=False)    # part → its extent / diagonal
 
     def with_kinds(self, kinds: dict) -> PartPlan:
         """A copy with some parts' kinds set by the user (confidence 1)."""
-        out = PartPlan(self.labels, dict(self.kinds), dict(self.confidence), dict(self.reasons), self.frame)
+        out = PartPlan(self.labels, dict(self.kinds), dict(self.confidence), dict(self.reasons), self.frame,
+                       self.extents)
         for p, k in kinds.items():
             p = int(p)
             if p not in out.kinds:
@@ -219,17 +230,33 @@ def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map
     kinds, conf, why = {0: "skin"}, {0: 1.0}, {0: "the largest part"}
     skin = _Skin(V, TT, lab)
     frame = _face_frame(V, lab, jaw, None if jaw_delta is None else np.asarray(jaw_delta, dtype=np.float64))
+    closed = _closed_parts(TT, lab)
     for p in np.unique(lab[lab > 0]):
         p = int(p)
-        kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, jaw)
+        kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, p in closed)
     _beside_eyes(V, lab, kinds, conf, why, diag)
+    _teeth_rows(V, lab, PartPlan(lab, kinds, conf, why, frame), diag, _mouth_sheets(V, skin, lab, kinds, why, jaw))
+    extents = {int(p): float(np.ptp(V[lab == p], axis=0).max()) / diag for p in np.unique(lab[lab >= 0])}
+    plan = PartPlan(lab, kinds, conf, why, frame, extents)
     for p in np.unique(lab[lab > 0]):
         p = int(p)
         q = (part_map or {}).get(p, -1)
-        same = source_plan is not None and source_plan.kinds.get(q) == kinds[p]
-        if q > 0 and same and q in set(source_moving):
+        if q > 0 and q in set(source_moving) and _same_part(plan, p, source_plan, q):
             kinds[p], conf[p], why[p] = "source", conf[p], f"the source has it and moves it (source part {q})"
-    return PartPlan(lab, kinds, conf, why, frame)
+    return plan
+
+
+def _same_part(plan, p, source_plan, q):
+    """Whether target part ``p`` and the source part ``q`` the registration matched it to are the same part:
+    the same kind for the same reason (a mouth cavity touching the lips is not a row of teeth lying behind
+    them, though both follow the skin) and extents (relative to each head's diagonal) within a factor 2 (a
+    tongue is not a tooth)."""
+    if source_plan is None or source_plan.kinds.get(q) != plan.kinds[p]:
+        return False
+    if plan.kinds[p] == "follow" and source_plan.reasons.get(q) != plan.reasons[p]:
+        return False
+    a, b = plan.extents.get(p, 0.0), source_plan.extents.get(q, 0.0)
+    return a > 0 and b > 0 and 0.5 <= a / b <= 2.0
 
 
 def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: np.ndarray, names: Sequence[str],
@@ -270,13 +297,82 @@ def _beside_eyes(V, lab, kinds, conf, why, diag):
                 kinds[p], conf[p], why[p] = "follow", 0.6, "touches an eyeball: follows the lids"
 
 
-def _classify(V, skin, frame, lab, idx, diag, jaw):
+def _face_up(V, lab, plan):
+    """The face's up from its eyes' gaze (:func:`_eye_gaze`, mean over the eyes), the frame's without eyes."""
+    frame = plan.frame
+    ups = [_eye_gaze(V, lab, plan, p, frame, _eye_centre(V, lab, plan, p, frame))[0]
+           for p, k in plan.kinds.items() if k == "eye"]
+    up = np.mean(ups, axis=0) if ups else frame.up
+    return up / max(np.linalg.norm(up), 1e-300)
+
+
+def _mouth_sheets(V, skin, lab, kinds, why, jaw):
+    """Open parts lying on the skin of the mouth (the skin under them moves with the jaw by more than a fifth
+    in ``jawOpen``): rows of teeth modelled as sheets behind the lips (Ready Player Me's), not lashes."""
+    out = []
+    for p, k in kinds.items():
+        if k == "follow" and why[p] == "lies on the skin":
+            tri, bary, _, _ = skin.closest(V[lab == p])
+            if np.median(np.sum(bary * jaw[skin.tris[tri]], axis=1)) > 0.2:
+                out.append(p)
+    return out
+
+
+def _teeth_rows(V, lab, plan, diag, sheets=()):
+    """Split the rigid parts (jaw or skull by the sector) into the lower and the upper row (in place): the
+    heights of their lowest tenths (a tongue reaches back and up, it rests low) along the face's up
+    (:func:`_face_up`) fall into two groups (the threshold
+    that minimises the spread within the groups, Otsu's), the lower with the jaw, the upper with the skull.
+    Used where both rows have at least two parts and the groups lie at least 1 % of the diagonal apart
+    (the sector alone misjudges rows on a hinge estimated from the skin: Face Cap's lower teeth).  ``sheets``
+    (:func:`_mouth_sheets`) join the split: in the upper row they stay with the skull (the lips in front of
+    them move with every mouth shape, the upper teeth do not), in the lower row they keep following the skin
+    (lower lip and teeth both move with the jaw)."""
+    rigid = [p for p, k in plan.kinds.items() if k in ("jaw", "skull")] + list(sheets)
+    if len(rigid) < 4:
+        return
+    up = _face_up(V, lab, plan)
+    h = np.array([float(np.percentile(V[lab == p] @ up, 10)) for p in rigid])
+    order = np.argsort(h)
+    hs = h[order]
+    cost = [np.var(hs[:i]) * i + np.var(hs[i:]) * (len(hs) - i) for i in range(2, len(hs) - 1)]
+    if not cost:
+        return
+    i = 2 + int(np.argmin(cost))
+    if hs[i:].mean() - hs[:i].mean() < 0.01 * diag:
+        return
+    cut = 0.5 * (hs[i - 1] + hs[i])
+    sure = float(np.clip((hs[i] - hs[i - 1]) / (0.01 * diag), 0.3, 1.0))
+    rows = {True: ("jaw", "inside, in the lower row (moves with the jaw)"),
+            False: ("skull", "inside, in the upper row (stays with the skull)")}
+    for p, hp in zip(rigid, h):
+        kind, why = rows[bool(hp < cut)]
+        if p in sheets:
+            if kind == "jaw":
+                continue
+            why = "lies behind the upper lip, in the upper row (stays with the skull)"
+        plan.kinds[p], plan.confidence[p], plan.reasons[p] = kind, sure, why
+
+
+def _closed_parts(TT, lab):
+    """Parts whose surface is closed (every edge shared by two of its triangles): teeth, gums, a tongue — solids,
+    not the sheets (lashes, brows, eyelines) or the open bag (mouth cavity) that follow the skin."""
+    part = lab[TT[:, 0]]
+    E = np.sort(np.concatenate([TT[:, [0, 1]], TT[:, [1, 2]], TT[:, [2, 0]]]), axis=1)
+    pe = np.tile(part, 3)
+    key = E[:, 0] * (int(E.max()) + 1) + E[:, 1]
+    _, first, counts = np.unique(key, return_index=True, return_counts=True)
+    open_parts = set(np.unique(pe[first[counts == 1]]).tolist())
+    return {int(p) for p in np.unique(part) if p > 0 and int(p) not in open_parts}
+
+
+def _classify(V, skin, frame, lab, idx, diag, closed):
     eye = _eye_likeness(V, frame, idx, diag)
     if eye > 0:
         return "eye", eye, "a round part off the mirror plane"
     _, _, _, dist = skin.closest(V[idx])
     med, low = float(np.median(dist)) / diag, float(dist.min()) / diag
-    if med < FOLLOW_MEDIAN or low < TOUCH:
+    if (med < FOLLOW_MEDIAN or low < TOUCH) and not closed:
         why = "lies on the skin" if med < FOLLOW_MEDIAN else "touches the skin"
         return "follow", float(np.clip(1.0 - med / (2 * FOLLOW_MEDIAN), 0.3, 1.0)), why
     inside, sure = frame.in_jaw(V[idx])
@@ -355,7 +451,7 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
     canon = [canonical_name(n) for n in names]
     jaw_delta = deltas[canon.index("jawOpen")] if "jawOpen" in canon else None
     jaw = jaw_membership(V, lab, jaw_delta)
-    jaw_motion = _jaw_motions(V, lab, deltas, jaw)                     # (k, 3, 3), (k, 3)
+    jaw_motion = _jaw_motions(V, lab, deltas, jaw, canon)                   # (k, 3, 3), (k, 3)
     follow = np.flatnonzero(np.isin(lab, [p for p, k in plan.kinds.items() if k == "follow"]))
     if follow.size:
         deltas[:, follow] = _follow(V, _Skin(V, TT, lab), follow, deltas, jaw, jaw_motion)
@@ -371,14 +467,20 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
             deltas[:, idx] = np.einsum("kij,vj->kvi", R, V[idx]) + t[:, None, :] - V[idx][None]
         elif kind == "eye":
             frame = frame or _face_frame(V, lab, jaw, jaw_delta, face_forward)
-            deltas[:, idx] = _eye_turns(V, idx, deltas, canon, frame, _eye_centre(V, lab, plan, p, frame))
+            centre = _eye_centre(V, lab, plan, p, frame)
+            axes = _eye_gaze(V, lab, plan, p, frame, centre)
+            deltas[:, idx] = _eye_turns(V, idx, deltas, canon, frame, centre, axes)
     moved = {int(p): float(np.linalg.norm(deltas[:, lab == p], axis=2).max()) if deltas.shape[0] else 0.0
              for p in plan.kinds}
     return deltas, moved
 
 
-def _jaw_motions(V, lab, deltas, jaw):
-    """Per shape the jaw's rigid motion fitted to the chin (weights ``jaw⁴``): R (k, 3, 3), t (k, 3)."""
+def _jaw_motions(V, lab, deltas, jaw, canon=()):
+    """Per shape the jaw's rigid motion fitted to the chin (weights ``jaw⁴``): R (k, 3, 3), t (k, 3).
+
+    In an ARKit rig only the ``jaw*`` shapes move the jaw (``mouthClose`` closes the lips over an open jaw,
+    ``mouthFunnel`` … move the lips alone): where the names have ``jaw*`` shapes, every other shape keeps the
+    jaw still — a fit to the chin would take the lower lip's motion for the jaw's."""
     k = deltas.shape[0]
     w = jaw ** 4
     sel = np.flatnonzero(w > 1e-3)
@@ -386,7 +488,10 @@ def _jaw_motions(V, lab, deltas, jaw):
     if sel.size < 3:
         return R, t
     X = V[sel]
+    named = any(n.startswith("jaw") for n in canon)
     for s in range(k):
+        if named and not canon[s].startswith("jaw"):
+            continue
         R[s], t[s] = fit_rigid(X, X + deltas[s, sel], w[sel])
     return R, t
 
@@ -423,9 +528,34 @@ def _eye_centre(V, lab, plan, part, frame):
     return centre
 
 
-def _eye_turns(V, idx, deltas, canon, frame, centre):
-    """Eyeball vertices ``idx`` turned about ``centre`` for the ``eyeLook*`` shapes (k, m, 3)."""
-    up, left = frame.up, frame.left
+def _eye_gaze(V, lab, plan, part, frame, centre):
+    """The eye's own (up, left) for ``part``: its gaze is the direction from ``centre`` to the centroid of each
+    eye part on that side (an eyeball's front — cornea, iris — bulges forward, or is all there is of it), summed
+    with the sign of the face's forward and weighted by the offset; the face frame's ``up`` is only known up to
+    the tilt of the chin's drop in ``jawOpen`` (30–40° on the shared heads), the gaze is not.  Falls back to the
+    face frame when the offset is under 2 % of the eye's size."""
+    side = np.sign((V[lab == part].mean(axis=0) - frame.centre) @ frame.left)
+    gaze, size = np.zeros(3), 0.0
+    for p, k in plan.kinds.items():
+        P = V[lab == p]
+        if k != "eye" or P.size == 0 or np.sign((P.mean(axis=0) - frame.centre) @ frame.left) != side:
+            continue
+        g = P.mean(axis=0) - centre
+        gaze += g * (len(P) if g @ frame.forward >= 0 else -len(P))
+        size += len(P) * float(np.ptp(P, axis=0).max())
+    left = frame.left
+    gaze -= (gaze @ left) * left
+    if size <= 0 or np.linalg.norm(gaze) < 0.02 * size:
+        return frame.up, left
+    up = np.cross(gaze, left)
+    up /= np.linalg.norm(up)
+    return (up if up @ frame.up >= 0 else -up), left
+
+
+def _eye_turns(V, idx, deltas, canon, frame, centre, axes=None):
+    """Eyeball vertices ``idx`` turned about ``centre`` for the ``eyeLook*`` shapes (k, m, 3); ``axes`` (up,
+    left) of the eye (default: the face frame's)."""
+    up, left = axes if axes is not None else (frame.up, frame.left)
     side = "Left" if (centre - frame.centre) @ left > 0 else "Right"
     out = np.zeros((deltas.shape[0], idx.size, 3))
     X = V[idx] - centre

@@ -1,0 +1,135 @@
+"""Facial parts (issue #22 §1): the jaw's rigid motion only in the jaw's shapes, teeth as solids even where they
+lie close to the lips, and eyes turned about their own vertical axis — against motions built here."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from core.authoring import parts
+from test_authoring_parts import _assemble, _part_of, _sphere
+
+
+def _eye(centre, r=0.12):
+    """An eyeball as Ready Player Me models it: the front of a sphere (z > −r/2), looking along +z."""
+    V, T = _sphere(8, 12)
+    T = T[np.all(V[T][:, :, 2] > -0.5, axis=1)]
+    used, inv = np.unique(T, return_inverse=True)
+    return V[used] * r + centre, inv.reshape(-1, 3)
+
+
+@pytest.fixture(scope="module")
+def head():
+    """Skin (radius 1), a left eye, lower teeth close behind the lower lip (a solid), upper teeth deep inside;
+    ``jawOpen`` turns the front skin below y = −0.3 by 15° about x through (0, 0, −0.3) — the chin drops and
+    goes back, so the chin's drop is 36° off the vertical."""
+    skin = _sphere(20, 32, nose=True)
+    eye = _eye((0.35, 0.3, 0.75))
+    lower = _sphere(4, 8, r=0.1, centre=(0.0, -0.63, 0.83), scale=(1.0, 0.4, 0.15))
+    upper = _sphere(4, 8, r=0.1, centre=(0.0, 0.05, 0.6), scale=(1.0, 0.4, 0.6))
+    V, T = _assemble(skin, eye, lower, upper)
+    lab, _ = parts.triangle_parts(len(V), T)
+    rot = Rotation.from_euler("x", 15, degrees=True).as_matrix()
+    pivot = np.array([0.0, 0.0, -0.3])
+    jaw = np.zeros_like(V)
+    chin = (lab == 0) & (V[:, 1] < -0.3) & (V[:, 2] > 0.0)
+    jaw[chin] = (V[chin] - pivot) @ rot.T + pivot - V[chin]
+    return V, T, lab, jaw, rot, pivot
+
+
+def test_teeth_close_to_the_lips_are_a_solid_of_the_jaw(head):
+    V, T, lab, jaw, _, _ = head
+    lower = _part_of(V, lab, (0.0, -0.63, 0.83))
+    _, _, _, dist = parts._Skin(V, T, lab).closest(V[lab == lower])
+    assert np.median(dist) < parts.FOLLOW_MEDIAN * parts.bbox_diagonal(V)      # as close as a lash would be
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    assert plan.kinds[lower] == "jaw" and plan.kinds[_part_of(V, lab, (0.0, 0.05, 0.6))] == "skull"
+
+
+def test_lip_shapes_leave_the_jaw_still_jaw_shapes_move_it_rigidly(head):
+    V, T, lab, jaw, rot, pivot = head
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    lip = np.zeros_like(V)
+    lip[(lab == 0) & (V[:, 1] < -0.3) & (V[:, 1] > -0.45) & (V[:, 2] > 0.5)] = [0.0, 0.05, 0.0]   # lower lip up
+    out, _ = parts.move_parts(plan, V, T, np.stack([jaw, lip]), ["jawOpen", "mouthClose"])
+    lower = lab == _part_of(V, lab, (0.0, -0.63, 0.83))
+    assert np.abs(out[0, lower] - ((V[lower] - pivot) @ rot.T + pivot - V[lower])).max() < 1e-9
+    assert not out[1, lower].any()                     # mouthClose closes the lips over a still jaw
+
+
+@pytest.mark.parametrize("name, toward_left", [("eyeLookInLeft", False), ("eyeLookOutLeft", True)])
+def test_eyes_turn_about_their_own_vertical_axis(head, name, toward_left):
+    V, T, lab, jaw, _, _ = head
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    eye = lab == _part_of(V, lab, (0.35, 0.3, 0.75))
+    assert plan.kinds[int(lab[eye][0])] == "eye"
+    out, _ = parts.move_parts(plan, V, T, np.zeros((1,) + V.shape), [name])
+    c, _, _ = parts.sphere_fit(V[eye])
+    before, after = V[eye] - c, V[eye] + out[0, eye] - c
+    assert np.abs(after[:, 1] - before[:, 1]).max() < 1e-9          # turned about the vertical (y) axis
+    front = np.argmax(before[:, 2])
+    ang = np.degrees(np.arctan2(after[front, 0], after[front, 2]) - np.arctan2(before[front, 0], before[front, 2]))
+    want = parts.EYE_LOOK_DEGREES["Out" if toward_left else "In"] * (1 if toward_left else -1)
+    assert abs(ang - want) < 1e-6
+
+
+def test_teeth_rows_split_by_height_where_the_sector_misjudges_them(head):
+    """Two lower teeth above the chin's lip line (out of the jaw's sector, as Face Cap's) and two upper teeth
+    above them: the lower row goes with the jaw, the upper with the skull."""
+    V0, T0, _, _, _, _ = head
+    skin_eye = int(np.flatnonzero(parts.triangle_parts(len(V0), T0)[0] >= 2)[0])    # skin and eye come first
+    meshes = [(V0[:skin_eye], T0[np.all(T0 < skin_eye, axis=1)])]
+    rows = {"lower": -0.25, "upper": 0.05}
+    for y in rows.values():
+        for x in (-0.15, 0.15):
+            meshes.append(_sphere(4, 8, r=0.06, centre=(x, y, 0.6), scale=(1.0, 0.4, 0.6)))
+    V, T = _assemble(*meshes)
+    lab, _ = parts.triangle_parts(len(V), T)
+    rot = Rotation.from_euler("x", 15, degrees=True).as_matrix()
+    pivot = np.array([0.0, 0.0, -0.3])
+    jaw = np.zeros_like(V)
+    chin = (lab == 0) & (V[:, 1] < -0.3) & (V[:, 2] > 0.0)
+    jaw[chin] = (V[chin] - pivot) @ rot.T + pivot - V[chin]
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    for name, y in rows.items():
+        for x in (-0.15, 0.15):
+            assert plan.kinds[_part_of(V, lab, (x, y, 0.6))] == {"lower": "jaw", "upper": "skull"}[name]
+
+
+def test_a_source_part_is_the_same_part_only_at_a_similar_extent(head):
+    """The registration matched the target's lower teeth to a source part of the same kind: its motion is
+    transferred when the source part is the same size, not when it is three times larger (a tongue, a cavity)."""
+    V, T, lab, jaw, _, _ = head
+    lower = _part_of(V, lab, (0.0, -0.63, 0.83))
+    src = parts.propose_parts(V, T, lab, None, jaw)
+    assert parts.propose_parts(V, T, lab, {lower: lower}, jaw, src, [lower]).kinds[lower] == "source"
+    big = V.copy()
+    c = V[lab == lower].mean(axis=0)
+    big[lab == lower] = c + 3.0 * (V[lab == lower] - c)
+    src_big = parts.propose_parts(big, T, lab, None, jaw)
+    assert src_big.kinds[lower] == "jaw"
+    assert parts.propose_parts(V, T, lab, {lower: lower}, jaw, src_big, [lower]).kinds[lower] == "jaw"
+
+
+def test_a_sheet_of_upper_teeth_behind_the_lips_stays_with_the_skull(head):
+    """Teeth modelled as open sheets just behind the lips (Ready Player Me's) lie on the skin like a lash: the
+    upper row stays with the skull (the lips in front of it move in every mouth shape), not bound to the lips."""
+    V0, T0, _, _, _, _ = head
+    skin_eye = int(np.flatnonzero(parts.triangle_parts(len(V0), T0)[0] >= 2)[0])
+    skin = (V0[:skin_eye], T0[np.all(T0 < skin_eye, axis=1)])
+    n = np.array([0.0, -0.34, 0.94]) / np.linalg.norm([0.0, -0.34, 0.94])
+    cap = skin[1][np.all(np.linalg.norm(skin[0][skin[1]] / np.linalg.norm(skin[0][skin[1]], axis=2,
+                                                                          keepdims=True) - n, axis=2) < 0.25, axis=1)]
+    used, inv = np.unique(cap, return_inverse=True)
+    sheet = (skin[0][used] * 0.997, inv.reshape(-1, 3))
+    lowers = [_sphere(4, 8, r=0.1, centre=(x, -0.63, 0.7), scale=(1.0, 0.4, 0.3)) for x in (-0.12, 0.12)]
+    upper = _sphere(4, 8, r=0.1, centre=(0.0, -0.36, 0.6), scale=(1.0, 0.4, 0.6))
+    V, T = _assemble(skin, sheet, *lowers, upper)
+    lab, _ = parts.triangle_parts(len(V), T)
+    rot = Rotation.from_euler("x", 15, degrees=True).as_matrix()
+    pivot = np.array([0.0, 0.0, -0.3])
+    jaw = np.zeros_like(V)
+    chin = (lab == 0) & (V[:, 1] < -0.3) & (V[:, 2] > 0.0)
+    jaw[chin] = (V[chin] - pivot) @ rot.T + pivot - V[chin]
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    s = int(lab[len(skin[0])])                                   # the sheet follows skin and eye
+    assert "lies behind the upper lip" in plan.reasons[s] and plan.kinds[s] == "skull"
+    assert all(plan.kinds[_part_of(V, lab, (x, -0.63, 0.7))] == "jaw" for x in (-0.12, 0.12))
