@@ -127,6 +127,7 @@ class RigLivePipeline:
         self.n_source, self.armature, self.bones, self.mirror = n_source, armature, bones, mirror
         self.smoothing, self.neutral = smoothing, None
         self.controls = ev.controls
+        self.owners = sorted({b.object.name for b in ev.bindings})
         self.slider_names = []
         self.frames = self.budget_hits = 0
         self.evaluations = deque(maxlen=_TIMINGS)
@@ -147,12 +148,11 @@ class RigLivePipeline:
             self.smoothing.reset()
 
     def _alive(self) -> str:
-        obj = bpy.data.objects.get(self.target)
-        if obj is None or obj is not self.ev.mesh_obj:
+        if bpy.data.objects.get(self.target) is None:
             return f"the target {self.target!r} was deleted"
-        for b in self.ev.bindings:
-            if b.object.name not in bpy.data.objects:
-                return f"the rig {b.object.name!r} was deleted"
+        for name in self.owners:
+            if bpy.data.objects.get(name) is None:
+                return f"the rig {name!r} was deleted"
         return ""
 
     def solve(self, vector: np.ndarray) -> tuple:
