@@ -40,7 +40,7 @@ from ...core.errors import ErrorCode
 from ...core.headpose import bone_values
 from ...core.live import FACECAP_52, LLF_BLENDSHAPES, Neutral, OneEuroFilter, calibrate
 from ...core.result import ShapeSpaceError
-from ...core.retarget import copy_weights, split_mapping
+from ...core.retarget import split_mapping
 from ...core.rig import ChannelKind, LiveRigSolver, quaternion_from_rotation_vector, ridge_unit
 from .. import actions
 from ..retarget import bone_specs
@@ -49,20 +49,25 @@ from . import stored
 from .capture import sample_vertices
 from .channels import EULER_MODES, Binding
 from .evaluate import RigEvaluator
-from .take import PIN_TOL_REL, XTOL_REL, _animated, rest_controls, shape_key_targets
+from .take import _animated, rest_controls, shape_key_targets
 
 __all__ = ["LIVE_EVAL_MS", "MAX_BUDGET", "METHOD", "RigLivePipeline", "RigTakeRecorder", "build_rig_pipeline",
            "has_controls"]
 
 #: The live method that solves onto a stored control set.
 METHOD = "CONTROLS"
-#: Rig evaluations per frame are fixed at Start so that they take about this long (of a 16.7 ms frame: the rest
-#: is decode, targets, writes and the viewport's own evaluation).
-LIVE_EVAL_MS = 8.0
+#: Rig evaluations per frame are fixed at Start so that they and the viewport's own evaluation of the written
+#: frame (one more when the last trial was refused) take about this long of a 16.7 ms frame (the rest: decode,
+#: targets, the step's linear algebra, writes).
+LIVE_EVAL_MS = 10.0
 #: At most this many rig evaluations per frame (at least one).
 MAX_BUDGET = 6
 #: Ridge toward the rest controls (as the offline capture route, :func:`bridge.rig.capture.retarget_capture_onto_rig`).
 REG = 1e-6
+#: Stopping distances of a live frame, as fractions of the evaluated diagonal: every pin within ``LIVE_PIN_TOL_REL``,
+#: or the Gauss–Newton step moving no pin by more than ``LIVE_XTOL_REL`` (a hundredth of the 1e-3 recovery goal:
+#: 3 µm on a 30 cm head; the offline take goes on to 1e-6, which a stream that changes every frame cannot use).
+LIVE_PIN_TOL_REL, LIVE_XTOL_REL = 1e-5, 1e-5
 _SOURCE_NAMES = {"LLF": LLF_BLENDSHAPES, "FACECAP": FACECAP_52, "IFACIALMOCAP": FACECAP_52}
 _TIMINGS = 600
 
@@ -99,19 +104,22 @@ class _Targets:
         if not mapping:
             raise ShapeSpaceError(f"{mesh_obj.name!r} has no shape key matching the source's channels: the face "
                                   "needs the source's shape keys (ARKit names) to evaluate it", ErrorCode.NO_MAPPING)
-        self.pairs, self.gain, self.offset = split_mapping(mapping, len(keys))
-        self.cols = sorted({j for _, j in self.pairs})
-        self.lo = np.array([key.key_blocks[n].slider_min for n in keys])
-        self.hi = np.array([key.key_blocks[n].slider_max for n in keys])
-        self.n_keys = len(keys)
+        pairs, gain, offset = split_mapping(mapping, len(keys))
+        last = {j: i for i, j in pairs}                           # as copy_weights: a later pair wins
+        self.cols = sorted(last)
+        self.src = np.array([last[j] for j in self.cols], dtype=np.int64)
+        self.gain, self.offset = gain[self.cols], offset[self.cols]
+        self.lo = np.array([key.key_blocks[keys[j]].slider_min for j in self.cols])
+        self.hi = np.array([key.key_blocks[keys[j]].slider_max for j in self.cols])
         used = [keys[j] for j in self.cols]
         rows = shape_key_targets(mesh_obj, used, np.vstack([np.zeros(len(used)), np.eye(len(used))]), idx)
         self.base = rows[0]
         self.deltas = (rows[1:] - rows[0]).reshape(len(used), -1)             # (k, 3p)
 
     def __call__(self, weights) -> np.ndarray:
-        w = copy_weights(np.asarray(weights, np.float64)[None], self.pairs, self.n_keys, self.gain, self.offset,
-                         self.lo, self.hi)[0, self.cols]
+        """Target points (p, 3) of source weights (n_source,): :func:`core.retarget.copy_weights` (gain, offset,
+        slider ranges) on the mapped keys, then the keys' model."""
+        w = np.clip(self.gain * np.asarray(weights, np.float64)[self.src] + self.offset, self.lo, self.hi)
         return self.base + (w @ self.deltas).reshape(self.base.shape)
 
 
@@ -209,7 +217,7 @@ def _budget(ev: RigEvaluator, c0) -> int:
         ev.evaluate(x if k % 2 == 0 else c)
         times.append(time.perf_counter() - t0)
     ms = max(float(np.median(times)) * 1e3, 1e-3)
-    return int(np.clip(LIVE_EVAL_MS // ms, 1, MAX_BUDGET))
+    return int(np.clip(LIVE_EVAL_MS // ms - 1, 1, MAX_BUDGET))
 
 
 def build_rig_pipeline(scene, settings, target, budget: int | None = None) -> RigLivePipeline:
@@ -252,7 +260,7 @@ def build_rig_pipeline(scene, settings, target, budget: int | None = None) -> Ri
     s, d = ev.controls.scale, ev.diagonal
     solver = LiveRigSolver(c0, P0, J0, lo=lo, hi=hi, scale=s, steps=ev.steps,
                            rest=np.clip(rest_controls(controls), lo, hi), mu=REG * ridge_unit(J0, s),
-                           pin_tol=PIN_TOL_REL * d, xtol=XTOL_REL * d, budget=n_budget)
+                           pin_tol=LIVE_PIN_TOL_REL * d, xtol=LIVE_XTOL_REL * d, budget=n_budget)
     smoothing = OneEuroFilter(settings.min_cutoff, settings.beta) if settings.smoothing else None
     return RigLivePipeline(target.name, ev, targets, solver, len(names), arm, bones, bool(settings.mirror), smoothing)
 

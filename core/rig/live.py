@@ -15,9 +15,11 @@ updates whatever the capture does:
   set, :func:`core.boxqp.active_set_dense`, SciPy's bounded least squares as fallback), verified by one rig
   evaluation and accepted only when the objective does not increase; every evaluation corrects the Jacobian by
   Broyden's rank-one update (:func:`core.rig.solve.broyden_update`);
-- evaluations left in the budget when the frame has converged short of every pin (the Gauss–Newton step moves no
-  pin by more than ``xtol``, or no step predicts a decrease) refresh the Jacobian's columns by forward
-  differences, a few per frame in turn, so the carried Jacobian never goes stale on a long stream.
+- when the frame has converged short of every pin (the Gauss–Newton step moves no pin by more than ``xtol``, or
+  no step predicts a decrease) with evaluations left in the budget, the Jacobian's columns are refreshed by
+  forward differences in turn: one per frame, or as many as the budget leaves when the Jacobian shows it is stale
+  (a trial was refused this frame, or no step predicts a decrease), so the carried Jacobian never goes stale
+  on a long stream.
 
 A frame is ``OK`` when every pin is within ``pin_tol``, when the Gauss–Newton step on the carried Jacobian would
 move no pin by more than ``xtol``, or when no bounded step predicts a decrease; it is ``NOT_CONVERGED`` when the
@@ -33,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import lsq_linear
 
+from ..blas_threads import single_threaded
 from ..boxqp import active_set_dense
 from ..errors import ErrorCode
 from ..result import Result, ShapeSpaceError, Status
@@ -83,11 +86,15 @@ def ridge_unit(J: np.ndarray, scale: ArrayLike) -> float:
 
 
 def _bounded_step(J, e, reg_w, c, ref, lam, D2, lo, hi):
-    """argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c."""
+    """argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c (the unconstrained minimiser
+    when it lies in the box, else the dense active set, else SciPy's bounded least squares)."""
     H = J.T @ J + np.diag(reg_w + lam * D2)
     g = -(J.T @ e) - reg_w * (c - ref)
     dlo, dhi = lo - c, hi - c
     try:
+        d = np.linalg.solve(H, g)
+        if np.all((d >= dlo) & (d <= dhi)):
+            return d
         d, _ = active_set_dense(H, g, dlo, dhi, np.clip(np.zeros_like(c), dlo, dhi),
                                 np.zeros(c.size, bool), np.zeros(c.size, bool))
     except np.linalg.LinAlgError:
@@ -177,7 +184,8 @@ class LiveRigSolver:
         d_gn = _bounded_step(J, e, self.reg_w, c, self.ref, 1e-9, D2, self.lo, self.hi)
         if self.xtol > 0 and np.max(np.linalg.norm((J @ d_gn).reshape(-1, 3), axis=1)) <= self.xtol:
             return "the Gauss–Newton step moves no pin by more than xtol", None
-        d = _bounded_step(J, e, self.reg_w, c, self.ref, self.lam, D2, self.lo, self.hi)
+        d = d_gn if self.lam <= 1e-9 else _bounded_step(J, e, self.reg_w, c, self.ref, self.lam, D2, self.lo,
+                                                         self.hi)
         r = e + J @ d
         pred = f - float(r @ r + np.sum(self.reg_w * (c + d - self.ref) ** 2))
         if not np.any(d) or pred <= 1e-12 * f:
@@ -226,14 +234,15 @@ class LiveRigSolver:
                                   ErrorCode.NON_FINITE)
         saved = (self.c, self.P, self.J.copy(), self.lam, self.cursor)
         try:
-            return self._frame(evaluate, t)
+            with single_threaded():          # small dense blocks: BLAS threads would only spin (core.blas_threads)
+                return self._frame(evaluate, t)
         except BaseException:
             self.c, self.P, self.J, self.lam, self.cursor = saved
             raise
 
     def _frame(self, evaluate, t) -> LiveRigFrame:
         e, f = self.objective(self.P, self.c, t)
-        used, trials, last, reason = 0, 0, None, ""
+        used, trials, last, reason, refused = 0, 0, None, "", False
         while True:
             reason, trial = self._converged(t, e, f)
             if reason or used >= self.budget:
@@ -250,10 +259,12 @@ class LiveRigSolver:
                 self.lam = self.lam / 3.0 if rho > 0.75 else (self.lam * 2.0 if rho < 0.25 else self.lam)
             else:
                 self.lam = min(self.lam * 4.0, 1e12)
+                refused = True
         refreshed = 0
         if reason and reason != "every pin within tolerance" and used < self.budget:
-            refreshed = min(self.budget - used, self.c.size)
-            last = self._refresh(evaluate, refreshed) if refreshed else last
+            stale = refused or reason == "no bounded step predicts a decrease"
+            refreshed = min(self.budget - used if stale else 1, self.c.size)
+            last = self._refresh(evaluate, refreshed)
             used += refreshed
         self.lam = max(self.lam, 1e-12)
         errs = np.linalg.norm(self.P - t, axis=1)
