@@ -8,7 +8,8 @@ completes, and writes the newest frame's solution to the rig.
 
 Module state is one explicit object, :data:`RUNTIME` (a :class:`LiveRuntime`):
 the running session, if any, and the last status message.  It holds names and
-numbers, never Blender datablocks; the target is looked up by name every tick
+numbers, never Blender datablocks (except the bound channels of a rig solved onto
+its controls, :mod:`bridge.rig.live`, checked every frame); the target is looked up by name every tick
 (undo-safe), and a timer that finds it deleted stops the session with a
 message.  :func:`shutdown` (add-on unregister, a new file being opened) stops
 everything: recording finished (the take so far kept), socket closed, thread

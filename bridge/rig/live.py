@@ -124,8 +124,12 @@ class _Targets:
 
 
 class RigLivePipeline:
-    """What one live frame goes through onto a rig's controls (module doc); names and numbers between frames
-    except the open evaluator (closed with the session; it never restores: the streamed pose stays)."""
+    """What one live frame goes through onto a rig's controls (module doc).
+
+    Unlike the slider pipeline it keeps the open evaluator (its channel bindings) between frames: every frame
+    first checks, by name and datablock address, that the face and the rig's objects are still the ones bound
+    (deleted, or replaced by an undo: the session stops with that message rather than touch a stale datablock).
+    The evaluator is never restored: when the session stops the streamed pose stays, as on the sliders."""
 
     method = METHOD
 
@@ -135,7 +139,8 @@ class RigLivePipeline:
         self.n_source, self.armature, self.bones, self.mirror = n_source, armature, bones, mirror
         self.smoothing, self.neutral = smoothing, None
         self.controls = ev.controls
-        self.owners = sorted({b.object.name for b in ev.bindings})
+        self.owners = {b.object.name: b.object.as_pointer() for b in ev.bindings}
+        self.owners[target] = ev.mesh_obj.as_pointer()
         self.slider_names = []
         self.frames = self.budget_hits = 0
         self.evaluations = deque(maxlen=_TIMINGS)
@@ -156,11 +161,13 @@ class RigLivePipeline:
             self.smoothing.reset()
 
     def _alive(self) -> str:
-        if bpy.data.objects.get(self.target) is None:
-            return f"the target {self.target!r} was deleted"
-        for name in self.owners:
-            if bpy.data.objects.get(name) is None:
-                return f"the rig {name!r} was deleted"
+        for name, pointer in self.owners.items():
+            ob = bpy.data.objects.get(name)
+            what = "target" if name == self.target else "rig"
+            if ob is None:
+                return f"the {what} {name!r} was deleted"
+            if ob.as_pointer() != pointer:
+                return f"the {what} {name!r} was replaced (undo?): press Start again"
         return ""
 
     def solve(self, vector: np.ndarray) -> tuple:
@@ -175,7 +182,7 @@ class RigLivePipeline:
         self.evaluations.append(frame.evaluations)
         self.last = frame
         if frame.last_evaluated is not None and not np.array_equal(frame.last_evaluated, frame.value):
-            self.ev._write(frame.value)                   # the rig shows the accepted controls, not a probe
+            _write(self.ev.bindings, frame.value)         # the rig shows the accepted controls, not a probe
         return frame.value, bone_values(vector[n:n + 9], self.bones, self.mirror)
 
     def write(self, controls: np.ndarray, bones: dict) -> str:
@@ -184,7 +191,7 @@ class RigLivePipeline:
         if why:
             return why
         if self.last is None or not np.array_equal(controls, self.last.value):
-            self.ev._write(controls)
+            _write(self.ev.bindings, controls)
         if bones:
             arm = bpy.data.objects.get(self.armature)
             if arm is None or arm.type != "ARMATURE":
@@ -203,6 +210,11 @@ class RigLivePipeline:
 
     def take_recorder(self, pipeline, name: str, meta: dict):
         return RigTakeRecorder(pipeline, name, meta)
+
+
+def _write(bindings, values) -> None:
+    for b, v in zip(bindings, values):
+        b.set(v)
 
 
 def _budget(ev: RigEvaluator, c0) -> int:

@@ -179,6 +179,7 @@ def test_refusals_name_the_culprit_and_change_nothing():
     rig = rigs.driver_rig(_head())
     configure(rig.mesh, method="CONTROLS")
     n_actions = len(bpy.data.actions)
+    assert not bpy.ops.shapespace.live_start.poll()
     with pytest.raises(ShapeSpaceError, match=repr(rig.mesh.name)):
         session.start(bpy.context.scene, rig.mesh)
     assert session.RUNTIME.session is None and len(bpy.data.actions) == n_actions
@@ -200,6 +201,6 @@ def test_refusals_name_the_culprit_and_change_nothing():
     assert keyed >= 1
     bpy.data.objects.remove(rig.armature)
     replay_and_drain(packets[5:], port)
-    assert session.RUNTIME.session is None and "Controls" in session.RUNTIME.message
+    assert session.RUNTIME.session is None and "the rig 'Controls' was deleted" in session.RUNTIME.message
     for fc in actions.action_fcurves(bpy.data.actions[take]):
         assert len(fc.keyframe_points) == keyed
