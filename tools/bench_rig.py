@@ -52,7 +52,10 @@ Per-frame retarget onto the rig's controls (``bridge/rig/take.py``), for ``hybri
   the depsgraph evaluated (``view_layer.update``).  Goal p99 ≤ 16.7 ms.  ``rig_live_cpu_ms_p99_<rig>`` the same
   in the main thread's CPU time; ``rig_live_budget_<rig>`` the evaluations per frame fixed at Start,
   ``rig_live_evals_per_frame_<rig>`` those used, ``rig_live_budget_hit_frac_<rig>`` the fraction of frames that ran
-  out of budget (the rig cannot follow the capture exactly: Rigify's bones are not the head's ARKit keys).
+  out of budget (the rig cannot follow the capture exactly: Rigify's bones are not the head's ARKit keys),
+  ``rig_live_redisplay_frac_<rig>`` the fraction whose written controls Blender evaluated once more (the last
+  evaluation was a refused trial or a Jacobian column refresh).  Wall time is at the mercy of the machine's load:
+  compare with ``rig_drag_reeval_ms_median_<rig>`` (Blender's own re-evaluation, same run).
 - ``rig_retarget_s_1640_rigify``: wall time of retargeting (solve, key reduction, keying) a 1,640-frame take of
   the Rigify face's own smooth curves.  Goal ≤ 60 s.  With ``--quick`` 160 frames are retargeted and the time
   scaled by 1640/160 (``rig_retarget_frames_measured_rigify`` and ``rig_retarget_s_1640_rigify_note`` say so).
@@ -265,7 +268,8 @@ def _measure_live(name: str, build, reps: int) -> dict:
             f"rig_live_cpu_ms_p99_{name}": float(np.percentile(cpu, 99)),
             f"rig_live_budget_{name}": pipe.budget,
             f"rig_live_evals_per_frame_{name}": float(np.mean(pipe.evaluations)),
-            f"rig_live_budget_hit_frac_{name}": pipe.budget_hits / max(pipe.frames, 1)}
+            f"rig_live_budget_hit_frac_{name}": pipe.budget_hits / max(pipe.frames, 1),
+            f"rig_live_redisplay_frac_{name}": pipe.redisplays / max(pipe.frames, 1)}
 
 
 def run(quick: bool = False) -> dict:

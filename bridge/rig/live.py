@@ -142,7 +142,7 @@ class RigLivePipeline:
         self.owners = {b.object.name: b.object.as_pointer() for b in ev.bindings}
         self.owners[target] = ev.mesh_obj.as_pointer()
         self.slider_names = []
-        self.frames = self.budget_hits = 0
+        self.frames = self.budget_hits = self.redisplays = 0
         self.evaluations = deque(maxlen=_TIMINGS)
         self.last = None
 
@@ -183,6 +183,7 @@ class RigLivePipeline:
         self.last = frame
         if frame.last_evaluated is not None and not np.array_equal(frame.last_evaluated, frame.value):
             _write(self.ev.bindings, frame.value)         # the rig shows the accepted controls, not a probe
+            self.redisplays += 1                          # … which the viewport's evaluation then draws
         return frame.value, bone_values(vector[n:n + 9], self.bones, self.mirror)
 
     def write(self, controls: np.ndarray, bones: dict) -> str:
@@ -201,6 +202,13 @@ class RigLivePipeline:
                 if pb is not None:
                     setattr(pb, b.channel[0], bones[b.name])
         return ""
+
+    @property
+    def stats(self) -> dict:
+        """Counters: frames, budget hits, frames whose written controls the viewport had to evaluate again
+        (``redisplays``: the last evaluation was a refused trial or a column refresh), mean evaluations."""
+        return {"frames": self.frames, "budget_hits": self.budget_hits, "redisplays": self.redisplays,
+                "evaluations_mean": float(np.mean(self.evaluations)) if self.evaluations else 0.0}
 
     def counters(self) -> str:
         """One line for the Live panel: budget, evaluations per frame, frames that ran out of budget."""

@@ -15,11 +15,12 @@ updates whatever the capture does:
   set, :func:`core.boxqp.active_set_dense`, SciPy's bounded least squares as fallback), verified by one rig
   evaluation and accepted only when the objective does not increase; every evaluation corrects the Jacobian by
   Broyden's rank-one update (:func:`core.rig.solve.broyden_update`);
-- when the frame has converged short of every pin (the Gauss–Newton step moves no pin by more than ``xtol``, or
-  no step predicts a decrease) with evaluations left in the budget, the Jacobian's columns are refreshed by
-  forward differences in turn: one per frame, or as many as the budget leaves when the Jacobian shows it is stale
-  (a trial was refused this frame, or no step predicts a decrease), so the carried Jacobian never goes stale
-  on a long stream.
+- when a frame has converged short of every pin (the Gauss–Newton step moves no pin by more than ``xtol``, or
+  no step predicts a decrease), the next frame starts by refreshing the Jacobian's columns at these controls by
+  forward differences, in turn: one, or all the budget but one evaluation when the Jacobian shows it is stale (a
+  trial was refused, or no step predicts a decrease; with a budget of one: one column, only then), so the
+  carried Jacobian never goes stale on a long stream, and the frame's last evaluation is usually its accepted
+  trial (the rig already shows what is written).
 
 A frame is ``OK`` when every pin is within ``pin_tol``, when the Gauss–Newton step on the carried Jacobian would
 move no pin by more than ``xtol``, or when no bounded step predicts a decrease; it is ``NOT_CONVERGED`` when the
@@ -60,7 +61,7 @@ class LiveRigFrame(Result):
     trials : int
         Trial steps evaluated.
     refreshed : int
-        Jacobian columns refreshed by finite differences this frame.
+        Jacobian columns refreshed by finite differences this frame (at its start, at the previous controls).
     budget_hit : bool
         The budget ran out before the frame converged (``status`` NOT_CONVERGED).
     last_evaluated : ndarray (n,) or None
@@ -162,6 +163,7 @@ class LiveRigSolver:
         self.pin_tol, self.xtol, self.budget = float(pin_tol), float(xtol), int(budget)
         self.lam = 1e-3
         self.cursor = 0                       # the next Jacobian column to refresh
+        self.pending = 0                      # columns to refresh at the start of the next frame
 
     def objective(self, P: np.ndarray, c: np.ndarray, t: np.ndarray) -> tuple:
         """``(residual (3p,), f)`` of points ``P`` (p, 3) at controls ``c`` (n,) for targets ``t`` (p, 3)."""
@@ -232,17 +234,22 @@ class LiveRigSolver:
         if not np.all(np.isfinite(t)):
             raise ShapeSpaceError(f"targets: point {int(np.flatnonzero(~np.isfinite(t).all(1))[0])} is not finite",
                                   ErrorCode.NON_FINITE)
-        saved = (self.c, self.P, self.J.copy(), self.lam, self.cursor)
+        saved = (self.c, self.P, self.J.copy(), self.lam, self.cursor, self.pending)
         try:
             with single_threaded():          # small dense blocks: BLAS threads would only spin (core.blas_threads)
                 return self._frame(evaluate, t)
         except BaseException:
-            self.c, self.P, self.J, self.lam, self.cursor = saved
+            self.c, self.P, self.J, self.lam, self.cursor, self.pending = saved
             raise
 
     def _frame(self, evaluate, t) -> LiveRigFrame:
         e, f = self.objective(self.P, self.c, t)
         used, trials, last, reason, refused = 0, 0, None, "", False
+        refreshed = min(self.pending, self.budget - 1) if self.budget > 1 else self.pending
+        if refreshed:                        # the columns the last frame asked for, at its controls (still these)
+            last = self._refresh(evaluate, refreshed)
+            used += refreshed
+        self.pending = 0
         while True:
             reason, trial = self._converged(t, e, f)
             if reason or used >= self.budget:
@@ -260,12 +267,9 @@ class LiveRigSolver:
             else:
                 self.lam = min(self.lam * 4.0, 1e12)
                 refused = True
-        refreshed = 0
-        if reason and reason != "every pin within tolerance" and used < self.budget:
+        if reason and reason != "every pin within tolerance":
             stale = refused or reason == "no bounded step predicts a decrease"
-            refreshed = min(self.budget - used if stale else 1, self.c.size)
-            last = self._refresh(evaluate, refreshed)
-            used += refreshed
+            self.pending = min(self.c.size, self.budget - 1 if stale else 1) if self.budget > 1 else int(stale)
         self.lam = max(self.lam, 1e-12)
         errs = np.linalg.norm(self.P - t, axis=1)
         hit = not reason
