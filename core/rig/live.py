@@ -194,10 +194,10 @@ class LiveRigSolver:
             return "no bounded step predicts a decrease", None
         return "", (d, pred)
 
-    def _refresh(self, evaluate, count: int) -> np.ndarray | None:
+    def _refresh(self, evaluate, count: int) -> tuple:
         """Refresh ``count`` Jacobian columns (in turn) by forward differences at the current controls; returns
-        the controls evaluated last (None when none)."""
-        last = None
+        (the controls evaluated last or None, the evaluations made: a held channel's column needs none)."""
+        last, made = None, 0
         n = self.c.size
         for _ in range(min(count, n)):
             i = self.cursor
@@ -209,9 +209,9 @@ class LiveRigSolver:
             x = self.c.copy()
             x[i] += step
             Pi = self._checked(evaluate, x)
-            last = x
+            last, made = x, made + 1
             self.J[:, i] = (Pi - self.P).reshape(-1) / (x[i] - self.c[i])
-        return last
+        return last, made
 
     def step(self, evaluate: Callable, targets: ArrayLike) -> LiveRigFrame:
         """One frame (module doc): move the controls toward ``targets`` (p, 3) within the budget.
@@ -247,8 +247,7 @@ class LiveRigSolver:
         used, trials, last, reason, refused = 0, 0, None, "", False
         refreshed = min(self.pending, self.budget - 1) if self.budget > 1 else self.pending
         if refreshed:                        # the columns the last frame asked for, at its controls (still these)
-            last = self._refresh(evaluate, refreshed)
-            used += refreshed
+            last, used = self._refresh(evaluate, refreshed)
         self.pending = 0
         while True:
             reason, trial = self._converged(t, e, f)
