@@ -36,6 +36,7 @@ from dataclasses import replace
 import bpy
 import numpy as np
 
+from ...core.blas_threads import single_threaded
 from ...core.errors import ErrorCode
 from ...core.headpose import bone_values
 from ...core.live import FACECAP_52, LLF_BLENDSHAPES, Neutral, OneEuroFilter, calibrate
@@ -65,9 +66,10 @@ MAX_BUDGET = 6
 #: Ridge toward the rest controls (as the offline capture route, :func:`bridge.rig.capture.retarget_capture_onto_rig`).
 REG = 1e-6
 #: Stopping distances of a live frame, as fractions of the evaluated diagonal: every pin within ``LIVE_PIN_TOL_REL``,
-#: or the Gauss–Newton step moving no pin by more than ``LIVE_XTOL_REL`` (a hundredth of the 1e-3 recovery goal:
-#: 3 µm on a 30 cm head; the offline take goes on to 1e-6, which a stream that changes every frame cannot use).
-LIVE_PIN_TOL_REL, LIVE_XTOL_REL = 1e-5, 1e-5
+#: or the Gauss–Newton step moving no pin by more than ``LIVE_XTOL_REL`` (a tenth of the 1e-3 recovery goal, 0.03 mm
+#: on a 30 cm head, as a drag's mouse move, :data:`bridge.rig.drag.DRAG_XTOL_REL`: the next frame goes on from there;
+#: the offline take goes on to 1e-6).
+LIVE_PIN_TOL_REL, LIVE_XTOL_REL = 1e-5, 1e-4
 _SOURCE_NAMES = {"LLF": LLF_BLENDSHAPES, "FACECAP": FACECAP_52, "IFACIALMOCAP": FACECAP_52}
 _TIMINGS = 600
 
@@ -176,7 +178,8 @@ class RigLivePipeline:
         if why:
             raise ShapeSpaceError(why, ErrorCode.MISSING_TARGET)
         n = self.n_source
-        frame = self.solver.step(self.ev.evaluate, self.targets(vector[:n]))
+        with single_threaded():              # small dense products: BLAS threads would only spin (core.blas_threads)
+            frame = self.solver.step(self.ev.evaluate, self.targets(vector[:n]))
         self.frames += 1
         self.budget_hits += int(frame.budget_hit)
         self.evaluations.append(frame.evaluations)
