@@ -4,6 +4,7 @@ import math
 import bpy
 
 from ..bridge import live
+from ..bridge.rig import live as rig_live
 from .base import ShapeSpaceSidebar
 
 
@@ -51,9 +52,19 @@ class SHAPESPACE_PT_live(ShapeSpaceSidebar, bpy.types.Panel):
             col.prop(st, "learn_csv")
             col.prop(st, "learn_action")
             col.prop(st, "key_pose_action")
+        _draw_controls_hint(col, st, context.active_object)
         _draw_bones(layout, st, state.running)
         _draw_status(layout, state)
         _draw_takes(layout, st, state)
+
+
+def _draw_controls_hint(col, st, active):
+    """Offer Solve onto Controls when the target has a stored control set; say what is missing otherwise."""
+    has = rig_live.has_controls(st.target or active)
+    if st.method == rig_live.METHOD and not has:
+        col.label(text="The target has no stored control set (Any Rig ▸ Controls)", icon="ERROR")
+    elif has and st.method != rig_live.METHOD:
+        col.label(text="The target has a control set: Solve onto Controls drives it", icon="INFO")
 
 
 def _draw_bones(layout, st, running):
@@ -94,6 +105,8 @@ def _draw_status(layout, state):
     if not math.isnan(state.work_ms_p50):
         col.label(text=f"solve+write {state.work_ms_p50:.2f} ms (p99 {state.work_ms_p99:.2f}) · "
                        f"latency {state.latency_ms_p50:.1f} ms")
+    if state.solver:
+        col.label(text=state.solver, icon="ERROR" if state.budget_hits else "CON_ARMATURE")
     if state.calibrated:
         col.label(text="calibrated", icon="CHECKMARK")
 

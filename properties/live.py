@@ -12,6 +12,8 @@ LIVE_METHODS = [
     ("LEARNED", "Learned", "The cloning matrix learnt from the target posed at key poses of a recorded take"),
     ("SOLVE", "Solve", "Fit the target's sliders to the capture on a template ARKit head, carried across by "
      "landmarks (targets with other shapes or names)"),
+    ("CONTROLS", "Solve onto Controls", "Solve the capture, played through the face's own shape keys, onto the "
+     "face's stored control set (bones, drivers, properties, sliders) frame by frame within a budget"),
 ]
 # No Python callbacks (update=, poll=) in this PropertyGroup: with them, Blender 4.2 as a Python module
 # crashes at exit.  The object pointers are type-checked when the receiver starts (bridge.live.rig), and port 0

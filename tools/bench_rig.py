@@ -45,6 +45,19 @@ Per-frame retarget onto the rig's controls (``bridge/rig/take.py``), for ``hybri
   depsgraph frame by frame and the RMS distance of the whole evaluated surface to the take's, over every vertex
   and frame, divided by the diagonal.  Goal ≤ 1e-3.  ``rig_retarget_evals_per_frame_<rig>``: rig evaluations per
   frame of that retarget.
+- ``rig_live_total_ms_p50_<rig>`` / ``rig_live_total_ms_p99_<rig>`` (``hybrid``, ``driver``, ``rigify``): live
+  solve-through onto the rig's stored controls (``bridge/rig/live.py``), end to end per packet as
+  ``tools/bench_live.py`` measures it: the shipped Live Link Face recording (328 packets, repeated) decoded,
+  calibrated, played through the face's keys, solved onto the controls within the per-frame budget, written, and
+  the depsgraph evaluated (``view_layer.update``).  Goal p99 ≤ 16.7 ms.  ``rig_live_cpu_ms_p99_<rig>`` the same
+  in the main thread's CPU time; ``rig_live_budget_<rig>`` the evaluations per frame fixed at Start,
+  ``rig_live_evals_per_frame_<rig>`` those used, ``rig_live_budget_hit_frac_<rig>`` the fraction of frames that ran
+  out of budget (the rig cannot follow the capture exactly: Rigify's bones are not the head's ARKit keys),
+  ``rig_live_redisplay_frac_<rig>`` the fraction whose written controls Blender evaluated once more (the last
+  evaluation was a refused trial or a Jacobian column refresh).  Wall time is at the mercy of the machine's load:
+  ``rig_live_reeval_ms_p50_<rig>`` / ``rig_live_reeval_ms_p99_<rig>`` are Blender's own re-evaluation of each
+  packet's control change measured in the same loop (the previous controls written and evaluated untimed, then the
+  new ones written and the depsgraph updated, timed) — the floor of any frame that moves the rig.
 - ``rig_retarget_s_1640_rigify``: wall time of retargeting (solve, key reduction, keying) a 1,640-frame take of
   the Rigify face's own smooth curves.  Goal ≤ 60 s.  With ``--quick`` 160 frames are retargeted and the time
   scaled by 1640/160 (``rig_retarget_frames_measured_rigify`` and ``rig_retarget_s_1640_rigify_note`` say so).
@@ -62,6 +75,7 @@ from bench_support import shared_data
 
 FACECAP = "facecap/facecap_decoded.glb"
 ICT = "ict_facekit/ict_facekit_expressions.glb"
+LIVE_CSV = os.path.join(env.ROOT, "assets", "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
 
 
 def _rigs(quick: bool) -> list:
@@ -223,6 +237,60 @@ def _measure_long_take(build, quick: bool) -> dict:
     return out
 
 
+def _measure_live(name: str, build, reps: int) -> dict:
+    """``rig_live_*_<rig>`` (module doc)."""
+    from types import SimpleNamespace
+
+    import bpy
+
+    import live_replay
+    from shapespace.bridge import rig as brig
+    from shapespace.bridge.rig import live as rig_live
+    from shapespace.bridge.rig import stored
+    from shapespace.core.live import decode_llf
+    rig = build()
+    stored.add_entries_of(rig.mesh, rig.armature.name, rig.controls.channels)
+    settings = SimpleNamespace(source="LLF", armature=None, smoothing=False, mirror=False)
+    pipe = rig_live.build_rig_pipeline(bpy.context.scene, settings, rig.mesh)
+    bindings = brig.bind(rig.controls)
+
+    def write(c):
+        for b, v in zip(bindings, c):
+            b.set(v)
+
+    packets = [d for _, d in live_replay.llf_packets(LIVE_CSV)]
+    layer = bpy.context.view_layer
+    total, cpu, reeval = [], [], []
+    print(f"bench rig: {name} live, {reps} × {len(packets)} packets", file=sys.stderr)
+    for _ in range(reps):
+        for data in packets:
+            before = brig.read_controls(rig.controls)
+            c0, t0 = time.thread_time(), time.perf_counter()
+            frame = decode_llf(data, time.monotonic())
+            why = pipe.write(*pipe.solve(pipe.process(frame.vector(), frame.time)))
+            layer.update()
+            t1, c1 = time.perf_counter(), time.thread_time()
+            assert not why, why
+            total.append((t1 - t0) * 1e3)
+            cpu.append((c1 - c0) * 1e3)
+            after = brig.read_controls(rig.controls)          # Blender's own re-evaluation of the same change
+            write(before)
+            layer.update()
+            write(after)
+            t2 = time.perf_counter()
+            layer.update()
+            reeval.append((time.perf_counter() - t2) * 1e3)
+    return {f"rig_live_total_ms_p50_{name}": float(np.percentile(total, 50)),
+            f"rig_live_total_ms_p99_{name}": float(np.percentile(total, 99)),
+            f"rig_live_cpu_ms_p99_{name}": float(np.percentile(cpu, 99)),
+            f"rig_live_reeval_ms_p50_{name}": float(np.percentile(reeval, 50)),
+            f"rig_live_reeval_ms_p99_{name}": float(np.percentile(reeval, 99)),
+            f"rig_live_budget_{name}": pipe.budget,
+            f"rig_live_evals_per_frame_{name}": float(np.mean(pipe.evaluations)),
+            f"rig_live_budget_hit_frac_{name}": pipe.budget_hits / max(pipe.frames, 1),
+            f"rig_live_redisplay_frac_{name}": pipe.redisplays / max(pipe.frames, 1)}
+
+
 def run(quick: bool = False) -> dict:
     import package
     sys.path.insert(0, os.path.join(env.ROOT, "tests"))
@@ -240,6 +308,9 @@ def run(quick: bool = False) -> dict:
             metrics.update(_measure_take(name, builders[name], 30 if quick else 40))
     if "rigify" in builders:
         metrics.update(_measure_long_take(builders["rigify"], quick))
+    for name in ("hybrid", "driver", "rigify"):
+        if name in builders:
+            metrics.update(_measure_live(name, builders[name], 1 if quick else 3))
     errs = [v for k, v in metrics.items() if k.startswith("rig_drag_pin_err_max_")]
     metrics["rig_drag_pin_err_goal_met"] = bool(errs) and max(errs) <= 1e-3
     return metrics

@@ -8,7 +8,8 @@ completes, and writes the newest frame's solution to the rig.
 
 Module state is one explicit object, :data:`RUNTIME` (a :class:`LiveRuntime`):
 the running session, if any, and the last status message.  It holds names and
-numbers, never Blender datablocks; the target is looked up by name every tick
+numbers, never Blender datablocks (except the bound channels of a rig solved onto
+its controls, :mod:`bridge.rig.live`, checked every frame); the target is looked up by name every tick
 (undo-safe), and a timer that finds it deleted stops the session with a
 message.  :func:`shutdown` (add-on unregister, a new file being opened) stops
 everything: recording finished (the take so far kept), socket closed, thread
@@ -27,6 +28,7 @@ from bpy.app.handlers import persistent
 from ...core.errors import ErrorCode
 from ...core.live import SceneResampler, format_timecode
 from ...core.result import ShapeSpaceError
+from ..rig import live as rig_live
 from . import recording
 from .facecap import facecap_decoder
 from .receivers import Mailbox, UdpReceiver, ifacialmocap_decoder, llf_decoder
@@ -79,6 +81,10 @@ class LiveStatus:
         Datagrams refused for a weight or angle beyond the plausibility limits (decoded, but absurd).
     error : str
         Why the last datagram was refused ('' for none).
+    budget_hits : int
+        Solving onto a rig's controls: frames whose budget of rig evaluations ran out before they converged.
+    solver : str
+        Solving onto a rig's controls: budget, evaluations per frame and budget hits in words ('' otherwise).
     """
 
     running: bool = False
@@ -102,6 +108,8 @@ class LiveStatus:
     calibrated: bool = False
     implausible: int = 0
     error: str = ""
+    budget_hits: int = 0
+    solver: str = ""
 
 
 class _Session:
@@ -210,7 +218,8 @@ class _Session:
     def _open_take(self, rate: float, start_frame: float) -> str:
         meta = dict(source=self.label, target=self.pipeline.target, method=self.pipeline.method,
                     start_timecode="", start_seconds=0.0, scene_fps=rate, start_frame=start_frame)
-        self.recorder = recording.TakeRecorder(self.pipeline, recording.unique_take_name(self.take_base), meta)
+        make = getattr(self.pipeline, "take_recorder", recording.TakeRecorder)   # a rig's controls: its own keys
+        self.recorder = make(self.pipeline, recording.unique_take_name(self.take_base), meta)
         self.resampler = SceneResampler(rate, start_frame)
         return self.recorder.action
 
@@ -306,7 +315,8 @@ def start(scene, target) -> LiveStatus:
                               getattr(bpy.app, "online_access_override", False))
     if refusal:
         raise ShapeSpaceError(refusal, ErrorCode.NETWORK)
-    pipeline = build_pipeline(scene, settings, target)
+    build = rig_live.build_rig_pipeline if settings.method == rig_live.METHOD else build_pipeline
+    pipeline = build(scene, settings, target)
     mailbox = Mailbox()
     port = settings.port or DEFAULT_PORTS[settings.source]
     receiver = UdpReceiver(address, port, make_decoder(), mailbox, label)
@@ -388,7 +398,9 @@ def status() -> LiveStatus:
                       snap["frames"], snap["malformed"], snap["late"], snap["dropped"] + snap["overflow"], s.skipped,
                       _percentile(s.work, 50), _percentile(s.work, 99), _percentile(s.latency, 50),
                       rec is not None, rec.action if rec else "", rec.frames if rec else 0,
-                      s.pipeline.neutral is not None, snap["implausible"], snap["error"])
+                      s.pipeline.neutral is not None, snap["implausible"], snap["error"],
+                      getattr(s.pipeline, "budget_hits", 0), s.pipeline.counters() if hasattr(s.pipeline, "counters")
+                      else "")
 
 
 def shutdown(message: str = "stopped") -> None:

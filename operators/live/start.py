@@ -1,6 +1,7 @@
 import bpy
 
 from ...bridge import live
+from ...bridge.rig import live as rig_live
 from ..reporting import FAILED, attempt
 
 
@@ -20,6 +21,9 @@ class SHAPESPACE_OT_live_start(bpy.types.Operator):
         ob = st.target or context.active_object
         if ob is None or ob.type != "MESH" or ob.data.shape_keys is None:
             cls.poll_message_set("Choose a target mesh with shape keys (or make one active)")
+            return False
+        if st.method == "CONTROLS" and not rig_live.has_controls(ob):
+            cls.poll_message_set(f"'{ob.name}' has no stored control set: add its controls first (Any Rig panel)")
             return False
         if ob.mode == "EDIT":
             cls.poll_message_set(f"'{ob.name}' is in Edit Mode: leave Edit Mode first")
