@@ -11,7 +11,9 @@ keyed.
 The Jacobian is by forward finite differences: one channel moved, one depsgraph update, one read per channel
 (cost: n evaluations of the whole rig — on a production rig, n × the viewport's own re-evaluation time), except
 the shape-key slider columns when only linear-blend Armature modifiers deform after the shape keys and nothing
-reads the sliders back: those are exact and cost no evaluation (:mod:`bridge.rig.analytic`).
+reads the sliders back, and the bone channels' columns when one linear-blend Armature modifier deforms the mesh
+through bones with no constraints but local Limit ones and no driver reads or drives the armature: those are
+exact and cost no evaluation (:mod:`bridge.rig.analytic`).
 
 Refusals (:class:`~core.result.ShapeSpaceError`, one line naming the culprit), checked when the evaluator
 opens (:meth:`RigEvaluator.check`):
@@ -37,7 +39,7 @@ from ...core.errors import ErrorCode
 from ...core.progress import notify
 from ...core.result import ShapeSpaceError
 from ...core.rig import ChannelKind, ControlSet, RigSolveResult, solve_controls
-from .analytic import shape_key_columns
+from .analytic import bone_columns, shape_key_columns
 from .channels import bind
 
 __all__ = ["RigEvaluator", "apply_controls", "check_editable", "read_controls", "solve_pins"]
@@ -195,31 +197,34 @@ class RigEvaluator:
         """World-space evaluated positions of the vertices at ``indices`` (p, 3) for controls ``c`` (n,)."""
         return self.all_points(c)[self.indices]
 
-    def _analytic_columns(self):
-        """The slider columns' computer (:mod:`bridge.rig.analytic`), built at the first use; None when off."""
+    def _analytic_columns(self) -> list:
+        """The analytic columns' computers (:mod:`bridge.rig.analytic`: sliders, bones), built at the first use;
+        empty when off or when none applies (``analytic_reason`` says why)."""
         if self._columns is None:
             if self.use_analytic:
-                cols, self.analytic_reason = shape_key_columns(self.mesh_obj, self.controls, self.ids, self.indices)
+                keys, why_keys = shape_key_columns(self.mesh_obj, self.controls, self.ids, self.indices)
+                bones, why_bones = bone_columns(self.mesh_obj, self.controls, self.ids, self.indices)
+                self._columns = [c for c in (keys, bones) if c is not None]
+                self.analytic_reason = "; ".join(r for r in (why_keys, why_bones and f"bones: {why_bones}") if r)
             else:
-                cols, self.analytic_reason = None, "off"
-            self._columns = (cols,)
-        return self._columns[0]
+                self._columns, self.analytic_reason = [], "off"
+        return self._columns
 
     def jacobian(self, c, base=None) -> np.ndarray:
-        """Jacobian (3p, n) at ``c``: analytic slider columns where they apply (module doc), the others by
-        forward differences (one channel moved, one depsgraph update per channel)."""
+        """Jacobian (3p, n) at ``c``: analytic slider and bone columns where they apply (module doc), the others
+        by forward differences (one channel moved, one depsgraph update per channel)."""
         c = np.asarray(c, dtype=np.float64)
         lo, hi = self.controls.solve_bounds(self.c0)
         fast = self._analytic_columns()
-        if base is None or (fast is not None and not np.array_equal(self._at, c)):
+        if base is None or (fast and not np.array_equal(self._at, c)):
             p0 = self.evaluate(c).reshape(-1)           # the analytic columns need the rig evaluated at c
         else:
             p0 = np.asarray(base, np.float64).reshape(-1)
         J = np.zeros((p0.size, c.size))
         skip = set()
-        if fast is not None:
-            J[:, fast.columns] = fast()
-            skip = set(fast.columns)
+        for comp in fast:
+            J[:, comp.columns] = comp(p0.reshape(-1, 3))
+            skip.update(comp.columns)
         self._write(c)
         for i, b in enumerate(self.bindings):
             if i in skip:

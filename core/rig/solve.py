@@ -21,7 +21,8 @@ Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one up
 - A step is accepted only when the rig, evaluated again at the new controls, gives an objective that does
   not increase; otherwise ``λ`` grows.  When a step is refused or *stalls* (actual decrease below a quarter
   of the predicted one) on a Broyden-updated Jacobian, the Jacobian is recomputed at the current controls
-  before anything else.
+  before anything else — or, with ``defer_refresh``, the solve stops there (an interactive move keeps its
+  verified step and leaves the refresh to an idle moment or the release).
 
 Stopping: ``OK`` when every pin is within ``pin_tol`` of its target, or when, on a freshly computed Jacobian,
 the bounded Gauss–Newton step predicts a decrease below ``ftol`` × f (first-order stationarity on the box, up
@@ -30,8 +31,8 @@ by more than its finite-difference step (stationary to the resolution of the Jac
 below what the Jacobian can resolve), or — with ``xtol`` > 0 — when the bounded Gauss–Newton step on the current
 Jacobian, fresh or Broyden-updated, would move no pin by more than ``xtol`` (a take's frames, :mod:`.take`);
 ``NOT_CONVERGED`` (value: the best controls found, which never have a higher
-objective than the start) at the iteration limit or when no step decreases the objective although the model
-predicts one.
+objective than the start) at the iteration limit, when no step decreases the objective although the model
+predicts one, or where a deferred refresh stops it.
 """
 from __future__ import annotations
 
@@ -207,7 +208,8 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
                    steps: ArrayLike | None = None, weights: ArrayLike | None = None,
                    reference: ArrayLike | None = None, mu: float = 1e-6, pin_tol: float = 0.0,
                    ftol: float = 1e-10, max_iter: int = 50, first_jacobian: np.ndarray | None = None,
-                   first_points: np.ndarray | None = None, xtol: float = 0.0) -> RigSolveResult:
+                   first_points: np.ndarray | None = None, xtol: float = 0.0,
+                   defer_refresh: bool = False) -> RigSolveResult:
     """Controls that bring the pins to their targets (bounded, regularised Levenberg–Marquardt; module doc).
 
     Parameters
@@ -248,6 +250,13 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         Also stop (``OK``) when the bounded Gauss–Newton step on the current Jacobian, fresh or Broyden-updated,
         would move no pin by more than this distance (0: off).  A take solved frame after frame stops on it
         without recomputing the Jacobian every frame.
+    defer_refresh : bool
+        Never recompute a Broyden-updated Jacobian (``first_jacobian``) inside this solve: where the solve would
+        (a step on it is refused, stalls or predicts no decrease), it stops instead — ``NOT_CONVERGED`` with
+        ``diagnostics["jacobian_stale"]`` True, the value the last verified controls — and leaves the refresh to
+        the caller (a drag's next idle moment or its release, :mod:`bridge.rig.drag`).  A mouse move then costs
+        its verified step(s) and never ``n`` evaluations.  Without ``first_jacobian`` the first Jacobian is
+        still computed.
 
     Returns
     -------
@@ -262,6 +271,7 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
     if h.shape != c.shape or not np.all(np.isfinite(h) & (h > 0)):
         raise ShapeSpaceError(f"steps: expected {c.size} positive numbers", ErrorCode.RANGE)
     run = _LevenbergMarquardt(evaluate, jacobian, t, lo, hi, s, w, ref, mu, h)
+    run.defer = bool(defer_refresh)
     run.start(c, first_points, first_jacobian)
     status, message = Status.NOT_CONVERGED, ""
     while True:
@@ -292,6 +302,7 @@ class _LevenbergMarquardt:
         self.reg_w = mu * s * s
         self.evaluations = self.jacobians = 0
         self.lam, self.it = 1e-3, 0
+        self.defer, self.stale = False, False
 
     # ---------------------------------------------------------------- the rig
     def points(self, x):
@@ -321,6 +332,14 @@ class _LevenbergMarquardt:
 
     def refresh(self):
         self.J, self.fresh = self.jac(self.c, self.P), True
+
+    def stale_stop(self, why):
+        """Refresh the Broyden-updated Jacobian — or, deferring, the ``(status, message)`` that stops the run."""
+        if not self.defer:
+            self.refresh()
+            return None
+        self.stale = True
+        return Status.NOT_CONVERGED, f"Jacobian refresh deferred: {why} on the Broyden-updated Jacobian"
 
     # ---------------------------------------------------------------- the iteration
     def start(self, c, first_points, first_jacobian):
@@ -361,8 +380,7 @@ class _LevenbergMarquardt:
         pred = self.f - _model(self.J, self.e, self.reg_w, self.c, self.ref, d)
         if not np.any(d) or pred <= 0.0:
             if not self.fresh:
-                self.refresh()
-                return None
+                return self.stale_stop("the step predicts no decrease")
             if self.lam > 1e12:
                 return stalled
             self.lam *= 10.0
@@ -378,9 +396,9 @@ class _LevenbergMarquardt:
             self.fresh = False
             self.lam = self.lam / 3.0 if rho > 0.75 else (self.lam * 2.0 if rho < 0.25 else self.lam)
             if rho < 0.25 and not was_fresh:
-                self.refresh()
+                return self.stale_stop(f"a step gained {rho:.2g} of its prediction")
         elif not self.fresh:
-            self.refresh()
+            return self.stale_stop("a step was refused")
         elif np.all(np.abs(c_new - self.c) <= self.h):
             return Status.OK, "stationary to the resolution of the Jacobian"
         else:
@@ -396,4 +414,4 @@ class _LevenbergMarquardt:
                               pin_errors=errs, objective=self.f, objective_start=self.f_start,
                               evaluations=self.evaluations, jacobians=self.jacobians, jacobian=J,
                               diagnostics={"lambda": self.lam, "pin_error_max": float(errs.max()),
-                                           "objective_history": self.history})
+                                           "objective_history": self.history, "jacobian_stale": self.stale})
