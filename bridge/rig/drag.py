@@ -16,9 +16,10 @@ and the last Jacobian of the pins.
   so the pins land where the viewport draws them.  Only the first move computes a Jacobian (one evaluation
   per channel outside the analytic slider columns): when a later step stalls or is refused on the
   Broyden-updated Jacobian the move stops there with its verified controls (``defer_refresh``, the default)
-  instead of spending one evaluation per channel inside the mouse move — a move costs about one rig
-  evaluation, and the pins may trail the mouse until the refresh.  A move that follows one which could not
-  move at all on the stale Jacobian refreshes it (the drag never freezes).
+  instead of spending one evaluation per channel inside the mouse move; and it makes at most ``move_steps``
+  (one) verified steps, the next move going on from there — a move costs one rig evaluation and a small
+  bounded least-squares solve, and the pins may trail the mouse by what one step does not close.  A move that
+  follows one which could not move at all on the stale Jacobian refreshes it (the drag never freezes).
 - :meth:`RigDrag.settle` is that deferred work: from the last controls, a solve toward the last move's targets
   that recomputes the Jacobian whenever a step stalls, until the pins are within ``pin_tol`` or the controls are
   stationary — for an idle moment (a timer while the mouse rests), and done by :meth:`RigDrag.release` when the
@@ -86,6 +87,8 @@ class RigDrag:
     defer_refresh : bool
         Moves after the first never recompute the Jacobian (module doc); False: a move refreshes it whenever a
         step stalls (each refresh one evaluation per finite-difference channel inside the move).
+    move_steps : int
+        Verified steps (rig evaluations) a deferring move makes at most (module doc; ``max_iter`` otherwise).
 
     Attributes
     ----------
@@ -102,10 +105,11 @@ class RigDrag:
     """
 
     def __init__(self, mesh_obj, controls: ControlSet, *, mu: float = 1e-6, pin_tol: float | None = None,
-                 xtol: float | None = None, max_iter: int = 20, defer_refresh: bool = True):
+                 xtol: float | None = None, max_iter: int = 20, defer_refresh: bool = True,
+                 move_steps: int = 1):
         self.mesh_obj, self.controls = mesh_obj, controls
         self.mu, self.pin_tol, self.xtol, self.max_iter = mu, pin_tol, xtol, max_iter
-        self.defer_refresh = defer_refresh
+        self.defer_refresh, self.move_steps = defer_refresh, move_steps
         self.targets = None
         self.ev = None
         self.B = None
@@ -175,9 +179,9 @@ class RigDrag:
         last = self.result
         stuck = last is not None and last.diagnostics.get("jacobian_stale") and len(last.diagnostics[
             "objective_history"]) == 1          # the last move could not move on the stale Jacobian: refresh now
+        defer = self.defer_refresh and self.jacobian_cache is not None and not stuck
         res = self._solve(t, xtol=DRAG_XTOL_REL * ev.diagonal if self.xtol is None else self.xtol,
-                          max_iter=self.max_iter,
-                          defer=self.defer_refresh and self.jacobian_cache is not None and not stuck)
+                          max_iter=min(self.max_iter, self.move_steps) if defer else self.max_iter, defer=defer)
         self.targets = t
         return res
 

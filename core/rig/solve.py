@@ -41,13 +41,14 @@ from typing import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import lsq_linear
 
 from ..boxqp import active_set_dense
 from ..errors import ErrorCode
 from ..result import Result, ShapeSpaceError, Status
 
-__all__ = ["RigSolveResult", "broyden_update", "finite_difference_jacobian", "solve_controls"]
+__all__ = ["RigSolveResult", "box_qp_primal", "broyden_update", "finite_difference_jacobian", "solve_controls"]
 
 
 @dataclass(kw_only=True)
@@ -139,16 +140,76 @@ def broyden_update(J: np.ndarray, d: ArrayLike, dp: ArrayLike) -> np.ndarray:
     return J
 
 
+#: Primal–dual active-set iterations tried before the primal active-set method (it settles in one or two from
+#: the warm start, or cycles).
+PDAS_ITER = 8
+
+
+def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_iter: int | None = None):
+    """Minimiser of ``½ xᵀHx − gᵀx`` on ``lo ≤ x ≤ hi`` (dense SPD ``H`` (n, n), ``lo ≤ 0 ≤ hi`` (n,)) by the
+    primal active-set method (Nocedal & Wright, *Numerical Optimization*, alg. 16.3, for bounds).
+
+    From ``x = 0`` with the entries on a bound that the gradient pushes out held: solve the free block exactly
+    (Cholesky); step toward that point until the first bound blocks it (hold that entry) or, when it is feasible,
+    release the held entry whose multiplier points most into the box — finite for SPD ``H``, one small solve per
+    change of the active set.  (:func:`core.boxqp.active_set_dense`, the primal–dual method, can cycle when many
+    channels sit on their bounds, as the sliders of a face at rest do.)
+
+    Returns
+    -------
+    ndarray (n,) or None
+        The KKT point, or None at the iteration limit (``10 n + 20`` by default) or when a free block is not
+        positive definite.
+    """
+    n = g.size
+    x = np.zeros(n)
+    fixed = hi <= lo
+    lower = fixed | ((lo >= 0) & (g < 0))
+    upper = ~fixed & (hi <= 0) & (g > 0)
+    x = np.where(lower, np.minimum(lo, hi), np.where(upper, hi, x))
+    for _ in range(10 * n + 20 if max_iter is None else max_iter):
+        free = ~(lower | upper)
+        target = x.copy()
+        f = np.flatnonzero(free)
+        if f.size:
+            try:
+                factor = cho_factor(H[np.ix_(f, f)], check_finite=False)
+            except np.linalg.LinAlgError:
+                return None
+            rhs = g[f] - H[np.ix_(f, np.flatnonzero(~free))] @ x[~free]
+            target[f] = cho_solve(factor, rhs, check_finite=False)
+        p = target - x
+        with np.errstate(divide="ignore", invalid="ignore"):
+            room = np.where(p < 0, (lo - x) / p, np.where(p > 0, (hi - x) / p, np.inf))
+        room[~free] = np.inf
+        k = int(np.argmin(room))
+        if room[k] < 1.0:                                    # a bound blocks the way: go there and hold it
+            x = x + max(room[k], 0.0) * p
+            x[k] = lo[k] if p[k] < 0 else hi[k]
+            lower[k], upper[k] = p[k] < 0, p[k] > 0
+            continue
+        x = target
+        mult = g - H @ x                                      # −∇: > 0 pushes up, < 0 pushes down
+        push = np.where(lower & ~fixed, mult, 0.0) - np.where(upper, mult, 0.0)
+        k = int(np.argmax(push))
+        if push[k] <= 1e-12 * (np.abs(g).max() + 1e-300):
+            return np.clip(x, lo, hi)
+        lower[k] = upper[k] = False
+    return None
+
+
 def _step(J, e, reg_w, c, ref, lam, D2, lo, hi):
     """The bounded LM step: argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c."""
     H = J.T @ J + np.diag(reg_w + lam * D2)
     g = -(J.T @ e) - reg_w * (c - ref)
-    dlo, dhi = lo - c, hi - c
+    dlo, dhi = np.minimum(lo - c, 0.0), np.maximum(hi - c, 0.0)
     try:
-        d, _ = active_set_dense(H, g, dlo, dhi, np.clip(np.zeros_like(c), dlo, dhi),
-                                np.zeros(c.size, bool), np.zeros(c.size, bool))
+        d, _ = active_set_dense(H, g, dlo, dhi, np.zeros_like(c), (dlo >= 0) & (g < 0), (dhi <= 0) & (g > 0),
+                                max_iter=PDAS_ITER)
     except np.linalg.LinAlgError:
         d = None
+    if d is None:
+        d = box_qp_primal(H, g, dlo, dhi)
     if d is None:
         a = np.sqrt(reg_w + lam * D2)
         A = np.vstack([J, np.diag(a)])
