@@ -145,7 +145,8 @@ def broyden_update(J: np.ndarray, d: ArrayLike, dp: ArrayLike) -> np.ndarray:
 PDAS_ITER = 8
 
 
-def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_iter: int | None = None):
+def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                  max_iter: int | None = None) -> np.ndarray | None:
     """Minimiser of ``½ xᵀHx − gᵀx`` on ``lo ≤ x ≤ hi`` (dense SPD ``H`` (n, n), ``lo ≤ 0 ≤ hi`` (n,)) by the
     primal active-set method (Nocedal & Wright, *Numerical Optimization*, alg. 16.3, for bounds).
 
