@@ -204,7 +204,8 @@ class RigDrag:
             res = solve_controls(self._evaluate, self.controls_now, t, lo=lo, hi=hi, scale=ev.controls.scale,
                                  jacobian=self._jacobian, steps=ev.steps, reference=self.start, mu=self.mu,
                                  pin_tol=tol, xtol=xtol, max_iter=max_iter, first_jacobian=self.jacobian_cache,
-                                 first_points=self.points, defer_refresh=defer)
+                                 first_points=self.points, defer_refresh=defer,
+                                 first_active=None if self.result is None else self.result.diagnostics["active"])
             if self._last is None or not np.array_equal(self._last[0], res.x):
                 self._evaluate(res.x)                 # the rig shows the result (its points were verified)
         except BaseException:

@@ -16,8 +16,9 @@ Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one up
   one evaluation per channel, steps pointing into the box.  It is kept between iterations and corrected by
   Broyden's rank-one update ``J += (ΔP − J d) dᵀ / dᵀd`` after every evaluated trial step.
 - Each step solves the bounded linear least-squares problem ``min ‖J d + e‖² + μ‖S(c + d − r)‖² + λ‖D d‖²``
-  on ``lo − c ≤ d ≤ hi − c`` exactly (a dense primal–dual active set, :func:`core.boxqp.active_set_dense`,
-  falling back on SciPy's bounded least squares), with Marquardt's scaling ``D² = diag(JᵀJ + μS²)``.
+  on ``lo − c ≤ d ≤ hi − c`` exactly (a dense primal active set, :func:`box_qp_primal`, warm-started from the
+  previous step's active sets, falling back on SciPy's bounded least squares), with Marquardt's scaling
+  ``D² = diag(JᵀJ + μS²)``.
 - A step is accepted only when the rig, evaluated again at the new controls, gives an objective that does
   not increase; otherwise ``λ`` grows.  When a step is refused or *stalls* (actual decrease below a quarter
   of the predicted one) on a Broyden-updated Jacobian, the Jacobian is recomputed at the current controls
@@ -44,7 +45,6 @@ from numpy.typing import ArrayLike
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import lsq_linear
 
-from ..boxqp import active_set_dense
 from ..errors import ErrorCode
 from ..result import Result, ShapeSpaceError, Status
 
@@ -140,21 +140,17 @@ def broyden_update(J: np.ndarray, d: ArrayLike, dp: ArrayLike) -> np.ndarray:
     return J
 
 
-#: Primal–dual active-set iterations tried before the primal active-set method (it settles in one or two from
-#: the warm start, or cycles).
-PDAS_ITER = 8
-
-
-def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-                  max_iter: int | None = None) -> np.ndarray | None:
+def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_iter: int | None = None,
+                  lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> np.ndarray | None:
     """Minimiser of ``½ xᵀHx − gᵀx`` on ``lo ≤ x ≤ hi`` (dense SPD ``H`` (n, n), ``lo ≤ 0 ≤ hi`` (n,)) by the
     primal active-set method (Nocedal & Wright, *Numerical Optimization*, alg. 16.3, for bounds).
 
-    From ``x = 0`` with the entries on a bound that the gradient pushes out held: solve the free block exactly
+    From ``x = 0`` with the entries on a bound that the gradient pushes out held (and those of ``lower`` /
+    ``upper`` (n,) bool, a previous solve's active sets, at their bounds): solve the free block exactly
     (Cholesky); step toward that point until the first bound blocks it (hold that entry) or, when it is feasible,
     release the held entry whose multiplier points most into the box — finite for SPD ``H``, one small solve per
-    change of the active set.  (:func:`core.boxqp.active_set_dense`, the primal–dual method, can cycle when many
-    channels sit on their bounds, as the sliders of a face at rest do.)
+    change of the active set.  (:func:`core.boxqp.active_set_dense`, the primal–dual method, cycles on the
+    ill-conditioned steps (cond ~1e10) of a face with many sliders on their bounds.)
 
     Returns
     -------
@@ -163,11 +159,10 @@ def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
         positive definite.
     """
     n = g.size
-    x = np.zeros(n)
     fixed = hi <= lo
-    lower = fixed | ((lo >= 0) & (g < 0))
-    upper = ~fixed & (hi <= 0) & (g > 0)
-    x = np.where(lower, np.minimum(lo, hi), np.where(upper, hi, x))
+    lower = fixed | ((lo >= 0) & (g < 0)) | (False if lower is None else lower & np.isfinite(lo))
+    upper = ~lower & (((hi <= 0) & (g > 0)) | (False if upper is None else upper & np.isfinite(hi)))
+    x = np.where(lower, np.minimum(lo, hi), np.where(upper, hi, 0.0))
     for _ in range(10 * n + 20 if max_iter is None else max_iter):
         free = ~(lower | upper)
         target = x.copy()
@@ -199,18 +194,14 @@ def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     return None
 
 
-def _step(J, e, reg_w, c, ref, lam, D2, lo, hi):
-    """The bounded LM step: argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c."""
+def _step(J, e, reg_w, c, ref, lam, D2, lo, hi, held=None):
+    """The bounded LM step: argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c
+    (``held``: (at lo, at hi) (n,) bool of a previous step's end point, a warm start)."""
     H = J.T @ J + np.diag(reg_w + lam * D2)
     g = -(J.T @ e) - reg_w * (c - ref)
     dlo, dhi = np.minimum(lo - c, 0.0), np.maximum(hi - c, 0.0)
-    try:
-        d, _ = active_set_dense(H, g, dlo, dhi, np.zeros_like(c), (dlo >= 0) & (g < 0), (dhi <= 0) & (g > 0),
-                                max_iter=PDAS_ITER)
-    except np.linalg.LinAlgError:
-        d = None
-    if d is None:
-        d = box_qp_primal(H, g, dlo, dhi)
+    d = box_qp_primal(H, g, dlo, dhi, lower=None if held is None else held[0],
+                      upper=None if held is None else held[1])
     if d is None:
         a = np.sqrt(reg_w + lam * D2)
         A = np.vstack([J, np.diag(a)])
@@ -271,7 +262,7 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
                    reference: ArrayLike | None = None, mu: float = 1e-6, pin_tol: float = 0.0,
                    ftol: float = 1e-10, max_iter: int = 50, first_jacobian: np.ndarray | None = None,
                    first_points: np.ndarray | None = None, xtol: float = 0.0,
-                   defer_refresh: bool = False) -> RigSolveResult:
+                   defer_refresh: bool = False, first_active: tuple | None = None) -> RigSolveResult:
     """Controls that bring the pins to their targets (bounded, regularised Levenberg–Marquardt; module doc).
 
     Parameters
@@ -319,6 +310,9 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         the caller (a drag's next idle moment or its release, :mod:`bridge.rig.drag`).  A mouse move then costs
         its verified step(s) and never ``n`` evaluations.  Without ``first_jacobian`` the first Jacobian is
         still computed.
+    first_active : (ndarray (n,) bool, ndarray (n,) bool), optional
+        Channels a previous solve's last step left on their lower / upper bounds (its ``diagnostics["active"]``):
+        a warm start for the bounded steps (only their speed depends on it).
 
     Returns
     -------
@@ -334,6 +328,8 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         raise ShapeSpaceError(f"steps: expected {c.size} positive numbers", ErrorCode.RANGE)
     run = _LevenbergMarquardt(evaluate, jacobian, t, lo, hi, s, w, ref, mu, h)
     run.defer = bool(defer_refresh)
+    if first_active is not None:
+        run.held = tuple(np.asarray(a, bool).reshape(c.shape) for a in first_active)
     run.start(c, first_points, first_jacobian)
     status, message = Status.NOT_CONVERGED, ""
     while True:
@@ -365,6 +361,7 @@ class _LevenbergMarquardt:
         self.evaluations = self.jacobians = 0
         self.lam, self.it = 1e-3, 0
         self.defer, self.stale = False, False
+        self.held = None
 
     # ---------------------------------------------------------------- the rig
     def points(self, x):
@@ -417,6 +414,14 @@ class _LevenbergMarquardt:
         else:
             self.refresh()
 
+    def step(self, lam):
+        """The bounded LM step for ``lam`` from the current controls, warm-started from the last step's active
+        sets (which it updates)."""
+        d = _step(self.J, self.e, self.reg_w, self.c, self.ref, lam, self.D2, self.lo, self.hi, self.held)
+        x = self.c + d
+        self.held = (x <= self.lo) & (self.hi > self.lo), x >= self.hi
+        return d
+
     def converged(self, pin_tol, ftol, xtol):
         """The reason to stop with ``OK`` before the next trial step, or None."""
         if pin_tol > 0 and np.max(np.linalg.norm(self.P - self.t, axis=1)) <= pin_tol:
@@ -425,7 +430,7 @@ class _LevenbergMarquardt:
         self.D2 = np.maximum(np.einsum("ij,ij->j", J, J) + self.reg_w, 1e-12 * np.max(self.s * self.s))
         if not (self.fresh or xtol > 0):
             return None
-        d_gn = _step(J, e, self.reg_w, c, self.ref, 1e-9, self.D2, self.lo, self.hi)
+        d_gn = self.step(1e-9)
         if self.fresh and self.f - _model(J, e, self.reg_w, c, self.ref, d_gn) <= ftol * self.f + 1e-300:
             return "stationary on the bounds"
         if xtol > 0:
@@ -437,7 +442,7 @@ class _LevenbergMarquardt:
     def trial(self):
         """One trial step (verified by evaluating the rig); ``(status, message)`` when the run must stop."""
         stalled = (Status.NOT_CONVERGED, "stalled: no step decreases the objective although the model predicts one")
-        d = _step(self.J, self.e, self.reg_w, self.c, self.ref, self.lam, self.D2, self.lo, self.hi)
+        d = self.step(self.lam)
         was_fresh = self.fresh
         pred = self.f - _model(self.J, self.e, self.reg_w, self.c, self.ref, d)
         if not np.any(d) or pred <= 0.0:
@@ -476,4 +481,5 @@ class _LevenbergMarquardt:
                               pin_errors=errs, objective=self.f, objective_start=self.f_start,
                               evaluations=self.evaluations, jacobians=self.jacobians, jacobian=J,
                               diagnostics={"lambda": self.lam, "pin_error_max": float(errs.max()),
-                                           "objective_history": self.history, "jacobian_stale": self.stale})
+                                           "objective_history": self.history, "jacobian_stale": self.stale,
+                                           "active": self.held})
