@@ -25,6 +25,8 @@ constraints and drivers, keeps finite differences).
 """
 from __future__ import annotations
 
+import dataclasses
+
 import bpy
 import numpy as np
 
@@ -35,6 +37,12 @@ from ..skin import armature_modifiers, check_skinning, pose_matrices, read_skinn
 
 __all__ = ["BoneColumns", "ShapeKeyColumns", "analytic_refusal", "basis_velocity", "bone_columns", "key_coords",
            "key_delta", "shape_key_columns", "skin_refusal"]
+
+
+def _skinning(mesh_obj, skinning):
+    """``skinning`` (a :class:`core.skinning.SkinningRig` of ``mesh_obj`` read once and shared by the column
+    computers, each of which copies its deformers before narrowing them to its vertices) or a fresh read."""
+    return read_skinning(mesh_obj) if skinning is None else skinning
 
 
 def _reads_shape_keys(ids, key) -> bool:
@@ -86,13 +94,13 @@ class ShapeKeyColumns:
     indices : ndarray of int (p,)
     """
 
-    def __init__(self, mesh_obj, columns, deltas, indices):
+    def __init__(self, mesh_obj, columns, deltas, indices, skinning=None):
         self.mesh_obj = mesh_obj
         self.columns = list(columns)
         self.deltas = deltas
         mods = armature_modifiers(mesh_obj)
         self.armatures = [m.object for m in mods]
-        self.skin = read_skinning(mesh_obj).deformers if mods else []
+        self.skin = [dataclasses.replace(d) for d in _skinning(mesh_obj, skinning).deformers] if mods else []
         for d in self.skin:
             d.weights = SkinWeights(d.weights.bone_index[indices], d.weights.weight[indices])
             if d.vertex_mask is not None:
@@ -161,7 +169,7 @@ def key_delta(mesh_obj, kb, indices, cache) -> np.ndarray:
     return d
 
 
-def shape_key_columns(mesh_obj, controls, ids, indices):
+def shape_key_columns(mesh_obj, controls, ids, indices, skinning=None):
     """``(ShapeKeyColumns or None, reason)`` for the slider channels of ``mesh_obj`` in ``controls`` (module doc);
     ``None`` with an empty reason when the control set has no slider of this mesh."""
     prefix = "data.shape_keys.key_blocks["
@@ -186,7 +194,7 @@ def shape_key_columns(mesh_obj, controls, ids, indices):
     reason = f"muted or driven shape keys by finite differences: {', '.join(other)}" if other else ""
     if not keep:
         return None, reason
-    return ShapeKeyColumns(mesh_obj, keep, np.stack(deltas), indices), reason
+    return ShapeKeyColumns(mesh_obj, keep, np.stack(deltas), indices, skinning), reason
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -327,10 +335,10 @@ class BoneColumns:
     indices : ndarray of int (p,)
     """
 
-    def __init__(self, mesh_obj, arm, columns, channels, indices):
+    def __init__(self, mesh_obj, arm, columns, channels, indices, skinning=None):
         self.mesh_obj, self.arm = mesh_obj, arm
         self.columns, self.channels = list(columns), list(channels)
-        d = read_skinning(mesh_obj).deformers[0]
+        d = dataclasses.replace(_skinning(mesh_obj, skinning).deformers[0])
         d.weights = SkinWeights(d.weights.bone_index[indices], d.weights.weight[indices])
         if d.vertex_mask is not None:
             d.vertex_mask = d.vertex_mask[indices]
@@ -387,7 +395,7 @@ class BoneColumns:
         return out.reshape(-1, len(self.columns))
 
 
-def bone_columns(mesh_obj, controls, ids, indices):
+def bone_columns(mesh_obj, controls, ids, indices, skinning=None):
     """``(BoneColumns or None, reason)`` for the bone rotation / location / scale channels of the armature that
     deforms ``mesh_obj`` (:func:`skin_refusal`); ``None`` with an empty reason when there are none."""
     mods = armature_modifiers(mesh_obj)
@@ -404,4 +412,4 @@ def bone_columns(mesh_obj, controls, ids, indices):
         return None, reason
     chans = [(_bone_name(controls.channels[j].path), controls.channels[j].kind, max(controls.channels[j].index, 0))
              for j in cols]
-    return BoneColumns(mesh_obj, arm, cols, chans, indices), ""
+    return BoneColumns(mesh_obj, arm, cols, chans, indices, skinning), ""
