@@ -32,7 +32,8 @@ Metrics per rig ``<rig>``:
   paired differences, in ms.  Goal ≤ 3 ms.  ``rig_drag_move_ms_median_<rig>`` and
   ``rig_drag_reeval_ms_median_<rig>``: the medians of the two; ``rig_drag_settle_ms_<rig>``: the
   :meth:`RigDrag.settle` after the 20th move (the refresh work the moves deferred: what an idle moment or the
-  release costs).
+  release costs); ``rig_drag_overhead_cpu_ms_<rig>``: the same paired median in process CPU time (all of
+  Blender's threads; less sensitive to a loaded machine than wall time).
 - ``rig_first_use_s_<rig>``: wall time of the first Jacobian at the rest pose, median over repetitions: shape-key
   slider and bone channel columns analytic where they apply (linear-blend armature after the keys, bones without
   constraints but local limits, ``bridge/rig/analytic.py``; building that path — vertex groups, key deltas — is
@@ -120,10 +121,11 @@ def _measure(name: str, build, poses: int, reps: int) -> dict:
         ok += int(drag.result.status == 0)
         errs.append(float(np.linalg.norm(rig.world_points()[pins] - targets, axis=1).max() / diag))
         brig.apply_controls(rig.controls, c0)
-    overhead, moves_ms, reeval_ms, settle_ms = _drag_overhead(rig, pins, rng)
+    overhead, moves_ms, reeval_ms, settle_ms, overhead_cpu = _drag_overhead(rig, pins, rng)
     return {**first_use,
             f"rig_drag_pin_err_max_{name}": max(errs),
             f"rig_drag_overhead_ms_{name}": overhead,
+            f"rig_drag_overhead_cpu_ms_{name}": overhead_cpu,
             f"rig_drag_move_ms_median_{name}": moves_ms,
             f"rig_drag_reeval_ms_median_{name}": reeval_ms,
             f"rig_drag_settle_ms_{name}": settle_ms,
@@ -177,7 +179,8 @@ def _measure_first_use(name: str, build, reps: int) -> dict:
 
 def _drag_overhead(rig, pins, rng, moves: int = 20) -> tuple:
     """``rig_drag_overhead_ms_<rig>`` (module doc): (median paired difference, median move, median re-evaluation,
-    the settle after the last move) in ms over ``moves`` mouse moves of a drag toward a random pose's pins."""
+    the settle after the last move, median paired difference of process CPU time) in ms over ``moves`` mouse
+    moves of a drag toward a random pose's pins."""
     import bpy
 
     from shapespace.bridge import rig as brig
@@ -193,25 +196,27 @@ def _drag_overhead(rig, pins, rng, moves: int = 20) -> tuple:
     brig.apply_controls(rig.controls, c0)
     drag = brig.RigDrag(rig.mesh, rig.controls)
     start = drag.begin(pins)
-    diffs, move_t, reeval_t = [], [], []
+    diffs, move_t, reeval_t, cpu = [], [], [], []
     for k in range(1, moves + 1):
         before = drag.controls_now.copy()
-        t0 = time.perf_counter()
+        t0, c0_ = time.perf_counter(), time.process_time()
         drag.move(start + (targets - start) * k / moves)
         move_t.append(time.perf_counter() - t0)
+        move_cpu = time.process_time() - c0_
         write(before)                                  # Blender's own re-evaluation of the same change
         bpy.context.view_layer.update()
-        t0 = time.perf_counter()
+        t0, c0_ = time.perf_counter(), time.process_time()
         write(drag.controls_now)
         bpy.context.evaluated_depsgraph_get().update()
         reeval_t.append(time.perf_counter() - t0)
+        cpu.append(move_cpu - (time.process_time() - c0_))
         diffs.append(move_t[-1] - reeval_t[-1])
     t0 = time.perf_counter()
     drag.settle()
     settle = time.perf_counter() - t0
     drag.cancel()
     return (float(np.median(diffs)) * 1e3, float(np.median(move_t)) * 1e3, float(np.median(reeval_t)) * 1e3,
-            settle * 1e3)
+            settle * 1e3, float(np.median(cpu)) * 1e3)
 
 
 def _self_take(rig, rng, frames: int) -> tuple:
