@@ -1,4 +1,4 @@
-"""Analytic Jacobian columns of shape-key slider channels (issue #25, first use of a rig).
+"""Analytic Jacobian columns of shape-key slider and bone channels (issue #25, first use of a rig).
 
 A relative shape key moves each vertex by ``value × (key − relative key) × key vertex-group weight`` before any
 modifier.  When every modifier after the shape keys is a linear-blend Armature modifier (vertex groups, no
@@ -13,18 +13,36 @@ mesh's world matrix, ``δ_v`` the key's object-space delta): no depsgraph evalua
 :func:`shape_key_columns` returns the columns' computer for an evaluator, or ``None`` with the reason when the
 conditions do not hold (then every column is a finite difference); a muted slider, or one whose value a driver
 sets, keeps a finite-difference column (what is written there does not act).
+
+Bone channels (pose-bone rotation per axis in the bone's rotation mode, location, scale) get analytic columns
+too, :func:`bone_columns`, when one linear-blend Armature modifier is the mesh's only modifier, no bone of the
+armature has a constraint other than Limit Rotation / Location / Scale in local space, every child bone
+inherits its parent's rotation and scale, the mesh is not parented to the armature and no driver reads or
+drives the armature: a channel of bone ``k`` then moves its subtree's bones rigidly (``∂C_b/∂c = G C_b``,
+:meth:`BoneColumns.__call__`), read off the evaluated pose matrices and the vertex-group weights — one
+evaluation of the rig for the whole Jacobian instead of one per bone channel (Rigify's generated face, all
+constraints and drivers, keeps finite differences).
 """
 from __future__ import annotations
+
+import dataclasses
 
 import bpy
 import numpy as np
 
-from ...core.rig import ChannelKind
+from ...core.rig import ChannelKind, rotation_vector_from_quaternion
 from ...core.skinning import MIN_CONTRIB, SkinWeights, bone_change_matrices
 from ..meshes import world_matrix
 from ..skin import armature_modifiers, check_skinning, pose_matrices, read_skinning
 
-__all__ = ["ShapeKeyColumns", "analytic_refusal", "key_coords", "key_delta", "shape_key_columns"]
+__all__ = ["BoneColumns", "ShapeKeyColumns", "analytic_refusal", "basis_velocity", "bone_columns", "key_coords",
+           "key_delta", "shape_key_columns", "skin_refusal"]
+
+
+def _skinning(mesh_obj, skinning):
+    """``skinning`` (a :class:`core.skinning.SkinningRig` of ``mesh_obj`` read once and shared by the column
+    computers, each of which copies its deformers before narrowing them to its vertices) or a fresh read."""
+    return read_skinning(mesh_obj) if skinning is None else skinning
 
 
 def _reads_shape_keys(ids, key) -> bool:
@@ -76,13 +94,13 @@ class ShapeKeyColumns:
     indices : ndarray of int (p,)
     """
 
-    def __init__(self, mesh_obj, columns, deltas, indices):
+    def __init__(self, mesh_obj, columns, deltas, indices, skinning=None):
         self.mesh_obj = mesh_obj
         self.columns = list(columns)
         self.deltas = deltas
         mods = armature_modifiers(mesh_obj)
         self.armatures = [m.object for m in mods]
-        self.skin = read_skinning(mesh_obj).deformers if mods else []
+        self.skin = [dataclasses.replace(d) for d in _skinning(mesh_obj, skinning).deformers] if mods else []
         for d in self.skin:
             d.weights = SkinWeights(d.weights.bone_index[indices], d.weights.weight[indices])
             if d.vertex_mask is not None:
@@ -108,8 +126,9 @@ class ShapeKeyColumns:
             A = step @ A
         return A
 
-    def __call__(self) -> np.ndarray:
-        """The columns (3p, k) at the current evaluation, in world space."""
+    def __call__(self, points=None) -> np.ndarray:
+        """The columns (3p, k) at the current evaluation, in world space (``points``, the evaluated positions,
+        are not needed: the same call as :class:`BoneColumns`)."""
         dg = bpy.context.evaluated_depsgraph_get()
         W = world_matrix(self.mesh_obj.evaluated_get(dg))[:3, :3]
         cols = np.einsum("ij,pjk,spk->pis", W, self.blend(), self.deltas)
@@ -150,7 +169,7 @@ def key_delta(mesh_obj, kb, indices, cache) -> np.ndarray:
     return d
 
 
-def shape_key_columns(mesh_obj, controls, ids, indices):
+def shape_key_columns(mesh_obj, controls, ids, indices, skinning=None):
     """``(ShapeKeyColumns or None, reason)`` for the slider channels of ``mesh_obj`` in ``controls`` (module doc);
     ``None`` with an empty reason when the control set has no slider of this mesh."""
     prefix = "data.shape_keys.key_blocks["
@@ -175,4 +194,222 @@ def shape_key_columns(mesh_obj, controls, ids, indices):
     reason = f"muted or driven shape keys by finite differences: {', '.join(other)}" if other else ""
     if not keep:
         return None, reason
-    return ShapeKeyColumns(mesh_obj, keep, np.stack(deltas), indices), reason
+    return ShapeKeyColumns(mesh_obj, keep, np.stack(deltas), indices, skinning), reason
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# bone channels under plain linear-blend skinning
+
+#: Bone constraints that leave a pose bone's matrix ``B · matrix_basis`` inside the channel's bounds (owner space
+#: ``LOCAL``: :mod:`bridge.rig.channels` reads them as the channel's bounds).
+LIMIT_CONSTRAINTS = ("LIMIT_ROTATION", "LIMIT_LOCATION", "LIMIT_SCALE")
+#: Central-difference step of a rotation matrix in its own coordinates (float64: ~1e-10 relative error).
+ROT_STEP = 1e-6
+
+
+def _axis_rotation(axis: int, angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.eye(3)
+    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+    return R
+
+
+def _rodrigues(v) -> np.ndarray:
+    """Rotation matrix (3, 3) of a rotation vector (axis × angle)."""
+    v = np.asarray(v, dtype=np.float64)
+    angle = float(np.linalg.norm(v))
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    if angle < 1e-12:
+        return np.eye(3) + K
+    K /= angle
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+
+
+def _rotation(mode: str, value) -> np.ndarray:
+    """The rotation matrix of a pose bone: Euler angles (3,) in ``mode`` (``'XYZ'``: X applied first), or the
+    rotation vector (3,) of a ``QUATERNION`` / ``AXIS_ANGLE`` bone."""
+    if mode in ("QUATERNION", "AXIS_ANGLE"):
+        return _rodrigues(value)
+    R = np.eye(3)
+    for axis in mode:
+        a = "XYZ".index(axis)
+        R = _axis_rotation(a, value[a]) @ R
+    return R
+
+
+def _rotation_value(pb) -> tuple:
+    """(mode, values (3,)) of a pose bone's rotation: Euler angles or the rotation vector."""
+    mode = pb.rotation_mode
+    if mode == "QUATERNION":
+        q = np.array(pb.rotation_quaternion, dtype=np.float64)
+        q = q / np.linalg.norm(q) if np.linalg.norm(q) > 0 else np.array([1.0, 0.0, 0.0, 0.0])
+        return mode, rotation_vector_from_quaternion(q)
+    if mode == "AXIS_ANGLE":
+        aa = np.array(pb.rotation_axis_angle, dtype=np.float64)
+        n = np.linalg.norm(aa[1:])
+        return mode, (np.zeros(3) if n == 0 else aa[0] * aa[1:] / n)
+    return mode, np.array(pb.rotation_euler, dtype=np.float64)
+
+
+def basis_velocity(pb, kind: ChannelKind, axis: int) -> np.ndarray:
+    """``matrix_basis⁻¹ · ∂matrix_basis/∂c`` (4, 4) of one channel of pose bone ``pb`` at its current values
+    (``matrix_basis = T(location) · R(rotation) · S(scale)``; a rotation channel of a ``QUATERNION`` /
+    ``AXIS_ANGLE`` bone is a component of its rotation vector, :mod:`core.rig.controls`)."""
+    loc = np.array(pb.location, dtype=np.float64)
+    scale = np.array(pb.scale, dtype=np.float64)
+    mode, rot = _rotation_value(pb)
+    R = _rotation(mode, rot)
+    Mb = np.eye(4)
+    Mb[:3, :3], Mb[:3, 3] = R * scale, loc
+    dMb = np.zeros((4, 4))
+    if kind == ChannelKind.LOCATION:
+        dMb[axis, 3] = 1.0
+    elif kind == ChannelKind.SCALE:
+        dMb[:3, axis] = R[:, axis]
+    else:
+        up, down = rot.copy(), rot.copy()
+        up[axis] += ROT_STEP
+        down[axis] -= ROT_STEP
+        dMb[:3, :3] = (_rotation(mode, up) - _rotation(mode, down)) / (2.0 * ROT_STEP) * scale
+    return np.linalg.solve(Mb, dMb)
+
+
+def _bone_name(path: str) -> str:
+    return path.split('"')[1] if path.startswith('pose.bones["') else ""
+
+
+def _reads_armature(ids, arm) -> bool:
+    """Whether a driver of any of ``ids`` takes an input from the armature object or its data, or drives it."""
+    for idb in ids:
+        ad = getattr(idb, "animation_data", None)
+        for fc in (ad.drivers if ad is not None else ()):
+            if idb == arm or idb == arm.data:
+                return True
+            for var in fc.driver.variables:
+                if any(t.id is not None and (t.id == arm or t.id == arm.data) for t in var.targets):
+                    return True
+    return False
+
+
+def skin_refusal(mesh_obj, ids, arm) -> str:
+    """Why bone columns of armature ``arm`` on ``mesh_obj`` cannot be analytic ('' when they can; module doc)."""
+    others = [m.name for m in mesh_obj.modifiers if m.show_viewport and m.type != "ARMATURE"]
+    if others:
+        return f"modifier {others[0]!r} deforms after the shape keys"
+    mods = armature_modifiers(mesh_obj)
+    if len(mods) != 1 or len([m for m in mesh_obj.modifiers if m.show_viewport]) != 1 or mods[0].object != arm:
+        return f"the mesh is not deformed by exactly one Armature modifier on {arm.name!r}"
+    bad = [i for i in check_skinning(mesh_obj) if i.severity == "error" or i.code == "bbones"]
+    if bad:
+        return bad[0].message
+    if mods[0].use_deform_preserve_volume:
+        return "the Armature modifier preserves volume (dual quaternions)"
+    parent = mesh_obj.parent
+    while parent is not None:
+        if parent == arm:
+            return f"the mesh is parented to {arm.name!r}"
+        parent = parent.parent
+    for pb in arm.pose.bones:
+        for con in pb.constraints:
+            if con.enabled and con.influence > 0 and (con.type not in LIMIT_CONSTRAINTS or con.owner_space != "LOCAL"):
+                return f"bone {pb.name!r} has a {con.type} constraint"
+        if pb.parent is not None and (not pb.bone.use_inherit_rotation or pb.bone.inherit_scale != "FULL"):
+            return f"bone {pb.name!r} does not inherit its parent's rotation and scale"
+    if _reads_armature(ids, arm):
+        return f"a driver reads or drives {arm.name!r}"
+    return ""
+
+
+class BoneColumns:
+    """Computes the analytic columns ``columns`` (k,) of bone channels on the mesh's single linear-blend Armature
+    modifier, at the evaluator's current evaluation (module doc of this section: :func:`bone_columns`).
+
+    Parameters
+    ----------
+    mesh_obj : bpy.types.Object
+    arm : bpy.types.Object
+    columns : list of int
+        Positions of the bone channels in the control set.
+    channels : list of (bone name, ChannelKind, axis)
+    indices : ndarray of int (p,)
+    """
+
+    def __init__(self, mesh_obj, arm, columns, channels, indices, skinning=None):
+        self.mesh_obj, self.arm = mesh_obj, arm
+        self.columns, self.channels = list(columns), list(channels)
+        d = dataclasses.replace(_skinning(mesh_obj, skinning).deformers[0])
+        d.weights = SkinWeights(d.weights.bone_index[indices], d.weights.weight[indices])
+        if d.vertex_mask is not None:
+            d.vertex_mask = d.vertex_mask[indices]
+        self.skin = d
+        bones = arm.data.bones
+        position = {n: i for i, n in enumerate(d.bone_names)}
+        self.subtree, self.bone_index = [], []
+        for name, _, _ in self.channels:
+            member = np.zeros(len(d.bone_names), bool)
+            member[[position[b.name] for b in [bones[name], *bones[name].children_recursive]]] = True
+            self.subtree.append(member)
+            self.bone_index.append(position[name])
+
+    def __call__(self, points) -> np.ndarray:
+        """The columns (3p, k) in world space, given the evaluated world positions ``points`` (p, 3) of the
+        evaluator's vertices at the current evaluation.
+
+        With ``ŵ`` the normalised (and masked) weights and ``C_b`` the bones' change matrices in the mesh's object
+        space, the skinned point is ``y = x + Σ_b ŵ_b (C_b x − x)``; the pre-skinning point ``x`` is recovered from
+        ``y`` (a 3 × 3 solve per vertex).  A channel of bone ``k`` moves every bone of its subtree ``S`` rigidly:
+        ``∂C_b/∂c = G C_b`` with ``G = Q⁻¹ P_k (M_b⁻¹ ∂M_b/∂c) P_k⁻¹ Q`` (``P_k`` the bone's pose matrix,
+        ``M_b`` its ``matrix_basis``, ``Q = arm_world⁻¹ · mesh_world``), so its column is
+        ``W (G_lin Σ_{b∈S} ŵ_b C_b x + G_t Σ_{b∈S} ŵ_b)``.
+        """
+        dg = bpy.context.evaluated_depsgraph_get()
+        mesh_world = world_matrix(self.mesh_obj.evaluated_get(dg))
+        arm_eval = self.arm.evaluated_get(dg)
+        d = self.skin
+        d.armature_world = world_matrix(arm_eval)
+        pose = pose_matrices(arm_eval)
+        C = bone_change_matrices(d, pose, mesh_world)
+        w = d.weights.effective()
+        idx = np.where(d.weights.bone_index >= 0, d.weights.bone_index, 0)
+        contrib = w.sum(axis=1)
+        scale = np.where(contrib > MIN_CONTRIB, 1.0 / np.where(contrib > MIN_CONTRIB, contrib, 1.0), 0.0)
+        if d.vertex_mask is not None:
+            scale = scale * d.vertex_mask
+        wn = w * scale[:, None]
+        Cv = C[idx]                                                        # (p, k, 4, 4)
+        A = np.eye(3) + np.einsum("pk,pkij->pij", wn, Cv[:, :, :3, :3] - np.eye(3))
+        t = np.einsum("pk,pki->pi", wn, Cv[:, :, :3, 3])
+        y = (np.asarray(points, np.float64) - mesh_world[:3, 3]) @ np.linalg.inv(mesh_world[:3, :3]).T
+        x = np.linalg.solve(A, (y - t)[:, :, None])[:, :, 0]
+        z = np.einsum("pkij,pj->pki", Cv[:, :, :3, :3], x) + Cv[:, :, :3, 3]   # each bone's image of x
+        Q = np.linalg.inv(d.armature_world) @ mesh_world
+        Qi = np.linalg.inv(Q)
+        out = np.zeros((len(points), 3, len(self.columns)))
+        for j, ((name, kind, axis), member, k) in enumerate(zip(self.channels, self.subtree, self.bone_index)):
+            P = pose[k]
+            G = Qi @ P @ basis_velocity(self.arm.pose.bones[name], kind, axis) @ np.linalg.inv(P) @ Q
+            wk = wn * member[idx]
+            col = np.einsum("pk,pki->pi", wk, z) @ G[:3, :3].T + wk.sum(axis=1)[:, None] * G[:3, 3]
+            out[:, :, j] = col @ mesh_world[:3, :3].T
+        return out.reshape(-1, len(self.columns))
+
+
+def bone_columns(mesh_obj, controls, ids, indices, skinning=None):
+    """``(BoneColumns or None, reason)`` for the bone rotation / location / scale channels of the armature that
+    deforms ``mesh_obj`` (:func:`skin_refusal`); ``None`` with an empty reason when there are none."""
+    mods = armature_modifiers(mesh_obj)
+    if not mods:
+        return None, ""
+    arm = mods[0].object
+    kinds = (ChannelKind.ROTATION, ChannelKind.LOCATION, ChannelKind.SCALE)
+    cols = [j for j, ch in enumerate(controls.channels)
+            if ch.kind in kinds and ch.owner == arm.name and _bone_name(ch.path) in arm.pose.bones]
+    if not cols:
+        return None, ""
+    reason = skin_refusal(mesh_obj, ids, arm)
+    if reason:
+        return None, reason
+    chans = [(_bone_name(controls.channels[j].path), controls.channels[j].kind, max(controls.channels[j].index, 0))
+             for j in cols]
+    return BoneColumns(mesh_obj, arm, cols, chans, indices, skinning), ""

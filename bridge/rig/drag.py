@@ -10,10 +10,20 @@ and the last Jacobian of the pins.
   non-deterministic rigs refused by name) and returns where Blender draws the pins now (world space).
 - :meth:`RigDrag.move` is one mouse move: one bounded Levenberg–Marquardt solve
   (:func:`core.rig.solve.solve_controls`) warm-started from the last controls and their verified evaluation,
-  starting from the cached Jacobian (Broyden-updated by the solve, recomputed when a step stalls), stopping when
-  the pins are within ``pin_tol`` or the next step would move no pin by more than ``xtol``; every
-  accepted step is an evaluation by Blender's depsgraph (the objective never increases), and the controls
-  the solve ends on are live on the rig, so the pins land where the viewport draws them.
+  starting from the cached Jacobian (Broyden-updated by the solve), stopping when the pins are within
+  ``pin_tol`` or the next step would move no pin by more than ``xtol``; every accepted step is an evaluation by
+  Blender's depsgraph (the objective never increases), and the controls the solve ends on are live on the rig,
+  so the pins land where the viewport draws them.  Only the first move computes a Jacobian (one evaluation
+  per channel outside the analytic slider columns): when a later step stalls or is refused on the
+  Broyden-updated Jacobian the move stops there with its verified controls (``defer_refresh``, the default)
+  instead of spending one evaluation per channel inside the mouse move; and it makes at most ``move_steps``
+  (one) verified steps, the next move going on from there — a move costs one rig evaluation and a small
+  bounded least-squares solve, and the pins may trail the mouse by what one step does not close.  A move that
+  follows one which could not move at all on the stale Jacobian refreshes it (the drag never freezes).
+- :meth:`RigDrag.settle` is that deferred work: from the last controls, a solve toward the last move's targets
+  that recomputes the Jacobian whenever a step stalls, until the pins are within ``pin_tol`` or the controls are
+  stationary — for an idle moment (a timer while the mouse rests), and done by :meth:`RigDrag.release` when the
+  last move stopped short (``NOT_CONVERGED``), so a released drag lands its pins as a full solve would.
 - :meth:`RigDrag.release` keeps the controls and (``autokey``) keys the channels that changed on their
   datablocks' actions at the current frame (a bone in ``QUATERNION`` / ``AXIS_ANGLE`` mode: all four
   components); :meth:`RigDrag.cancel` writes every channel back exactly as it was at mouse-down.  Nothing is
@@ -29,7 +39,7 @@ import numpy as np
 from ...core.errors import ErrorCode
 from ...core.manipulation import Pin
 from ...core.manipulation.pins import _pin_arrays
-from ...core.result import ShapeSpaceError
+from ...core.result import ShapeSpaceError, Status
 from ...core.rig import ChannelKind, ControlSet, RigSolveResult, solve_controls
 from .. import actions
 from .channels import EULER_MODES
@@ -74,6 +84,11 @@ class RigDrag:
         :data:`DRAG_XTOL_REL` of the evaluated diagonal).
     max_iter : int
         Trial steps per move.
+    defer_refresh : bool
+        Moves after the first never recompute the Jacobian (module doc); False: a move refreshes it whenever a
+        step stalls (each refresh one evaluation per finite-difference channel inside the move).
+    move_steps : int
+        Verified steps (rig evaluations) a deferring move makes at most (module doc; ``max_iter`` otherwise).
 
     Attributes
     ----------
@@ -84,13 +99,18 @@ class RigDrag:
     points : ndarray (p, 3)
         Blender's evaluation of the pins at ``controls_now`` (world space).
     result : RigSolveResult or None
-        The last move's.
+        The last move's (or :meth:`settle`'s).
+    targets : ndarray (p, 3) or None
+        The last move's targets.
     """
 
     def __init__(self, mesh_obj, controls: ControlSet, *, mu: float = 1e-6, pin_tol: float | None = None,
-                 xtol: float | None = None, max_iter: int = 20):
+                 xtol: float | None = None, max_iter: int = 20, defer_refresh: bool = True,
+                 move_steps: int = 1):
         self.mesh_obj, self.controls = mesh_obj, controls
         self.mu, self.pin_tol, self.xtol, self.max_iter = mu, pin_tol, xtol, max_iter
+        self.defer_refresh, self.move_steps = defer_refresh, move_steps
+        self.targets = None
         self.ev = None
         self.B = None
         self.start = self.controls_now = self.points = None
@@ -117,7 +137,7 @@ class RigDrag:
         except BaseException:
             ev.restore()
             raise
-        self.ev, self.jacobian_cache, self.result = ev, None, None
+        self.ev, self.jacobian_cache, self.result, self.targets = ev, None, None, None
         return self.points.copy()
 
     def _evaluate_with(self, ev, c) -> np.ndarray:
@@ -156,14 +176,36 @@ class RigDrag:
         bad = np.flatnonzero(~np.isfinite(t).all(axis=1))
         if bad.size:
             raise ShapeSpaceError(f"target of pin {int(bad[0])} is not finite", ErrorCode.NON_FINITE)
+        last = self.result
+        stuck = last is not None and last.diagnostics.get("jacobian_stale") and len(last.diagnostics[
+            "objective_history"]) == 1          # the last move could not move on the stale Jacobian: refresh now
+        defer = self.defer_refresh and self.jacobian_cache is not None and not stuck
+        res = self._solve(t, xtol=DRAG_XTOL_REL * ev.diagonal if self.xtol is None else self.xtol,
+                          max_iter=min(self.max_iter, self.move_steps) if defer else self.max_iter, defer=defer)
+        self.targets = t
+        return res
+
+    def settle(self, max_iter: int = 50) -> RigSolveResult | None:
+        """The work moves defer (module doc): from the last controls, solve toward the last move's targets with the
+        Jacobian recomputed whenever a step stalls, until every pin is within ``pin_tol`` or the controls are
+        stationary; the controls found are live.  None before the first move.  On failure the last accepted
+        controls are put back and the error re-raised."""
+        self._open()
+        if self.targets is None:
+            return None
+        return self._solve(self.targets, xtol=0.0, max_iter=max_iter, defer=False)
+
+    def _solve(self, t, xtol, max_iter, defer) -> RigSolveResult:
+        """One verified solve toward ``t`` from the last controls and Jacobian; its controls live on the rig."""
+        ev = self.ev
         lo, hi = ev.controls.solve_bounds(ev.c0)
         tol = PIN_TOL_REL * ev.diagonal if self.pin_tol is None else self.pin_tol
-        xtol = DRAG_XTOL_REL * ev.diagonal if self.xtol is None else self.xtol
         try:
             res = solve_controls(self._evaluate, self.controls_now, t, lo=lo, hi=hi, scale=ev.controls.scale,
                                  jacobian=self._jacobian, steps=ev.steps, reference=self.start, mu=self.mu,
-                                 pin_tol=tol, xtol=xtol, max_iter=self.max_iter, first_jacobian=self.jacobian_cache,
-                                 first_points=self.points)
+                                 pin_tol=tol, xtol=xtol, max_iter=max_iter, first_jacobian=self.jacobian_cache,
+                                 first_points=self.points, defer_refresh=defer,
+                                 first_active=None if self.result is None else self.result.diagnostics["active"])
             if self._last is None or not np.array_equal(self._last[0], res.x):
                 self._evaluate(res.x)                 # the rig shows the result (its points were verified)
         except BaseException:
@@ -200,8 +242,14 @@ class RigDrag:
 
     def release(self, autokey: bool = True, frame: int | None = None) -> list:
         """End the drag keeping the controls; with ``autokey`` key the changed channels at ``frame`` (the scene's
-        current frame by default).  Returns the names of the channels keyed."""
+        current frame by default).  Returns the names of the channels keyed.
+
+        When the last move stopped short of its targets (``NOT_CONVERGED``: a deferred Jacobian refresh, or its
+        step limit) the drag first :meth:`settle` s, so the released pins land as a full solve puts them; if that
+        fails the drag stays active, nothing is keyed, and the error is re-raised."""
         self._open()
+        if self.targets is not None and self.result is not None and self.result.status != Status.OK:
+            self.settle()
         changed = self.changed()
         keyed = []
         if autokey and changed:

@@ -11,7 +11,9 @@ keyed.
 The Jacobian is by forward finite differences: one channel moved, one depsgraph update, one read per channel
 (cost: n evaluations of the whole rig — on a production rig, n × the viewport's own re-evaluation time), except
 the shape-key slider columns when only linear-blend Armature modifiers deform after the shape keys and nothing
-reads the sliders back: those are exact and cost no evaluation (:mod:`bridge.rig.analytic`).
+reads the sliders back, and the bone channels' columns when one linear-blend Armature modifier deforms the mesh
+through bones with no constraints but local Limit ones and no driver reads or drives the armature: those are
+exact and cost no evaluation (:mod:`bridge.rig.analytic`).
 
 Refusals (:class:`~core.result.ShapeSpaceError`, one line naming the culprit), checked when the evaluator
 opens (:meth:`RigEvaluator.check`):
@@ -37,7 +39,8 @@ from ...core.errors import ErrorCode
 from ...core.progress import notify
 from ...core.result import ShapeSpaceError
 from ...core.rig import ChannelKind, ControlSet, RigSolveResult, solve_controls
-from .analytic import shape_key_columns
+from ..skin import read_skinning
+from .analytic import bone_columns, shape_key_columns
 from .channels import bind
 
 __all__ = ["RigEvaluator", "apply_controls", "check_editable", "read_controls", "solve_pins"]
@@ -96,6 +99,20 @@ def _check_drivers(ids) -> None:
                 raise ShapeSpaceError(f"driver {idb.name!r} {what} is invalid (expression "
                                       f"{fc.driver.expression!r} failed or a target does not resolve)",
                                       ErrorCode.INVALID)
+
+
+class _Skinning:
+    """The mesh's skinning (:func:`bridge.skin.read_skinning`), read at most once and only when a column
+    computer asks for its deformers (both analytic paths share one read of a 27k-vertex head's groups)."""
+
+    def __init__(self, mesh_obj):
+        self.mesh_obj, self._rig = mesh_obj, None
+
+    @property
+    def deformers(self) -> list:
+        if self._rig is None:
+            self._rig = read_skinning(self.mesh_obj)
+        return self._rig.deformers
 
 
 class RigEvaluator:
@@ -174,6 +191,11 @@ class RigEvaluator:
         Reads the evaluated mesh's ``position`` attribute in place (no ``to_mesh`` copy): on a 27k-vertex head
         0.02 ms instead of 3–5 ms for ``vertices.foreach_get("co")`` of a temporary mesh.
         """
+        co, m = self._read(c)
+        return co.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+
+    def _read(self, c) -> tuple:
+        """Evaluate at ``c`` (None: as the rig stands); (object-space positions (V, 3) float32, world matrix)."""
         if c is not None:
             self._write(c)
         self._at = None if c is None else np.array(c, dtype=np.float64)
@@ -188,38 +210,42 @@ class RigEvaluator:
                                   f"({n} → {len(ob_eval.data.vertices)})", ErrorCode.TOPOLOGY_MODIFIERS)
         buf = np.empty(n * 3, dtype=np.float32)
         positions.data.foreach_get("vector", buf)
-        m = np.array(ob_eval.matrix_world, dtype=np.float64)
-        return buf.reshape(n, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]
+        return buf.reshape(n, 3), np.array(ob_eval.matrix_world, dtype=np.float64)
 
     def evaluate(self, c) -> np.ndarray:
         """World-space evaluated positions of the vertices at ``indices`` (p, 3) for controls ``c`` (n,)."""
-        return self.all_points(c)[self.indices]
+        co, m = self._read(c)
+        return co[self.indices].astype(np.float64) @ m[:3, :3].T + m[:3, 3]
 
-    def _analytic_columns(self):
-        """The slider columns' computer (:mod:`bridge.rig.analytic`), built at the first use; None when off."""
+    def _analytic_columns(self) -> list:
+        """The analytic columns' computers (:mod:`bridge.rig.analytic`: sliders, bones), built at the first use;
+        empty when off or when none applies (``analytic_reason`` says why)."""
         if self._columns is None:
             if self.use_analytic:
-                cols, self.analytic_reason = shape_key_columns(self.mesh_obj, self.controls, self.ids, self.indices)
+                skin = _Skinning(self.mesh_obj)
+                keys, why_keys = shape_key_columns(self.mesh_obj, self.controls, self.ids, self.indices, skin)
+                bones, why_bones = bone_columns(self.mesh_obj, self.controls, self.ids, self.indices, skin)
+                self._columns = [c for c in (keys, bones) if c is not None]
+                self.analytic_reason = "; ".join(r for r in (why_keys, why_bones and f"bones: {why_bones}") if r)
             else:
-                cols, self.analytic_reason = None, "off"
-            self._columns = (cols,)
-        return self._columns[0]
+                self._columns, self.analytic_reason = [], "off"
+        return self._columns
 
     def jacobian(self, c, base=None) -> np.ndarray:
-        """Jacobian (3p, n) at ``c``: analytic slider columns where they apply (module doc), the others by
-        forward differences (one channel moved, one depsgraph update per channel)."""
+        """Jacobian (3p, n) at ``c``: analytic slider and bone columns where they apply (module doc), the others
+        by forward differences (one channel moved, one depsgraph update per channel)."""
         c = np.asarray(c, dtype=np.float64)
         lo, hi = self.controls.solve_bounds(self.c0)
         fast = self._analytic_columns()
-        if base is None or (fast is not None and not np.array_equal(self._at, c)):
+        if base is None or (fast and not np.array_equal(self._at, c)):
             p0 = self.evaluate(c).reshape(-1)           # the analytic columns need the rig evaluated at c
         else:
             p0 = np.asarray(base, np.float64).reshape(-1)
         J = np.zeros((p0.size, c.size))
         skip = set()
-        if fast is not None:
-            J[:, fast.columns] = fast()
-            skip = set(fast.columns)
+        for comp in fast:
+            J[:, comp.columns] = comp(p0.reshape(-1, 3))
+            skip.update(comp.columns)
         self._write(c)
         for i, b in enumerate(self.bindings):
             if i in skip:
@@ -227,7 +253,7 @@ class RigEvaluator:
             h = self.steps[i]
             step = h if c[i] + h <= hi[i] or c[i] - h < lo[i] else -h
             b.set(c[i] + step)
-            J[:, i] = (self.all_points()[self.indices].reshape(-1) - p0) / step
+            J[:, i] = (self.evaluate(None).reshape(-1) - p0) / step
             b.set(c[i])
         return J
 

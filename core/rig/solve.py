@@ -16,12 +16,14 @@ Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one up
   one evaluation per channel, steps pointing into the box.  It is kept between iterations and corrected by
   Broyden's rank-one update ``J += (ΔP − J d) dᵀ / dᵀd`` after every evaluated trial step.
 - Each step solves the bounded linear least-squares problem ``min ‖J d + e‖² + μ‖S(c + d − r)‖² + λ‖D d‖²``
-  on ``lo − c ≤ d ≤ hi − c`` exactly (a dense primal–dual active set, :func:`core.boxqp.active_set_dense`,
-  falling back on SciPy's bounded least squares), with Marquardt's scaling ``D² = diag(JᵀJ + μS²)``.
+  on ``lo − c ≤ d ≤ hi − c`` exactly (a dense primal active set, :func:`box_qp_primal`, warm-started from the
+  previous step's active sets, falling back on SciPy's bounded least squares), with Marquardt's scaling
+  ``D² = diag(JᵀJ + μS²)``.
 - A step is accepted only when the rig, evaluated again at the new controls, gives an objective that does
   not increase; otherwise ``λ`` grows.  When a step is refused or *stalls* (actual decrease below a quarter
   of the predicted one) on a Broyden-updated Jacobian, the Jacobian is recomputed at the current controls
-  before anything else.
+  before anything else — or, with ``defer_refresh``, the solve stops there (an interactive move keeps its
+  verified step and leaves the refresh to an idle moment or the release).
 
 Stopping: ``OK`` when every pin is within ``pin_tol`` of its target, or when, on a freshly computed Jacobian,
 the bounded Gauss–Newton step predicts a decrease below ``ftol`` × f (first-order stationarity on the box, up
@@ -30,8 +32,8 @@ by more than its finite-difference step (stationary to the resolution of the Jac
 below what the Jacobian can resolve), or — with ``xtol`` > 0 — when the bounded Gauss–Newton step on the current
 Jacobian, fresh or Broyden-updated, would move no pin by more than ``xtol`` (a take's frames, :mod:`.take`);
 ``NOT_CONVERGED`` (value: the best controls found, which never have a higher
-objective than the start) at the iteration limit or when no step decreases the objective although the model
-predicts one.
+objective than the start) at the iteration limit, when no step decreases the objective although the model
+predicts one, or where a deferred refresh stops it.
 """
 from __future__ import annotations
 
@@ -40,13 +42,13 @@ from typing import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import lsq_linear
 
-from ..boxqp import active_set_dense
 from ..errors import ErrorCode
 from ..result import Result, ShapeSpaceError, Status
 
-__all__ = ["RigSolveResult", "broyden_update", "finite_difference_jacobian", "solve_controls"]
+__all__ = ["RigSolveResult", "box_qp_primal", "broyden_update", "finite_difference_jacobian", "solve_controls"]
 
 
 @dataclass(kw_only=True)
@@ -138,16 +140,68 @@ def broyden_update(J: np.ndarray, d: ArrayLike, dp: ArrayLike) -> np.ndarray:
     return J
 
 
-def _step(J, e, reg_w, c, ref, lam, D2, lo, hi):
-    """The bounded LM step: argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c."""
+def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_iter: int | None = None,
+                  lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> np.ndarray | None:
+    """Minimiser of ``½ xᵀHx − gᵀx`` on ``lo ≤ x ≤ hi`` (dense SPD ``H`` (n, n), ``lo ≤ 0 ≤ hi`` (n,)) by the
+    primal active-set method (Nocedal & Wright, *Numerical Optimization*, alg. 16.3, for bounds).
+
+    From ``x = 0`` with the entries on a bound that the gradient pushes out held (and those of ``lower`` /
+    ``upper`` (n,) bool, a previous solve's active sets, at their bounds): solve the free block exactly
+    (Cholesky); step toward that point until the first bound blocks it (hold that entry) or, when it is feasible,
+    release the held entry whose multiplier points most into the box — finite for SPD ``H``, one small solve per
+    change of the active set.  (:func:`core.boxqp.active_set_dense`, the primal–dual method, cycles on the
+    ill-conditioned steps (cond ~1e10) of a face with many sliders on their bounds.)
+
+    Returns
+    -------
+    ndarray (n,) or None
+        The KKT point, or None at the iteration limit (``10 n + 20`` by default) or when a free block is not
+        positive definite.
+    """
+    n = g.size
+    fixed = hi <= lo
+    lower = fixed | ((lo >= 0) & (g < 0)) | (False if lower is None else lower & np.isfinite(lo))
+    upper = ~lower & (((hi <= 0) & (g > 0)) | (False if upper is None else upper & np.isfinite(hi)))
+    x = np.where(lower, np.minimum(lo, hi), np.where(upper, hi, 0.0))
+    for _ in range(10 * n + 20 if max_iter is None else max_iter):
+        free = ~(lower | upper)
+        target = x.copy()
+        f = np.flatnonzero(free)
+        if f.size:
+            try:
+                factor = cho_factor(H[np.ix_(f, f)], check_finite=False)
+            except np.linalg.LinAlgError:
+                return None
+            rhs = g[f] - H[np.ix_(f, np.flatnonzero(~free))] @ x[~free]
+            target[f] = cho_solve(factor, rhs, check_finite=False)
+        p = target - x
+        with np.errstate(divide="ignore", invalid="ignore"):
+            room = np.where(p < 0, (lo - x) / p, np.where(p > 0, (hi - x) / p, np.inf))
+        room[~free] = np.inf
+        k = int(np.argmin(room))
+        if room[k] < 1.0:                                    # a bound blocks the way: go there and hold it
+            x = x + max(room[k], 0.0) * p
+            x[k] = lo[k] if p[k] < 0 else hi[k]
+            lower[k], upper[k] = p[k] < 0, p[k] > 0
+            continue
+        x = target
+        mult = g - H @ x                                      # −∇: > 0 pushes up, < 0 pushes down
+        push = np.where(lower & ~fixed, mult, 0.0) - np.where(upper, mult, 0.0)
+        k = int(np.argmax(push))
+        if push[k] <= 1e-12 * (np.abs(g).max() + 1e-300):
+            return np.clip(x, lo, hi)
+        lower[k] = upper[k] = False
+    return None
+
+
+def _step(J, e, reg_w, c, ref, lam, D2, lo, hi, held=None):
+    """The bounded LM step: argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c
+    (``held``: (at lo, at hi) (n,) bool of a previous step's end point, a warm start)."""
     H = J.T @ J + np.diag(reg_w + lam * D2)
     g = -(J.T @ e) - reg_w * (c - ref)
-    dlo, dhi = lo - c, hi - c
-    try:
-        d, _ = active_set_dense(H, g, dlo, dhi, np.clip(np.zeros_like(c), dlo, dhi),
-                                np.zeros(c.size, bool), np.zeros(c.size, bool))
-    except np.linalg.LinAlgError:
-        d = None
+    dlo, dhi = np.minimum(lo - c, 0.0), np.maximum(hi - c, 0.0)
+    d = box_qp_primal(H, g, dlo, dhi, lower=None if held is None else held[0],
+                      upper=None if held is None else held[1])
     if d is None:
         a = np.sqrt(reg_w + lam * D2)
         A = np.vstack([J, np.diag(a)])
@@ -207,7 +261,8 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
                    steps: ArrayLike | None = None, weights: ArrayLike | None = None,
                    reference: ArrayLike | None = None, mu: float = 1e-6, pin_tol: float = 0.0,
                    ftol: float = 1e-10, max_iter: int = 50, first_jacobian: np.ndarray | None = None,
-                   first_points: np.ndarray | None = None, xtol: float = 0.0) -> RigSolveResult:
+                   first_points: np.ndarray | None = None, xtol: float = 0.0,
+                   defer_refresh: bool = False, first_active: tuple | None = None) -> RigSolveResult:
     """Controls that bring the pins to their targets (bounded, regularised Levenberg–Marquardt; module doc).
 
     Parameters
@@ -248,6 +303,16 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         Also stop (``OK``) when the bounded Gauss–Newton step on the current Jacobian, fresh or Broyden-updated,
         would move no pin by more than this distance (0: off).  A take solved frame after frame stops on it
         without recomputing the Jacobian every frame.
+    defer_refresh : bool
+        Never recompute a Broyden-updated Jacobian (``first_jacobian``) inside this solve: where the solve would
+        (a step on it is refused, stalls or predicts no decrease), it stops instead — ``NOT_CONVERGED`` with
+        ``diagnostics["jacobian_stale"]`` True, the value the last verified controls — and leaves the refresh to
+        the caller (a drag's next idle moment or its release, :mod:`bridge.rig.drag`).  A mouse move then costs
+        its verified step(s) and never ``n`` evaluations.  Without ``first_jacobian`` the first Jacobian is
+        still computed.
+    first_active : (ndarray (n,) bool, ndarray (n,) bool), optional
+        Channels a previous solve's last step left on their lower / upper bounds (its ``diagnostics["active"]``):
+        a warm start for the bounded steps (only their speed depends on it).
 
     Returns
     -------
@@ -262,6 +327,9 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
     if h.shape != c.shape or not np.all(np.isfinite(h) & (h > 0)):
         raise ShapeSpaceError(f"steps: expected {c.size} positive numbers", ErrorCode.RANGE)
     run = _LevenbergMarquardt(evaluate, jacobian, t, lo, hi, s, w, ref, mu, h)
+    run.defer = bool(defer_refresh)
+    if first_active is not None:
+        run.held = tuple(np.asarray(a, bool).reshape(c.shape) for a in first_active)
     run.start(c, first_points, first_jacobian)
     status, message = Status.NOT_CONVERGED, ""
     while True:
@@ -292,6 +360,8 @@ class _LevenbergMarquardt:
         self.reg_w = mu * s * s
         self.evaluations = self.jacobians = 0
         self.lam, self.it = 1e-3, 0
+        self.defer, self.stale = False, False
+        self.held = None
 
     # ---------------------------------------------------------------- the rig
     def points(self, x):
@@ -322,6 +392,14 @@ class _LevenbergMarquardt:
     def refresh(self):
         self.J, self.fresh = self.jac(self.c, self.P), True
 
+    def stale_stop(self, why):
+        """Refresh the Broyden-updated Jacobian — or, deferring, the ``(status, message)`` that stops the run."""
+        if not self.defer:
+            self.refresh()
+            return None
+        self.stale = True
+        return Status.NOT_CONVERGED, f"Jacobian refresh deferred: {why} on the Broyden-updated Jacobian"
+
     # ---------------------------------------------------------------- the iteration
     def start(self, c, first_points, first_jacobian):
         self.c = c
@@ -336,6 +414,14 @@ class _LevenbergMarquardt:
         else:
             self.refresh()
 
+    def step(self, lam):
+        """The bounded LM step for ``lam`` from the current controls, warm-started from the last step's active
+        sets (which it updates)."""
+        d = _step(self.J, self.e, self.reg_w, self.c, self.ref, lam, self.D2, self.lo, self.hi, self.held)
+        x = self.c + d
+        self.held = (x <= self.lo) & (self.hi > self.lo), x >= self.hi
+        return d
+
     def converged(self, pin_tol, ftol, xtol):
         """The reason to stop with ``OK`` before the next trial step, or None."""
         if pin_tol > 0 and np.max(np.linalg.norm(self.P - self.t, axis=1)) <= pin_tol:
@@ -344,7 +430,7 @@ class _LevenbergMarquardt:
         self.D2 = np.maximum(np.einsum("ij,ij->j", J, J) + self.reg_w, 1e-12 * np.max(self.s * self.s))
         if not (self.fresh or xtol > 0):
             return None
-        d_gn = _step(J, e, self.reg_w, c, self.ref, 1e-9, self.D2, self.lo, self.hi)
+        d_gn = self.step(1e-9)
         if self.fresh and self.f - _model(J, e, self.reg_w, c, self.ref, d_gn) <= ftol * self.f + 1e-300:
             return "stationary on the bounds"
         if xtol > 0:
@@ -356,13 +442,12 @@ class _LevenbergMarquardt:
     def trial(self):
         """One trial step (verified by evaluating the rig); ``(status, message)`` when the run must stop."""
         stalled = (Status.NOT_CONVERGED, "stalled: no step decreases the objective although the model predicts one")
-        d = _step(self.J, self.e, self.reg_w, self.c, self.ref, self.lam, self.D2, self.lo, self.hi)
+        d = self.step(self.lam)
         was_fresh = self.fresh
         pred = self.f - _model(self.J, self.e, self.reg_w, self.c, self.ref, d)
         if not np.any(d) or pred <= 0.0:
             if not self.fresh:
-                self.refresh()
-                return None
+                return self.stale_stop("the step predicts no decrease")
             if self.lam > 1e12:
                 return stalled
             self.lam *= 10.0
@@ -378,9 +463,9 @@ class _LevenbergMarquardt:
             self.fresh = False
             self.lam = self.lam / 3.0 if rho > 0.75 else (self.lam * 2.0 if rho < 0.25 else self.lam)
             if rho < 0.25 and not was_fresh:
-                self.refresh()
+                return self.stale_stop(f"a step gained {rho:.2g} of its prediction")
         elif not self.fresh:
-            self.refresh()
+            return self.stale_stop("a step was refused")
         elif np.all(np.abs(c_new - self.c) <= self.h):
             return Status.OK, "stationary to the resolution of the Jacobian"
         else:
@@ -396,4 +481,5 @@ class _LevenbergMarquardt:
                               pin_errors=errs, objective=self.f, objective_start=self.f_start,
                               evaluations=self.evaluations, jacobians=self.jacobians, jacobian=J,
                               diagnostics={"lambda": self.lam, "pin_error_max": float(errs.max()),
-                                           "objective_history": self.history})
+                                           "objective_history": self.history, "jacobian_stale": self.stale,
+                                           "active": self.held})

@@ -127,9 +127,49 @@ def _limit_location(pb, y):
     return con
 
 
-def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str = "hybrid") -> Rig:
+def _face_bones(ob, arm, count: int, moving) -> list:
+    """``count`` game-rig face bones (no parent) at farthest-point samples of the ``moving`` vertices (V,) bool,
+    each weighting the vertices within a tenth of the head's diagonal (Gaussian falloff, Blender normalises),
+    Limit Location ±1/50 of the diagonal on every axis; returns their location channels (3 per bone)."""
+    world = Rig(ob, None, None, "").world_points()
+    diag = diagonal(world)
+    cand = np.flatnonzero(moving)
+    picked = [cand[np.argmax(world[cand, 1])]]
+    dist = np.linalg.norm(world[cand] - world[picked[0]], axis=1)
+    for _ in range(count - 1):
+        picked.append(cand[np.argmax(dist)])
+        dist = np.minimum(dist, np.linalg.norm(world[cand] - world[picked[-1]], axis=1))
+    names = [f"face.{k:03d}" for k in range(count)]
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.mode_set(mode="EDIT")
+    for name, v in zip(names, picked):
+        eb = arm.data.edit_bones.new(name)
+        eb.head, eb.tail = tuple(world[v]), tuple(world[v] + [0.0, 0.0, 0.02 * diag])
+    bpy.ops.object.mode_set(mode="OBJECT")
+    chans = []
+    for name, v in zip(names, picked):
+        d = np.linalg.norm(world - world[v], axis=1) / (0.1 * diag)
+        w = np.round(np.exp(-2.0 * d * d) * (d < 1.0), 2)
+        group = ob.vertex_groups.new(name=name)
+        for value in np.unique(w[w > 0]):
+            group.add(np.flatnonzero(w == value).tolist(), float(value), "REPLACE")
+        con = arm.pose.bones[name].constraints.new("LIMIT_LOCATION")
+        con.owner_space = "LOCAL"
+        r = 0.02 * diag
+        for axis in "xyz":
+            setattr(con, f"use_min_{axis}", True)
+            setattr(con, f"use_max_{axis}", True)
+            setattr(con, f"min_{axis}", -r)
+            setattr(con, f"max_{axis}", r)
+        chans += [brig.bone_channel(arm, name, "location", a) for a in range(3)]
+    return chans
+
+
+def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str = "hybrid",
+               face_bones: int = 0) -> Rig:
     """A shared head + a weighted jaw bone + its shape keys ``keys`` (facecap and six keys by default; ``None``:
-    every key that moves a vertex) (module doc)."""
+    every key that moves a vertex) (module doc); ``face_bones`` > 0 adds that many game-rig face bones with
+    their location channels (:func:`_face_bones`: ICT with every key and 30 bones is a ~150-channel rig)."""
     ob = load_head(path, mesh_name)
     jaw = _shape_delta(ob, "jawOpen")
     mag = np.linalg.norm(jaw, axis=1)
@@ -153,6 +193,11 @@ def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str
     if keys is None:
         keys = [kb.name for kb in ob.data.shape_keys.key_blocks[1:] if np.abs(_shape_delta(ob, kb.name)).max() > 0]
     chans += [brig.shape_key_channel(ob, k) for k in keys]
+    if face_bones:
+        moving = np.zeros(len(ob.data.vertices), bool)
+        for k in keys:
+            moving |= np.abs(_shape_delta(ob, k)).max(axis=1) > 0
+        chans += _face_bones(ob, arm, face_bones, moving)
     bpy.context.view_layer.update()
     return Rig(ob, arm, brig.control_set(chans), name)
 

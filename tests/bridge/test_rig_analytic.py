@@ -5,6 +5,7 @@ linear: its central difference is exact up to float32 rounding) with the jaw bon
 key deltas carried through the posed skinning, not the raw deltas.
 """
 import numpy as np
+import pytest
 
 import rigs
 from blender_support import bpy
@@ -119,3 +120,79 @@ def test_a_driven_slider_keeps_its_finite_difference_column():
         assert np.abs(J[:, rig.controls.index("key mouthFunnel")]).max() == 0.0   # the driver overrides it
         k = rig.controls.index("key cheekPuff")
         np.testing.assert_allclose(J[:, k], _central(ev, k, 0.1), atol=1e-5 * rigs.diagonal(rig.world_points()))
+
+
+def _bone_rig(mode):
+    """The posed hybrid rig with the jaw in rotation ``mode``, its rotation channels and its three location
+    channels; a child bone of the jaw (the lower lip) takes part of the jaw's weights, so a jaw channel moves a
+    subtree."""
+    rig = rigs.hybrid_rig(_head())
+    arm = rig.armature
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.mode_set(mode="EDIT")
+    jaw = arm.data.edit_bones["jaw"]
+    lip = arm.data.edit_bones.new("lip")
+    lip.head, lip.tail, lip.parent = jaw.tail, jaw.tail + (jaw.tail - jaw.head) * 0.3, jaw
+    bpy.ops.object.mode_set(mode="OBJECT")
+    group = rig.mesh.vertex_groups.new(name="lip")
+    jaw_w = np.array([rig.mesh.vertex_groups["jaw"].weight(i) if any(g.group == rig.mesh.vertex_groups["jaw"].index
+                                                                       for g in v.groups) else 0.0
+                      for i, v in enumerate(rig.mesh.data.vertices)])
+    for i in np.flatnonzero(jaw_w > 0.5):
+        group.add([int(i)], float(jaw_w[i] - 0.4), "REPLACE")
+    pb = arm.pose.bones["jaw"]
+    for con in list(pb.constraints):
+        pb.constraints.remove(con)
+    pb.lock_rotation[1] = False
+    pb.rotation_mode = mode
+    lip_pb = arm.pose.bones["lip"]
+    lip_pb.rotation_mode = "XYZ"
+    lip_pb.rotation_euler = (0.2, -0.1, 0.15)
+    lip_pb.location = (0.001, 0.002, -0.001)
+    chans = [brig.bone_channel(arm, "jaw", "rotation", a) for a in range(3)]
+    chans += [brig.bone_channel(arm, "jaw", "location", a) for a in range(3)]
+    chans += [brig.bone_channel(arm, "lip", "rotation", 0), brig.bone_channel(arm, "lip", "scale", 1)]
+    chans += [ch for ch in rig.controls.channels if ch.kind == "shape_key"]
+    controls = brig.control_set(chans)
+    c = brig.read_controls(controls)
+    c[:8] = [0.25, -0.1, 0.12, 0.002, -0.003, 0.001, 0.1, 1.1]
+    brig.apply_controls(controls, c)
+    return rig, controls
+
+
+@pytest.mark.parametrize("mode", ["XYZ", "ZXY", "QUATERNION", "AXIS_ANGLE"])
+def test_bone_columns_match_blenders_central_differences_and_cost_one_evaluation(mode):
+    rig, controls = _bone_rig(mode)
+    pins = np.arange(0, len(rig.mesh.data.vertices), 7)
+    with brig.RigEvaluator(rig.mesh, controls, pins) as ev:
+        evals = ev.evaluations
+        J = ev.jacobian(ev.c0)
+        assert ev.evaluations - evals <= 1                        # one evaluation at c, no finite differences
+        assert ev.analytic_reason == ""
+        for i in range(8):
+            h = 1e-3 if controls.channels[i].kind == "location" else 1e-2
+            ref = _central(ev, i, h)
+            assert np.abs(ref).max() > 1e-4 * ev.diagonal, controls.channels[i].name      # it moves the pins
+            # central differences of float32 positions: truncation O(h²) and rounding ~1e-7 / h of the diagonal
+            np.testing.assert_allclose(J[:, i], ref, atol=2e-3 * np.abs(ref).max(), err_msg=controls.channels[i].name)
+
+
+def test_a_constrained_bone_or_a_driver_on_the_armature_keeps_finite_differences():
+    rig, controls = _bone_rig("XYZ")
+    pins = np.arange(0, len(rig.mesh.data.vertices), 13)
+    con = rig.armature.pose.bones["lip"].constraints.new("COPY_ROTATION")
+    con.target = rig.armature
+    con.subtarget = "jaw"
+    con.influence = 0.5
+    bpy.context.view_layer.update()
+    with brig.RigEvaluator(rig.mesh, controls, pins) as ev:
+        J = ev.jacobian(ev.c0)
+        assert "bones: bone 'lip' has a COPY_ROTATION constraint" in ev.analytic_reason
+        np.testing.assert_allclose(J[:, 0], _central(ev, 0, 1e-2), atol=2e-2 * np.abs(J[:, 0]).max())
+    rig.armature.pose.bones["lip"].constraints.remove(con)
+    kbs = rig.mesh.data.shape_keys.key_blocks
+    rigs._driver(kbs["cheekPuff"], "var", rig.armature, {"bone": "jaw", "transform": "ROT_X"})
+    bpy.context.view_layer.update()
+    with brig.RigEvaluator(rig.mesh, controls, pins, check=False) as ev:
+        ev.jacobian(ev.c0)
+        assert "bones: a driver reads or drives 'FaceRig'" in ev.analytic_reason

@@ -117,9 +117,9 @@ def test_drag_lands_every_pin_and_release_keys_exactly_the_changed_channels(buil
     bpy.context.scene.frame_set(7)
     before = brig.read_controls(rig.controls)
     drag, pins, targets, diag, _ = _drag_to_random_pose(rig, 5, count)
+    keyed = drag.release(autokey=True)                   # the pins land at release (moves may trail: module doc)
     _assert_landed(rig, pins, targets, diag)
     shown = rig.world_points()
-    keyed = drag.release(autokey=True)
     _assert_keys_are_the_changed_channels(rig, drag, before, keyed, 7.0)
     bpy.context.scene.frame_set(1)
     bpy.context.scene.frame_set(7)                       # the keys play back the dragged pose
@@ -132,8 +132,8 @@ def test_rigify_drag_lands_every_pin_and_keys_all_four_quaternion_components():
     assert rig.controls.channels[0].rotation_mode == "QUATERNION"
     before = brig.read_controls(rig.controls)
     drag, pins, targets, diag, _ = _drag_to_random_pose(rig, 13, 20)
-    _assert_landed(rig, pins, targets, diag)
     keyed = drag.release()
+    _assert_landed(rig, pins, targets, diag)
     assert "jaw_master rotation X" in keyed
     _assert_keys_are_the_changed_channels(rig, drag, before, keyed, float(bpy.context.scene.frame_current))
 
@@ -194,8 +194,8 @@ def test_drag_works_in_object_and_pose_mode(mode):
     bpy.ops.object.mode_set(mode=mode)
     before = brig.read_controls(rig.controls)
     drag, pins, targets, diag, _ = _drag_to_random_pose(rig, 17, 5, moves=2)
-    _assert_landed(rig, pins, targets, diag)
     keyed = drag.release()
+    _assert_landed(rig, pins, targets, diag)
     assert rig.armature.mode == mode
     _assert_keys_are_the_changed_channels(rig, drag, before, keyed, float(bpy.context.scene.frame_current))
 
@@ -211,3 +211,54 @@ def test_small_moves_reuse_the_cached_jacobian():
     assert np.median([r.evaluations for r in later]) < len(rig.controls), [r.evaluations for r in later]
     _assert_landed(rig, pins, targets, diag)
     drag.cancel()
+
+
+def test_moves_defer_jacobian_refreshes_and_release_settles_where_a_full_solve_lands():
+    """After the first move no move computes a Jacobian and each makes one verified step: a jump the cached
+    Jacobian cannot follow (past the peak of the driver rig's in-between hat, up the ``sin`` and ``var + 2 var²``
+    drivers) stops short with its verified controls, and the release settles: its solve lands every pin, each of
+    its steps verified, and the keys hold the settled pose."""
+    rig = rigs.driver_rig(_head())
+    pins = _surface_pins(rig, 8, np.random.default_rng(9))
+    diag = rigs.diagonal(rig.world_points())
+    c0 = brig.read_controls(rig.controls)
+    brig.apply_controls(rig.controls, [0.45, 0.45, 0.05, 0.55, 0.9])
+    targets = _pin_points(rig.world_points(), pins)
+    brig.apply_controls(rig.controls, c0)
+    drag = brig.RigDrag(rig.mesh, rig.controls)
+    start = drag.begin(pins)
+    first = drag.move(start + (targets - start) * 0.01)
+    assert first.jacobians >= 1
+    jump = drag.move(targets)                                       # the whole way at once on the cached Jacobian
+    assert jump.jacobians == 0 and jump.evaluations == 1            # one verified step per move
+    hist = jump.diagnostics["objective_history"]
+    assert all(b <= a for a, b in zip(hist, hist[1:]))
+    np.testing.assert_allclose(jump.points, _pin_points(rig.world_points(), pins), atol=1e-6 * diag)
+    assert jump.status != 0 and jump.pin_error_max > RECOVERY_TOL * diag     # short of the targets
+    keyed = drag.release()
+    settled = drag.result
+    assert settled is not jump and settled.jacobians >= 1 and settled.status == 0
+    hist = settled.diagnostics["objective_history"]
+    assert all(b <= a for a, b in zip(hist, hist[1:]))
+    _assert_landed(rig, pins, targets, diag)
+    assert keyed
+    shown = rig.world_points()
+    bpy.context.scene.frame_set(bpy.context.scene.frame_current + 1)
+    bpy.context.scene.frame_set(bpy.context.scene.frame_current - 1)
+    np.testing.assert_allclose(rig.world_points(), shown, atol=1e-6 * diag)
+
+
+def test_settle_without_a_move_does_nothing_and_after_one_lands_the_pins():
+    rig = rigs.driver_rig(_head())
+    drag, pins, targets, diag, results = _drag_to_random_pose(rig, 3, 6, moves=1)
+    before = brig.read_controls(rig.controls)
+    res = drag.settle()
+    assert res.status == 0 and res.objective <= results[-1].objective
+    np.testing.assert_allclose(res.points, _pin_points(rig.world_points(), pins), atol=1e-6 * diag)
+    _assert_landed(rig, pins, targets, diag)
+    drag.cancel()
+    fresh = brig.RigDrag(rig.mesh, rig.controls)
+    fresh.begin(pins)
+    assert fresh.settle() is None
+    fresh.cancel()
+    assert np.abs(brig.read_controls(rig.controls) - before).max() > 0          # cancel put back the rest pose

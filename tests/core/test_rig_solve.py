@@ -5,7 +5,7 @@ References: the analytic answers of the toy rigs (targets made by the rig itself
 """
 import numpy as np
 import pytest
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, lsq_linear
 
 from core.result import ShapeSpaceError, Status
 from core.rig import (
@@ -18,6 +18,7 @@ from core.rig import (
     rotation_vector_from_quaternion,
     solve_controls,
 )
+from core.rig.solve import box_qp_primal
 
 
 # --------------------------------------------------------------------------- toy rigs
@@ -264,3 +265,63 @@ def test_rounded_evaluation_stops_at_the_jacobians_resolution_not_at_the_iterati
     assert res.status == Status.OK, res.message
     assert res.iterations < 200
     assert res.pin_error_max <= 1e-5
+
+
+def test_a_deferred_refresh_stops_on_the_stale_jacobian_and_computes_none():
+    """``defer_refresh``: a solve started from a cached Jacobian never recomputes one; where it would (here a
+    useless cache: the first step predicts no decrease, or a step is refused or stalls) it stops with the last
+    verified controls, says so, and the objective never increased."""
+    rig = TwoBoneChain()
+    pins = np.arange(24)
+    t = rig(np.array([0.9, -0.7, 1.2]))[pins]
+    calls = []
+
+    def ev(c):
+        calls.append(c.copy())
+        return rig(c)[pins]
+
+    good = finite_difference_jacobian(ev, [0.0, 0.0, 1.0], [1e-7] * 3, [-3.0] * 3, [3.0] * 3)
+    calls.clear()
+    res = solve_controls(ev, [0.0, 0.0, 1.0], t, first_jacobian=good, mu=0.0, pin_tol=1e-9, defer_refresh=True,
+                         max_iter=50)
+    assert res.jacobians == 0 and res.evaluations == len(calls)          # every evaluation a verified step
+    assert res.status == Status.NOT_CONVERGED and res.diagnostics["jacobian_stale"]
+    assert "deferred" in res.message
+    hist = res.diagnostics["objective_history"]
+    assert all(b <= a for a, b in zip(hist, hist[1:])) and res.objective < res.objective_start
+    np.testing.assert_allclose(rig(res.x)[pins], res.points, atol=1e-12)
+    again = solve_controls(ev, [0.0, 0.0, 1.0], t, first_jacobian=good, mu=0.0, pin_tol=1e-9, max_iter=50)
+    assert again.status == Status.OK and again.jacobians >= 1 and not again.diagnostics["jacobian_stale"]
+    stale = np.zeros((t.size, 3))
+    res2 = solve_controls(ev, [0.0, 0.0, 1.0], t, first_jacobian=stale, mu=0.0, defer_refresh=True)
+    assert res2.jacobians == 0 and res2.diagnostics["jacobian_stale"] and res2.iterations == 1
+    np.testing.assert_array_equal(res2.x, [0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_primal_active_set_box_qp_matches_scipys_bounded_least_squares(seed):
+    """Many channels on their bounds (a face at rest: sliders at 0, the gradient pushing about half of them out):
+    the primal active-set step equals SciPy's BVLS on the same bounded least-squares problem and satisfies the
+    KKT conditions; a channel held still (lo = hi) stays put."""
+    rng = np.random.default_rng(seed)
+    m, n = 60, 59
+    J = rng.normal(size=(m, n)) @ np.diag(rng.uniform(0.05, 2.0, n))
+    e = rng.normal(size=m)
+    reg = np.full(n, 1e-6)
+    lo = np.where(rng.random(n) < 0.7, 0.0, -rng.uniform(0.1, 1.0, n))
+    hi = np.where(rng.random(n) < 0.1, 0.0, rng.uniform(0.1, 1.0, n))
+    hi[lo == hi] = 0.5
+    H, g = J.T @ J + np.diag(reg), -J.T @ e
+    x = box_qp_primal(H, g, lo, hi)
+    ref = lsq_linear(np.vstack([J, np.diag(np.sqrt(reg))]), np.concatenate([-e, np.zeros(n)]), bounds=(lo, hi),
+                     method="bvls", tol=1e-14).x
+    assert x is not None and np.all(x >= lo) and np.all(x <= hi)
+    np.testing.assert_allclose(x, ref, atol=1e-6)
+    mult = g - H @ x                                            # KKT: no free entry, no held entry pushing in
+    tol = 1e-8 * np.abs(g).max()
+    free = (x > lo + 1e-12) & (x < hi - 1e-12)
+    np.testing.assert_allclose(mult[free], 0.0, atol=tol)
+    assert np.all(mult[x <= lo + 1e-12] <= tol) and np.all(mult[x >= hi - 1e-12] >= -tol)
+    lo[0] = hi[0] = 0.0
+    held = box_qp_primal(H, g, lo, hi)
+    assert held[0] == 0.0 and np.all(held >= lo) and np.all(held <= hi)
