@@ -114,7 +114,7 @@ def structure(obj) -> tuple:
     groups = tuple(kb.vertex_group for kb in blocks)
     meta = key.get(driven.PROP)
     ref = key.reference_key
-    return (len(me.vertices), key.use_relative, ref.name if ref else None, tuple(kb.name for kb in blocks),
+    return (len(me.vertices), key.use_relative, ref.name if ref else None, tuple(blocks.keys()),
             tuple(kb.relative_key.name for kb in blocks), groups,
             tuple(g.name for g in obj.vertex_groups) if any(groups) else (), ranges.tobytes(), mute.tobytes(),
             _drivers(key), None if meta is None else str(meta))
