@@ -179,7 +179,7 @@ def write_slider_values(obj, names, values) -> None:
     values = np.asarray(values, dtype=np.float64).ravel()
     if len(values) != len(names):
         raise ShapeSpaceError(f"{len(values)} values for {len(names)} shape keys", "shape")
-    index = {kb.name: i for i, kb in enumerate(blocks)}
+    index = {name: i for i, name in enumerate(blocks.keys())}      # names in one call, not one RNA read per key
     missing = [n for n in names if n not in index]
     if missing:
         raise ShapeSpaceError(f"{obj.name!r} has no shape keys named {', '.join(missing)}", "missing_key")

@@ -39,6 +39,7 @@ from ...core.retarget import (
     transfer_motion,
 )
 from .. import actions, retarget, shapekeys
+from ..manipulation.cache import RIGS
 
 __all__ = ["SOURCE_NAMES", "METHODS", "BoneTarget", "Pipeline", "build_pipeline"]
 
@@ -101,19 +102,24 @@ class Pipeline:
         return self.solver.solve(vector[:n]), bone_values(vector[n:n + 9], self.bones, self.mirror)
 
     def write(self, sliders: np.ndarray, bones: dict) -> str:
-        """Set the target's sliders and the bones; returns '' or why nothing could be written."""
+        """Set the target's sliders and the bones; returns '' or why nothing could be written.
+
+        On a rig the drag's cache holds, the writes are evaluated at once as ShapeSpace's own
+        (:meth:`bridge.manipulation.RigCache.own_update`), so they are not taken for outside edits.
+        """
         obj = bpy.data.objects.get(self.target)
         if obj is None or obj.type != "MESH" or obj.data.shape_keys is None:
             return f"the target {self.target!r} was deleted (or lost its shape keys)"
-        shapekeys.write_slider_values(obj, self.slider_names, sliders)
-        if bones:
-            arm = bpy.data.objects.get(self.armature)
-            if arm is None or arm.type != "ARMATURE":
-                return f"the armature {self.armature!r} was deleted"
-            for b in self.bones:
-                pb = arm.pose.bones.get(b.name)
-                if pb is not None:
-                    setattr(pb, b.channel[0], bones[b.name])
+        with RIGS.own_update(obj):          # ShapeSpace's own writes: no checksum at the next drag on this rig
+            shapekeys.write_slider_values(obj, self.slider_names, sliders)
+            if bones:
+                arm = bpy.data.objects.get(self.armature)
+                if arm is None or arm.type != "ARMATURE":
+                    return f"the armature {self.armature!r} was deleted"
+                for b in self.bones:
+                    pb = arm.pose.bones.get(b.name)
+                    if pb is not None:
+                        setattr(pb, b.channel[0], bones[b.name])
         return ""
 
 

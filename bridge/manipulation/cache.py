@@ -28,7 +28,9 @@ that Python can read, so the cache combines three checks:
   ``depsgraph_update_post`` handler) marks an entry *suspect* when its Key or
   Mesh datablock was updated by anything but ShapeSpace's own slider writes
   (:func:`write_sliders` writes inside :meth:`RigCache.own_write` and
-  evaluates the depsgraph at once, so no other edit can share that update).
+  evaluates the depsgraph at once, so no other edit can share that update;
+  a live frame's writes on a cached rig go through :meth:`RigCache.own_update`,
+  which evaluates what was pending first).
   Only a suspect entry pays for the checksum; an entry whose checksum and
   structure still match is kept (a slider moved in the UI), any other is read
   again.  Every use first evaluates the depsgraph (nothing to do when nothing
@@ -112,7 +114,7 @@ def structure(obj) -> tuple:
     groups = tuple(kb.vertex_group for kb in blocks)
     meta = key.get(driven.PROP)
     ref = key.reference_key
-    return (len(me.vertices), key.use_relative, ref.name if ref else None, tuple(kb.name for kb in blocks),
+    return (len(me.vertices), key.use_relative, ref.name if ref else None, tuple(blocks.keys()),
             tuple(kb.relative_key.name for kb in blocks), groups,
             tuple(g.name for g in obj.vertex_groups) if any(groups) else (), ranges.tobytes(), mute.tobytes(),
             _drivers(key), None if meta is None else str(meta))
@@ -329,6 +331,23 @@ class RigCache:
             yield
         finally:
             entry.writing = False
+
+    @contextlib.contextmanager
+    def own_update(self, obj):
+        """Around ShapeSpace's writes of ``obj``'s sliders outside a drag (a live frame): its own update too.
+
+        Only when this cache holds ``obj`` and would be told of edits (:meth:`_tracked`): whatever is pending
+        is evaluated first, so an edit someone else made is still reported as theirs, then the block's writes
+        are evaluated at once inside :meth:`own_write` — the next drag or Solve Pins pays no checksum of every
+        key coordinate.  Otherwise nothing is evaluated here: the viewport evaluates the writes as before.
+        """
+        if self.peek(obj) is None or not self._tracked(obj):
+            yield
+            return
+        bpy.context.evaluated_depsgraph_get()
+        with self.own_write(obj):
+            yield
+            bpy.context.evaluated_depsgraph_get()
 
     def on_depsgraph_update(self, depsgraph) -> None:
         """``depsgraph_update_post``: mark entries whose mesh or key was updated by someone else suspect."""
