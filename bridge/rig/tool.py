@@ -32,6 +32,9 @@ from .channels import bind
 from .drag import RigDrag
 from .evaluate import _rig_ids, check_editable
 
+#: Verified steps (rig evaluations and, when a step stalls, a Jacobian refresh) per timer tick while the mouse rests.
+REST_STEPS = 3
+
 __all__ = ["RigPinDrag", "add_pin", "drag_for", "finish", "report_text", "rig_pin_problem", "status_line", "uses_rig"]
 
 
@@ -142,6 +145,19 @@ class RigPinDrag:
         self.result = self.rig.move(targets)
         return self.result
 
+    def rest(self, obj) -> bool:
+        """The mouse rests (a timer tick of the tool): finish a slice (``REST_STEPS`` verified steps) of the work the
+        moves deferred (:meth:`RigDrag.settle`), so the pins reach their targets without waiting for the release.
+        Returns True while there is more to do; False once the last solve converged, stopped gaining, or before any
+        move.  A failed step puts the last accepted controls back and raises."""
+        result = self.result
+        if self.rig is None or self.rig.ev is None or result is None or result.status != Status.NOT_CONVERGED:
+            return False
+        before = result.diagnostics.get("objective_history", [np.inf])[-1]
+        self.result = self.rig.settle(max_iter=REST_STEPS)
+        after = self.result.diagnostics.get("objective_history", [before])[-1]
+        return self.result.status == Status.NOT_CONVERGED and after < before
+
     def cancel(self, obj) -> None:
         """Put every channel back exactly as it was at mouse-down and remove a pin this drag made (nothing keyed)."""
         if self.rig is not None and self.rig.ev is not None:
@@ -161,6 +177,12 @@ class RigPinDrag:
         """End the drag keeping the controls, keying nothing."""
         if self.rig is not None and self.rig.ev is not None:
             self.rig.release(autokey=False)
+
+
+def rest(drag, obj) -> bool:
+    """A timer tick while the mouse rests, for either kind of drag: a rig drag settles a slice of its deferred work
+    (:meth:`RigPinDrag.rest`, True while more remains); the linear drag has none (False)."""
+    return drag.rest(obj) if isinstance(drag, RigPinDrag) else False
 
 
 def status_line(drag, result) -> str:

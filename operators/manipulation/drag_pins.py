@@ -8,6 +8,7 @@ from ..reporting import FAILED, attempt
 from ._polls import pin_face
 
 PICK_RADIUS_PX = 12.0
+REST_INTERVAL_S = 0.05     # while the mouse rests, a rig drag settles what its moves deferred at this rate
 
 
 class SHAPESPACE_OT_drag_pins(bpy.types.Operator):
@@ -39,6 +40,7 @@ changed channels (auto-key)"""
         if grabbed is not None:
             return grabbed
         context.window_manager.modal_handler_add(self)
+        self._timer = context.window_manager.event_timer_add(REST_INTERVAL_S, window=context.window)
         context.workspace.status_text_set("Drag: move the pin · release to set · right-click/Esc to cancel")
         return {"RUNNING_MODAL"}
 
@@ -90,6 +92,11 @@ changed channels (auto-key)"""
                 self.drag.cancel(ob)
                 return self._end(context, {"CANCELLED"})
             return {"RUNNING_MODAL"}
+        if event.type == "TIMER" and self.drag is not None:
+            if attempt(self, self._rest, context, ob) is FAILED:
+                self.drag.cancel(ob)
+                return self._end(context, {"CANCELLED"})
+            return {"RUNNING_MODAL"}
         if event.type == "LEFTMOUSE" and event.value == "RELEASE":
             autokey = context.scene.tool_settings.use_keyframe_insert_auto
             if attempt(self, tool.finish, self.drag, ob, context.scene.frame_current, autokey) is FAILED:
@@ -102,6 +109,7 @@ changed channels (auto-key)"""
         return {"RUNNING_MODAL"}
 
     def _end(self, context, status):
+        self._remove_timer(context)
         self.drag = None
         context.workspace.status_text_set(None)
         if context.area is not None:
@@ -114,7 +122,17 @@ changed channels (auto-key)"""
         result = self.drag.move(ob, context.evaluated_depsgraph_get(), world)
         context.area.header_text_set(tool.status_line(self.drag, result))
 
+    def _rest(self, context, ob):
+        if tool.rest(self.drag, ob):
+            context.area.header_text_set(tool.status_line(self.drag, self.drag.result))
+
+    def _remove_timer(self, context):
+        if getattr(self, "_timer", None) is not None:
+            context.window_manager.event_timer_remove(self._timer)
+            self._timer = None
+
     def cancel(self, context):
+        self._remove_timer(context)
         if getattr(self, "drag", None) is not None:
             self.drag.cancel(context.active_object)
         self.drag = None

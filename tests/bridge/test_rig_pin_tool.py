@@ -73,6 +73,11 @@ def _drag(rig, index, created, target, moves=3):
         assert all(b <= a for a, b in zip(hist, hist[1:])), hist
         shown = _pins_world(rig)                          # the pins land where Blender draws them
         np.testing.assert_allclose(res.points, shown, atol=1e-6 * rigs.diagonal(rig.world_points()))
+    ticks = 0
+    while tool.rest(drag, ob):                            # the mouse rests: the tool's timer settles the deferred work
+        ticks += 1
+        assert ticks < 100
+        np.testing.assert_allclose(drag.result.points, _pins_world(rig), atol=1e-6 * rigs.diagonal(rig.world_points()))
     return drag
 
 
