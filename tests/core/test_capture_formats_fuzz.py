@@ -6,6 +6,8 @@ weights (and rotations) are finite and whose times start at 0 and strictly incre
 never a hang.  Arbitrary text and structured recordings with damaged cells, per reader.
 """
 import json
+import re
+from contextlib import contextmanager
 
 import numpy as np
 from hypothesis import example, given
@@ -165,3 +167,68 @@ def test_mediapipe_csv_damaged(text):
 @given(st.text(max_size=300))
 def test_detection_any_text(text):
     check(text)
+
+
+# --------------------------------------------------------------------------- MediaPipe JSON: template = parser
+@contextmanager
+def json_parser_only():
+    """The MediaPipe JSON reader without its frame template (:class:`core.retarget.formats._FrameTemplate`):
+    every frame through the JSON parser."""
+    from core.retarget import formats
+    tries = formats._TEMPLATE_TRIES
+    formats._TEMPLATE_TRIES = 0
+    try:
+        yield
+    finally:
+        formats._TEMPLATE_TRIES = tries
+
+
+def outcome(text):
+    """What reading ``text`` gives: the stream's names, times, weights (bytes) and issues, or the refusal."""
+    with no_hang():
+        try:
+            s = parse_capture(text, kind="mediapipe_json")
+        except ShapeSpaceError as exc:
+            return "refused", str(exc), exc.code
+    return s.names, s.times.tobytes(), s.weights.tobytes(), [i.message for i in s.issues]
+
+
+tokens = st.sampled_from(["-0", "0", "01", "1.", ".5", "+1", "1e5", "-1.5E-3", "NaN", "Infinity", "-Infinity",
+                          "12345678901234567890", "1e400", "-0.0", "true", "null", '"1"', "[]", "{}", "7", "0.25"])
+
+
+@st.composite
+def mediapipe_texts(draw):
+    """A plain MediaPipe recording as some writer lays it out (spacing, key order, extra keys), then damaged:
+    numbers swapped for other tokens, characters replaced."""
+    chans = draw(st.lists(st.sampled_from(("jawOpen", "eyeBlinkLeft", "cheekPuff", "_neutral", "mouthClose")),
+                          min_size=1, max_size=4, unique=True))
+    last = draw(st.booleans())
+    frames = []
+    for k in range(draw(st.integers(2, 7))):
+        cats = [{"index": j, "score": draw(st.floats(0, 1)), "category_name": n, "display_name": "% 1"}
+                for j, n in enumerate(chans)]
+        frame = {"face_blendshapes": [cats], "timestamp_ms": k * 33} if last else \
+            {"timestamp_ms": draw(st.sampled_from([k * 33, k * 33.5])), "face_blendshapes": [cats]}
+        frames.append(frame)
+    text = json.dumps(frames, indent=draw(st.sampled_from([None, 1])),
+                      separators=draw(st.sampled_from([None, (",", ":")])))
+    for _ in range(draw(st.integers(0, 3))):
+        numbers = [m.span() for m in re.finditer(r"-?[0-9][0-9.eE+-]*", text)]
+        if numbers and draw(st.booleans()):
+            a, b = draw(st.sampled_from(numbers))
+            text = text[:a] + draw(tokens) + text[b:]
+        else:
+            at = draw(st.integers(0, len(text) - 1))
+            text = text[:at] + draw(st.sampled_from('0123456789.-eE",{}[]:% \n')) + text[at + 1:]
+    return text
+
+
+@FUZZ
+@given(mediapipe_texts())
+def test_mediapipe_json_template_reads_as_the_json_parser(text):
+    """Whatever the text, the frame template changes nothing: the same stream, value for value (bits), or the
+    same refusal (message and code) as the JSON parser frame by frame."""
+    fast = outcome(text)
+    with json_parser_only():
+        assert fast == outcome(text)
