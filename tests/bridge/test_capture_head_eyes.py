@@ -244,3 +244,21 @@ def test_discard_result_gives_the_armature_back_what_it_played(scene_with_take):
     assert rep.bones_action not in bpy.data.actions and rep.action not in bpy.data.actions
     bpy.context.scene.frame_set(1)
     assert abs(arm.pose.bones["head"].rotation_quaternion[0] - 0.9) < 1e-6
+
+
+def test_cli_uses_the_bones_stored_on_the_rig(registered, scene_with_take, tmp_path):
+    """Without a bone option the CLI (and so a farm job) keys the head / neck / eye bones stored on the target
+    mesh (Retarget panel ▸ Head & Eyes), as the panel's operator does; options given replace them."""
+    ob, arm, path, _ = scene_with_take
+    st = ob.shapespace_retarget
+    st.armature, st.head_bone, st.neck_bone, st.eye_left_bone, st.eye_right_bone = arm, "head", "neck", "eye.L", ""
+    blend = tmp_path / "rig.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    run_cli = os.path.join(ROOT, "tools", "run_cli.py")
+    common = [sys.executable, run_cli, str(blend), "--", "retarget", "--source", path, "--method", "copy",
+              "--object", "FBHead", "--dry-run"]
+    for extra, bones in (([], ["head", "neck", "eye.L"]), (["--eye-bones", "eye.L", "eye.R"], ["eye.L", "eye.R"])):
+        proc = subprocess.run(common + extra, capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        rep = json.loads(proc.stdout[proc.stdout.index("{"):])["results"][0]
+        assert rep.get("bones") == bones and rep["bones_action"], proc.stderr[-2000:]
