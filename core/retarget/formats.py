@@ -50,6 +50,7 @@ import json
 import math
 import os
 import re
+import warnings
 from array import array as array_of
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -61,6 +62,7 @@ from ..errors import ErrorCode
 from ..headpose import eye_ypr_from_degrees, ypr_from_degrees
 from ..names import ARKIT_52, FACECAP_52
 from ..result import Issue, ShapeSpaceError
+from . import capture
 from .capture import (
     MAX_ABS_WEIGHT,
     ROTATION_CHANNELS,
@@ -372,56 +374,116 @@ _POSE_LIMITS = np.array([MAX_ABS_DEGREES] * 3 + [MAX_ABS_POSITION] * 3 + [MAX_AB
 
 def _ifm_plain(frames: str) -> tuple | None:
     """:func:`_ifm_cells`'s result for a recording whose frames all repeat the first one's fields (names,
-    separators and poses, in order) with plain numbers, read by slicing the values out of every field and one
-    numeric pass (:func:`~.capture.plain_rows`); ``None`` otherwise."""
+    separators and poses, in order) with plain numbers, read without a per-field Python step
+    (:func:`_ifm_values`, a chunk of lines at a time); ``None`` otherwise."""
     if "\r" in frames:
         frames = frames.replace("\r\n", "\n").replace("\r", "\n")
-    lines = frames.split("\n")
-    while lines and not lines[-1]:
-        lines.pop()
-    lead = next((k for k, line in enumerate(lines) if line), len(lines))
-    if lead >= len(lines) or not all(lines[lead:]):
+    lead, stop = 0, len(frames)                     # the text is not copied: blank lines around it skipped
+    while lead < stop and frames[lead] == "\n":
+        lead += 1
+    while stop > lead and frames[stop - 1] == "\n":
+        stop -= 1
+    first = frames[lead:frames.find("\n", lead, stop) % (stop + 1)]
+    fields = _ifm_fields(first) if first else None
+    if fields is None:
         return None
-    first = lines[lead]
-    try:
-        names, _, _, _ = _ifm_cells(first)
-    except ShapeSpaceError:
-        return None
-    prefixes, targets = [], []                       # each field's text before its values; where they go
-    for field in first.rstrip("|").split("|"):
-        tag = next((t for t in _IFM_POSES if field.startswith(t)), None)
-        if tag is not None:
-            prefixes.append(tag)
-            targets += [("pose", _IFM_POSES[tag] + k) for k in range(_IFM_SIZES[_IFM_POSES[tag]])]
-        else:
-            name, sep, _ = field.partition("&") if "&" in field else field.partition("-")
-            if field != field.strip() or name not in names:
-                return None                              # an empty or padded field: read cell by cell
-            prefixes.append(name + sep)
-            targets.append(("w", names.index(name)))
-    if len(set(prefixes)) != len(prefixes) or sorted(k for kind, k in targets if kind == "pose") != list(range(12)):
-        return None
-    cuts = [len(p) for p in prefixes]
-    out = []
-    for line in lines[lead:]:
-        parts = line.rstrip("|").split("|")
-        if len(parts) != len(prefixes):
+    names, prefixes, targets, counts = fields
+    parts, at = [], lead
+    while at < stop:
+        end = frames.rfind("\n", at, min(stop, at + capture.PLAIN_CHUNK)) + 1 or frames.find("\n", at, stop) + 1 \
+            or stop
+        try:
+            raw = np.frombuffer((frames[at:end] if end < stop else frames[at:stop] + "\n").encode("ascii"),
+                                dtype=np.uint8)
+        except UnicodeEncodeError:
             return None
-        values = [p[c:] for p, c, pre in zip(parts, cuts, prefixes) if p[:c] == pre]
-        if len(values) != len(prefixes):
+        part = _ifm_values(raw, prefixes, counts, first.endswith("|"))
+        if part is None:
             return None
-        out.append(",".join(values))
-    del lines
-    a = plain_rows("\n".join(out) + "\n", len(targets))
-    del out
-    if a is None:
-        return None
+        parts.append(part)
+        at = end
+    a = parts[0] if len(parts) == 1 else np.concatenate(parts)
     w_cols = [j for j, (kind, _) in enumerate(targets) if kind == "w"]
     p_cols = [j for _, j in sorted((k, j) for j, (kind, k) in enumerate(targets) if kind == "pose")]
     w, pose = a[:, w_cols], a[:, p_cols]
     if np.any(np.abs(w) > 100.0 * MAX_ABS_WEIGHT) or np.any(np.abs(pose) > _POSE_LIMITS):
         return None
     return names, w / 100.0, pose, np.arange(lead + 1, lead + 1 + a.shape[0])
+
+
+def _ifm_fields(first: str) -> tuple | None:
+    """``(names, prefixes, targets, counts)`` of a frame's fields: each field's text before its value(s), where
+    each value goes (``("w", column)`` or ``("pose", index)``) and how many values it holds; ``None`` when
+    the frame is not plain (an empty, padded or repeated field, a missing pose)."""
+    try:
+        names, _, _, _ = _ifm_cells(first)
+    except ShapeSpaceError:
+        return None
+    prefixes, targets, counts = [], [], []
+    for field in first.rstrip("|").split("|"):
+        tag = next((t for t in _IFM_POSES if field.startswith(t)), None)
+        if tag is not None:
+            prefixes.append(tag)
+            counts.append(_IFM_SIZES[_IFM_POSES[tag]])
+            targets += [("pose", _IFM_POSES[tag] + k) for k in range(counts[-1])]
+        else:
+            name, sep, _ = field.partition("&") if "&" in field else field.partition("-")
+            if field != field.strip() or name not in names:
+                return None                              # an empty or padded field: read cell by cell
+            prefixes.append(name + sep)
+            counts.append(1)
+            targets.append(("w", names.index(name)))
+    if len(set(prefixes)) != len(prefixes) or sorted(k for kind, k in targets if kind == "pose") != list(range(12)):
+        return None
+    return names, prefixes, targets, counts
+
+
+def _ifm_values(raw: np.ndarray, prefixes: list, counts: list, trailing: bool) -> np.ndarray | None:
+    """The values (lines, Σ counts) of whole lines ``raw`` (ASCII bytes ending in a line break) when every line
+    is the fields ``prefix + value(s)`` in order, separated by ``|`` (one more before the line break with
+    ``trailing``), a pose's values by ``,``, every value a plain number; ``None`` otherwise."""
+    if np.any((raw == 32) | (raw == 9) | (raw == 11) | (raw == 12) | (raw == 0)):
+        return None                                       # white space or NUL: read cell by cell
+    per = len(prefixes) + trailing                        # bounds per line: the | after each field, the break
+    ends = np.flatnonzero((raw == 124) | (raw == 10))
+    if ends.size % per:
+        return None
+    bounds = ends.reshape(-1, per)
+    kinds = raw[bounds]
+    if not (np.all(kinds[:, :-1] == 124) and np.all(kinds[:, -1] == 10)):
+        return None
+    if trailing and np.any(bounds[:, -1] != bounds[:, -2] + 1):
+        return None                                       # text after the last |
+    starts = np.empty((bounds.shape[0], len(prefixes)), dtype=np.int64)
+    starts[0, 0] = 0
+    starts[1:, 0] = bounds[:-1, -1] + 1
+    starts[:, 1:] = bounds[:, :len(prefixes) - 1] + 1
+    keep = np.ones(raw.size, dtype=bool)
+    for j, prefix in enumerate(prefixes):
+        want = np.frombuffer(prefix.encode("ascii"), dtype=np.uint8)
+        if np.any(bounds[:, j] - starts[:, j] <= want.size):
+            return None                                   # a field without its value
+        at = starts[:, j, None] + np.arange(want.size)
+        if not np.array_equal(raw[at], np.broadcast_to(want, at.shape)):
+            return None                                   # another name (or order) than the first frame's
+        keep[at.ravel()] = False
+    commas = np.bincount(np.searchsorted(ends, np.flatnonzero(raw == 44)), minlength=ends.size).reshape(bounds.shape)
+    if np.any(commas[:, :len(prefixes)] != np.array(counts) - 1) or np.any(commas[:, len(prefixes):]):
+        return None                                       # a pose with another number of values
+    if trailing:
+        keep[bounds[:, -2]] = False
+    text = raw.copy()
+    text[bounds.ravel()] = 44
+    text = text[keep][:-1].tobytes()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            values = np.fromstring(text, sep=",")
+        except (DeprecationWarning, ValueError):
+            return None
+    if values.size != bounds.shape[0] * sum(counts) or not np.isfinite(values).all():
+        return None
+    return values.reshape(bounds.shape[0], sum(counts))
 
 
 def _ifm_cells(frames: str) -> tuple:

@@ -232,3 +232,47 @@ def test_mediapipe_json_template_reads_as_the_json_parser(text):
     fast = outcome(text)
     with json_parser_only():
         assert fast == outcome(text)
+
+
+# --------------------------------------------------------------------------- iFacialMocap: one-pass = cell reader
+@st.composite
+def ifm_texts(draw):
+    """A plain iFacialMocap recording (every frame the first one's fields), then damaged: values swapped for other
+    text, characters replaced."""
+    chans = draw(names)
+    sep, trail = draw(st.sampled_from(["-", "&"])), draw(st.sampled_from(["|", ""]))
+    value = st.floats(-100, 100).map(lambda v: f"{v:.3f}")
+    frames = []
+    for _ in range(draw(st.integers(1, 6))):
+        parts = [f"{n}{sep}{draw(value)}" for n in chans]
+        parts.append("=head#" + ",".join(draw(value) for _ in range(6)))
+        parts.append("rightEye#" + ",".join(draw(value) for _ in range(3)))
+        parts.append("leftEye#" + ",".join(draw(value) for _ in range(3)))
+        frames.append("|".join(draw(st.permutations(parts)) if draw(st.integers(0, 9)) == 0 else parts) + trail)
+    text = draw(st.sampled_from(["\n", "\r\n"])).join(frames) + draw(st.sampled_from(["", "\n", "\n\n"]))
+    for _ in range(draw(st.integers(0, 3))):
+        numbers = [m.span() for m in re.finditer(r"-?[0-9][0-9.]*", text)]
+        if numbers and draw(st.booleans()):
+            a, b = draw(st.sampled_from(numbers))
+            text = text[:a] + draw(st.sampled_from(["", "1e5", "nan", "inf", "-", "1-2", "1,2", ".5", "5.", "1e999",
+                                                    " 1", "1\x00", "é"])) + text[b:]
+        else:
+            at = draw(st.integers(0, len(text) - 1))
+            text = text[:at] + draw(st.sampled_from("0123456789.-e,|&#=\n x")) + text[at + 1:]
+    return text
+
+
+@FUZZ
+@given(ifm_texts())
+def test_ifacialmocap_one_pass_reads_as_the_cell_reader(text):
+    """The one-pass reader reads a recording exactly as the cell reader (names, weights, poses, lines), or leaves
+    it to the cell reader."""
+    from core.retarget import formats
+    frames = text.replace("\r\n", "\n")
+    fast = formats._ifm_plain(frames)
+    if fast is None:
+        return
+    slow = formats._ifm_cells(frames)
+    assert fast[0] == slow[0]
+    for a, b in zip(fast[1:], slow[1:]):
+        assert a.shape == b.shape and a.tobytes() == b.tobytes()
