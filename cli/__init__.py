@@ -127,6 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the neck bone's share of the head rotation, 0…1 (as live capture)")
     rt.add_argument("--eye-bones", nargs=2, metavar=("LEFT", "RIGHT"), help="the character's left and right eye bones")
     rt.add_argument("--armature", help="the armature of those bones (default: the only armature in the file)")
+    rt.add_argument("--calibrate-frame", type=_number(positive=False), metavar="FRAME",
+                    help="scene frame whose head and eye pose becomes the rest pose (as live capture's Calibrate)")
     rt.add_argument("--mirror", action="store_true",
                     help="swap left and right head / eye channels (a mirrored, selfie-view capture)")
     rt.add_argument("--target", help="target .blend to open first (default: the open file)")

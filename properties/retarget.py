@@ -43,3 +43,8 @@ class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
     eye_right_bone: bpy.props.StringProperty(name="Right Eye", description="The character's right eye bone")
     mirror: bpy.props.BoolProperty(name="Mirror", default=False,
                                    description="Swap left and right (a mirrored, selfie-view capture)")
+    calibrate: bpy.props.BoolProperty(
+        name="Calibrate", default=False,
+        description="Make the head and eye pose at the Rest Frame the rest pose (as live capture's Calibrate)")
+    rest_frame: bpy.props.IntProperty(name="Rest Frame", default=1,
+                                      description="Scene frame whose head and eye pose becomes the rest pose")
