@@ -119,12 +119,18 @@ def build_parser() -> argparse.ArgumentParser:
                     "surface error, in scene units)")
     rt.add_argument("--key-shape", choices=("BEZIER", "LINEAR"), default="BEZIER",
                     help="reduced keys: smooth Bezier (fewest keys) or linear")
-    rt.add_argument("--head-bone", help="bone keyed from the recording's head rotation (HeadYaw/Pitch/Roll)")
+    rt.add_argument("--head-bone", help="bone keyed from the recording's head rotation (HeadYaw/Pitch/Roll); "
+                    "without --head-bone, --neck-bone or --eye-bones: the bones stored on the --object mesh "
+                    "(Retarget panel ▸ Head & Eyes), if any")
     rt.add_argument("--neck-bone", help="bone taking --neck-share of the head rotation (the head bone the rest)")
     rt.add_argument("--neck-share", type=_number(positive=False), default=0.3,
                     help="the neck bone's share of the head rotation, 0…1 (as live capture)")
     rt.add_argument("--eye-bones", nargs=2, metavar=("LEFT", "RIGHT"), help="the character's left and right eye bones")
     rt.add_argument("--armature", help="the armature of those bones (default: the only armature in the file)")
+    rt.add_argument("--calibrate-frame", type=_number(positive=False), metavar="FRAME",
+                    help="scene frame whose head and eye pose becomes the rest pose (as live capture's Calibrate)")
+    rt.add_argument("--mirror", action="store_true",
+                    help="swap left and right head / eye channels (a mirrored, selfie-view capture)")
     rt.add_argument("--target", help="target .blend to open first (default: the open file)")
     rt.add_argument("--out", help="save the result as this .blend (every result action is kept: fake user)")
     rt.add_argument("--dry-run", action="store_true", help="compute and report only; save nothing (instead of --out)")

@@ -156,27 +156,44 @@ def _rig_specs(args) -> list | None:
                               ErrorCode.USAGE)
     excluded = [flag for flag, given in (("--key-poses", args.key_poses), ("--head-bone", args.head_bone),
                                          ("--neck-bone", args.neck_bone), ("--eye-bones", args.eye_bones),
-                                         ("--key-shape LINEAR", args.key_shape != "BEZIER")) if given]
+                                         ("--mirror", args.mirror),
+                                         ("--calibrate-frame", args.calibrate_frame is not None),
+                                         ("--key-shape LINEAR", args.key_shape != "BEZIER"))
+                if given]
     if excluded:
         raise ShapeSpaceError(f"{excluded[0]} is not available with --controls", ErrorCode.USAGE)
     args.method = "perframe"
     return parse_specs(args.controls)
 
 
-def _head_eye_bones(args):
-    """The ``--head-bone/--neck-bone/--eye-bones/--armature`` choice (``None`` when no bone is named)."""
+def _head_eye_bones(args, obj):
+    """The ``--head-bone/--neck-bone/--eye-bones/--armature/--mirror/--calibrate-frame`` choice; without a bone
+    named there, the choice stored on the target mesh (Retarget panel ▸ Head & Eyes); ``None`` when neither
+    names a bone."""
     from ..bridge.retarget import HeadEyeBones
-    eyes = args.eye_bones or ("", "")
+    stored = getattr(obj, "shapespace_retarget", None)
+    arm = stored.armature if stored is not None and stored.armature is not None and \
+        stored.armature.type == "ARMATURE" else None
     if not (args.head_bone or args.neck_bone or args.eye_bones):
-        return None
+        if arm is None or not any((stored.head_bone, stored.neck_bone, stored.eye_left_bone, stored.eye_right_bone)):
+            return None
+        _say(f"head / neck / eye bones stored on {obj.name!r}: {arm.name} "
+             + ", ".join(b for b in (stored.head_bone, stored.neck_bone, stored.eye_left_bone, stored.eye_right_bone)
+                         if b))
+        rest = args.calibrate_frame if args.calibrate_frame is not None else \
+            float(stored.rest_frame) if stored.calibrate else None
+        return HeadEyeBones(arm.name, stored.head_bone, stored.neck_bone, stored.eye_left_bone,
+                            stored.eye_right_bone, stored.neck_share, stored.mirror or args.mirror, rest)
+    eyes = args.eye_bones or ("", "")
     if args.neck_share > 1:
         raise ShapeSpaceError(f"--neck-share must lie in [0, 1], got {args.neck_share:g}", ErrorCode.USAGE)
     arms = [ob.name for ob in bpy.data.objects if ob.type == "ARMATURE"]
-    name = args.armature or (arms[0] if len(arms) == 1 else "")
+    name = args.armature or (arms[0] if len(arms) == 1 else arm.name if arm is not None else "")
     if not name:
         raise ShapeSpaceError(f"{len(arms)} armatures in the file: choose the bones' one with --armature",
                               ErrorCode.NO_ARMATURE if not arms else ErrorCode.AMBIGUOUS_OBJECT)
-    return HeadEyeBones(name, args.head_bone or "", args.neck_bone or "", eyes[0], eyes[1], args.neck_share)
+    return HeadEyeBones(name, args.head_bone or "", args.neck_bone or "", eyes[0], eyes[1], args.neck_share,
+                        args.mirror, args.calibrate_frame)
 
 
 class _ProgressLines:
@@ -218,7 +235,7 @@ def retarget(args, inputs: list) -> tuple:
     if args.target:
         assets.load(args.target)
     obj = _target_object(args.object, opened)
-    bones = _head_eye_bones(args)
+    bones = _head_eye_bones(args, obj) if specs is None else None
     controls = None
     if specs is not None:
         from .controls import control_set_of

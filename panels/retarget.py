@@ -90,9 +90,13 @@ def _draw_bones(layout, st, op):
         if st.neck_bone:
             box.prop(st, "neck_share")
         box.prop(st, "mirror")
+        row = box.row()
+        row.prop(st, "calibrate")
+        row.prop(st, "rest_frame")
     if arm is None:
         return
     op.armature, op.neck_share, op.mirror = arm.name, st.neck_share, st.mirror
+    op.calibrate, op.rest_frame = st.calibrate, st.rest_frame
     op.head_bone, op.neck_bone = st.head_bone, st.neck_bone
     op.eye_left_bone, op.eye_right_bone = st.eye_left_bone, st.eye_right_bone
 

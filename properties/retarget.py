@@ -39,6 +39,11 @@ class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
     neck_bone: bpy.props.StringProperty(name="Neck", description="Bone that takes a share of the head rotation")
     neck_share: bpy.props.FloatProperty(name="Neck Share", default=0.3, min=0.0, max=1.0, subtype="FACTOR",
                                         description="Part of the head rotation the neck bone takes")
+    calibrate: bpy.props.BoolProperty(
+        name="Calibrate", default=False,
+        description="Make the head and eye pose at the Rest Frame the rest pose (as live capture's Calibrate)")
+    rest_frame: bpy.props.IntProperty(name="Rest Frame", default=1,
+                                      description="Scene frame whose head and eye pose becomes the rest pose")
     eye_left_bone: bpy.props.StringProperty(name="Left Eye", description="The character's left eye bone")
     eye_right_bone: bpy.props.StringProperty(name="Right Eye", description="The character's right eye bone")
     mirror: bpy.props.BoolProperty(name="Mirror", default=False,

@@ -33,7 +33,7 @@ def main(argv) -> int:
     import env  # noqa: E402  (tools/env.py)
     env.reexec_in("bpy50", os.path.abspath(__file__), argv)
     import package  # noqa: E402  (tools/package.py)
-    pkg = package.load()
+    pkg = _with_properties(package.load())
     from shapespace.bridge import assets  # noqa: E402
     from shapespace.core.result import ShapeSpaceError  # noqa: E402
     if files:
@@ -74,7 +74,7 @@ def blender_form(argv) -> int:
     pkg = _installed_extension()
     if pkg is None:
         import package  # noqa: E402  (tools/package.py)
-        pkg = package.load()
+        pkg = _with_properties(package.load())
     import importlib  # noqa: E402
     assets = importlib.import_module(f"{pkg.__name__}.bridge.assets")
     ShapeSpaceError = importlib.import_module(f"{pkg.__name__}.core.result").ShapeSpaceError
@@ -86,6 +86,15 @@ def blender_form(argv) -> int:
             print(f"shapespace: error: {exc}", file=sys.stderr)
             return 1
     return pkg.cli.main(args, inputs=[os.path.abspath(f) for f in files])
+
+
+def _with_properties(pkg):
+    """``pkg`` with its stored settings registered (``Object.shapespace_retarget`` …), as in Blender where the
+    extension is enabled: the commands read what the panels stored on the rig."""
+    import bpy
+    if not hasattr(bpy.types.Object, "shapespace_retarget"):
+        pkg.properties.register()
+    return pkg
 
 
 def _installed_extension():

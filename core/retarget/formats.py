@@ -50,6 +50,7 @@ import json
 import math
 import os
 import re
+import warnings
 from array import array as array_of
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -61,6 +62,7 @@ from ..errors import ErrorCode
 from ..headpose import eye_ypr_from_degrees, ypr_from_degrees
 from ..names import ARKIT_52, FACECAP_52
 from ..result import Issue, ShapeSpaceError
+from . import capture
 from .capture import (
     MAX_ABS_WEIGHT,
     ROTATION_CHANNELS,
@@ -372,56 +374,116 @@ _POSE_LIMITS = np.array([MAX_ABS_DEGREES] * 3 + [MAX_ABS_POSITION] * 3 + [MAX_AB
 
 def _ifm_plain(frames: str) -> tuple | None:
     """:func:`_ifm_cells`'s result for a recording whose frames all repeat the first one's fields (names,
-    separators and poses, in order) with plain numbers, read by slicing the values out of every field and one
-    numeric pass (:func:`~.capture.plain_rows`); ``None`` otherwise."""
+    separators and poses, in order) with plain numbers, read without a per-field Python step
+    (:func:`_ifm_values`, a chunk of lines at a time); ``None`` otherwise."""
     if "\r" in frames:
         frames = frames.replace("\r\n", "\n").replace("\r", "\n")
-    lines = frames.split("\n")
-    while lines and not lines[-1]:
-        lines.pop()
-    lead = next((k for k, line in enumerate(lines) if line), len(lines))
-    if lead >= len(lines) or not all(lines[lead:]):
+    lead, stop = 0, len(frames)                     # the text is not copied: blank lines around it skipped
+    while lead < stop and frames[lead] == "\n":
+        lead += 1
+    while stop > lead and frames[stop - 1] == "\n":
+        stop -= 1
+    first = frames[lead:frames.find("\n", lead, stop) % (stop + 1)]
+    fields = _ifm_fields(first) if first else None
+    if fields is None:
         return None
-    first = lines[lead]
-    try:
-        names, _, _, _ = _ifm_cells(first)
-    except ShapeSpaceError:
-        return None
-    prefixes, targets = [], []                       # each field's text before its values; where they go
-    for field in first.rstrip("|").split("|"):
-        tag = next((t for t in _IFM_POSES if field.startswith(t)), None)
-        if tag is not None:
-            prefixes.append(tag)
-            targets += [("pose", _IFM_POSES[tag] + k) for k in range(_IFM_SIZES[_IFM_POSES[tag]])]
-        else:
-            name, sep, _ = field.partition("&") if "&" in field else field.partition("-")
-            if field != field.strip() or name not in names:
-                return None                              # an empty or padded field: read cell by cell
-            prefixes.append(name + sep)
-            targets.append(("w", names.index(name)))
-    if len(set(prefixes)) != len(prefixes) or sorted(k for kind, k in targets if kind == "pose") != list(range(12)):
-        return None
-    cuts = [len(p) for p in prefixes]
-    out = []
-    for line in lines[lead:]:
-        parts = line.rstrip("|").split("|")
-        if len(parts) != len(prefixes):
+    names, prefixes, targets, counts = fields
+    parts, at = [], lead
+    while at < stop:
+        end = frames.rfind("\n", at, min(stop, at + capture.PLAIN_CHUNK)) + 1 or frames.find("\n", at, stop) + 1 \
+            or stop
+        try:
+            raw = np.frombuffer((frames[at:end] if end < stop else frames[at:stop] + "\n").encode("ascii"),
+                                dtype=np.uint8)
+        except UnicodeEncodeError:
             return None
-        values = [p[c:] for p, c, pre in zip(parts, cuts, prefixes) if p[:c] == pre]
-        if len(values) != len(prefixes):
+        part = _ifm_values(raw, prefixes, counts, first.endswith("|"))
+        if part is None:
             return None
-        out.append(",".join(values))
-    del lines
-    a = plain_rows("\n".join(out) + "\n", len(targets))
-    del out
-    if a is None:
-        return None
+        parts.append(part)
+        at = end
+    a = parts[0] if len(parts) == 1 else np.concatenate(parts)
     w_cols = [j for j, (kind, _) in enumerate(targets) if kind == "w"]
     p_cols = [j for _, j in sorted((k, j) for j, (kind, k) in enumerate(targets) if kind == "pose")]
     w, pose = a[:, w_cols], a[:, p_cols]
     if np.any(np.abs(w) > 100.0 * MAX_ABS_WEIGHT) or np.any(np.abs(pose) > _POSE_LIMITS):
         return None
     return names, w / 100.0, pose, np.arange(lead + 1, lead + 1 + a.shape[0])
+
+
+def _ifm_fields(first: str) -> tuple | None:
+    """``(names, prefixes, targets, counts)`` of a frame's fields: each field's text before its value(s), where
+    each value goes (``("w", column)`` or ``("pose", index)``) and how many values it holds; ``None`` when
+    the frame is not plain (an empty, padded or repeated field, a missing pose)."""
+    try:
+        names, _, _, _ = _ifm_cells(first)
+    except ShapeSpaceError:
+        return None
+    prefixes, targets, counts = [], [], []
+    for field in first.rstrip("|").split("|"):
+        tag = next((t for t in _IFM_POSES if field.startswith(t)), None)
+        if tag is not None:
+            prefixes.append(tag)
+            counts.append(_IFM_SIZES[_IFM_POSES[tag]])
+            targets += [("pose", _IFM_POSES[tag] + k) for k in range(counts[-1])]
+        else:
+            name, sep, _ = field.partition("&") if "&" in field else field.partition("-")
+            if field != field.strip() or name not in names:
+                return None                              # an empty or padded field: read cell by cell
+            prefixes.append(name + sep)
+            counts.append(1)
+            targets.append(("w", names.index(name)))
+    if len(set(prefixes)) != len(prefixes) or sorted(k for kind, k in targets if kind == "pose") != list(range(12)):
+        return None
+    return names, prefixes, targets, counts
+
+
+def _ifm_values(raw: np.ndarray, prefixes: list, counts: list, trailing: bool) -> np.ndarray | None:
+    """The values (lines, Σ counts) of whole lines ``raw`` (ASCII bytes ending in a line break) when every line
+    is the fields ``prefix + value(s)`` in order, separated by ``|`` (one more before the line break with
+    ``trailing``), a pose's values by ``,``, every value a plain number; ``None`` otherwise."""
+    if np.any((raw == 32) | (raw == 9) | (raw == 11) | (raw == 12) | (raw == 0)):
+        return None                                       # white space or NUL: read cell by cell
+    per = len(prefixes) + trailing                        # bounds per line: the | after each field, the break
+    ends = np.flatnonzero((raw == 124) | (raw == 10))
+    if ends.size % per:
+        return None
+    bounds = ends.reshape(-1, per)
+    kinds = raw[bounds]
+    if not (np.all(kinds[:, :-1] == 124) and np.all(kinds[:, -1] == 10)):
+        return None
+    if trailing and np.any(bounds[:, -1] != bounds[:, -2] + 1):
+        return None                                       # text after the last |
+    starts = np.empty((bounds.shape[0], len(prefixes)), dtype=np.int64)
+    starts[0, 0] = 0
+    starts[1:, 0] = bounds[:-1, -1] + 1
+    starts[:, 1:] = bounds[:, :len(prefixes) - 1] + 1
+    keep = np.ones(raw.size, dtype=bool)
+    for j, prefix in enumerate(prefixes):
+        want = np.frombuffer(prefix.encode("ascii"), dtype=np.uint8)
+        if np.any(bounds[:, j] - starts[:, j] <= want.size):
+            return None                                   # a field without its value
+        at = starts[:, j, None] + np.arange(want.size)
+        if not np.array_equal(raw[at], np.broadcast_to(want, at.shape)):
+            return None                                   # another name (or order) than the first frame's
+        keep[at.ravel()] = False
+    commas = np.bincount(np.searchsorted(ends, np.flatnonzero(raw == 44)), minlength=ends.size).reshape(bounds.shape)
+    if np.any(commas[:, :len(prefixes)] != np.array(counts) - 1) or np.any(commas[:, len(prefixes):]):
+        return None                                       # a pose with another number of values
+    if trailing:
+        keep[bounds[:, -2]] = False
+    text = raw.copy()
+    text[bounds.ravel()] = 44
+    text = text[keep][:-1].tobytes()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            values = np.fromstring(text, sep=",")
+        except (DeprecationWarning, ValueError):
+            return None
+    if values.size != bounds.shape[0] * sum(counts) or not np.isfinite(values).all():
+        return None
+    return values.reshape(bounds.shape[0], sum(counts))
 
 
 def _ifm_cells(frames: str) -> tuple:
@@ -690,12 +752,18 @@ def _mediapipe_json(source: str | _Text, required: Sequence[str]) -> WeightStrea
     """A MediaPipe JSON recording, one frame at a time: a list of frames is never held as Python objects, nor
     (from a file, :func:`read_capture`) as one text."""
     rows = _Rows()
+    template = _FrameTemplate(rows)
+    k = 0
     try:
         with _collection_paused():
-            for k, frame in enumerate(_json_frames(source if isinstance(source, _Text) else _Text(source))):
+            for frame in _json_frames(source if isinstance(source, _Text) else _Text(source), template):
+                if type(frame) is tuple:               # (count,): frames read by the template (JSON has no tuple)
+                    k += frame[0]
+                    continue
                 plain = _mediapipe_plain(frame)
                 if plain is None or not rows.add_plain(*plain):
                     rows.add(*_mediapipe_frame(frame, k), k)
+                k += 1
     except ShapeSpaceError:
         rows.check_range()                  # a damaged score of an earlier frame is named first, frame by frame
         raise
@@ -772,9 +840,139 @@ class _Text:
             at = self.ahead(at)
 
 
-def _json_frames(src: _Text):
+#: A JSON number as a template hole reads it: JSON's syntax, at most 16 integer digits (a longer one, or ``-0``
+#: — an integer zero to the json module, a negative float to ``float`` — is left to the JSON parser).
+_HOLE = r"((?!-0(?![.0-9eE]))-?(?:0|[1-9][0-9]{0,15})(?:\.[0-9]+)?(?:[eE][-+]?[0-9]+)?)"
+_SEP = re.compile(r"[ \t\n\r]*,[ \t\n\r]*")
+_KEY_BEFORE = re.compile(r'("[A-Za-z_]+")[ \t\n\r]*:[ \t\n\r]*\Z')
+#: Most frames a template reads at once, and most frames parsed while learning one.
+_TEMPLATE_RUN, _TEMPLATE_TRIES = 256, 16
+
+
+class _FrameTemplate:
+    """MediaPipe frames read without the JSON parser: the text of a frame as a recording's writer repeats it
+    (the same keys, categories, indices, spacing and separator), its timestamp and scores left as holes.
+
+    It is learnt from a frame the JSON parser read (:meth:`learn`) and proved on it: the frame's text with
+    every hole replaced by a distinct value parses to a frame of the usual shape (:func:`_mediapipe_plain`)
+    whose timestamp and scores are exactly those values, with the frame's category names — so any text equal
+    to the template with a JSON number in each hole is that frame with those numbers.  :meth:`take` reads a
+    run of frames when their text is exactly the template filled with the numbers found after the holes'
+    keys (one string comparison: anything else — a lost face, another order, a NaN, damaged text — is left
+    to the JSON parser, frame by frame, which names what is wrong).  Numbers become doubles by ``float``, as
+    the parser's do.
+    """
+
+    def __init__(self, rows: _Rows) -> None:
+        self.rows, self.form, self.tries = rows, None, 0
+        self.run, self.wait, self.misses = 1, 0, 0
+
+    def learn(self, frame, text: str, start: int, end: int) -> None:
+        """Learn the template from ``frame``, parsed from ``text[start:end]`` (a ``,`` and the next frame follow)."""
+        if self.form is not None or self.tries >= _TEMPLATE_TRIES:
+            return
+        self.tries += 1
+        sep = _SEP.match(text, end)
+        plain = _mediapipe_plain(frame)
+        if sep is None or plain is None or plain[1] != self.rows.names or len(set(plain[1])) != len(plain[1]):
+            return
+        raw = text[start:end]
+        holes = [(m.start(), m.end(), m.group(1)) for m in re.finditer(_HOLE, raw)
+                 if _key_before(raw, m.start()) in ('"timestamp_ms"', '"score"')]
+        if not holes:
+            return
+        probe = _filled(raw, holes, [f"{k + 1}.5" for k in range(len(holes))])
+        try:
+            proved = _mediapipe_plain(json.loads(probe))
+        except (ValueError, RecursionError):
+            return
+        if proved is None or proved[1] != plain[1] or len(holes) != len(plain[1]) + 1:
+            return
+        order = {v: k for k, v in enumerate([proved[0], *proved[2]])}     # hole values: time, then scores
+        roles = [order.get(float(f"{k + 1}.5"), -1) - 1 for k in range(len(holes))]
+        if sorted(roles) != list(range(-1, len(plain[1]))):
+            return
+        prefix = {r: raw[_KEY_BEFORE.search(raw, max(0, a - 64), a).start():a] for (a, _, _), r in zip(holes, roles)}
+        if len({p for r, p in prefix.items() if r >= 0}) != 1:
+            return
+        self.roles, self.names = roles, plain[1]
+        self.time_prefix = prefix[-1]
+        self.time_re = re.compile(re.escape(prefix[-1]) + _HOLE)
+        self.score_re = re.compile(re.escape(prefix[0]) + _HOLE)
+        self.form = _filled(raw.replace("%", "%%"), _shifted(raw, holes), ["%s"] * len(holes)) + \
+            sep.group().replace("%", "%%")
+        self.size = len(raw) + len(sep.group())
+
+    def take(self, src: _Text, at: int) -> tuple:
+        """``(end, count)``: the run of ``count`` frames from ``src.text[at]`` read into the rows, the text after
+        them (and their separators) at ``end``; ``count`` 0 when the next frame is not the template's (``end``:
+        where ``at`` now is, the text read on)."""
+        if self.form is None or self.wait or self.rows.names != self.names or \
+                self.rows.runs[-1][0] != len(self.names):
+            self.wait = max(self.wait - 1, 0)
+            return at, 0
+        self.run = max(1, min(self.run, _JSON_AHEAD * 4 // (5 * self.size) - 2))      # text held: ~_JSON_AHEAD
+        at = src.ahead(at, (self.run + 2) * self.size * 5 // 4)
+        text, times, starts, pos = src.text, [], [], at
+        for _ in range(self.run + 1):                  # each frame's timestamp, and where the next frame's is
+            found = text.find(self.time_prefix, pos, pos + 2 * self.size)
+            hole = None if found < 0 else self.time_re.match(text, found)
+            if hole is None:
+                break
+            times.append(hole.group(1))
+            starts.append(found)
+            pos = hole.end()
+        count, width = len(times) - 1, len(self.names)
+        scores = self.score_re.findall(text, at, starts[-1]) if count > 0 else ()
+        if len(scores) < count * width or count < 1:
+            return self._missed(at)
+        holes = len(self.roles)
+        args = [""] * (count * holes)
+        for k, role in enumerate(self.roles):
+            args[k::holes] = times[:count] if role < 0 else scores[role:count * width:width]
+        expected = (self.form * count) % tuple(args)
+        if not src.text.startswith(expected, at):
+            return self._missed(at)
+        t = np.array(times[:count], dtype=np.float64) / 1000.0
+        self.rows.times.frombytes(t.tobytes())
+        self.rows.runs[-1][1].extend(array_of("d", map(float, scores[:count * width])))
+        self.run, self.misses = min(2 * self.run, _TEMPLATE_RUN), 0
+        return at + len(expected), count
+
+    def _missed(self, at: int) -> tuple:
+        """``(at, 0)``: the next frame is read by the JSON parser; after misses in a row, the next few too."""
+        self.misses += self.run == 1
+        self.wait = min(2 ** self.misses, 256) if self.run == 1 and self.misses > 1 else 0
+        self.run = 1
+        return at, 0
+
+
+def _key_before(raw: str, at: int) -> str | None:
+    """The key (its JSON text) of the value at ``raw[at]``, when a plain one (letters and ``_``) is right before
+    it."""
+    found = _KEY_BEFORE.search(raw, max(0, at - 64), at)
+    return found.group(1) if found else None
+
+
+def _shifted(raw: str, holes: list) -> list:
+    """``holes`` (start, end, text) of ``raw`` where they fall in ``raw`` with every ``%`` doubled."""
+    return [(a + raw.count("%", 0, a), b + raw.count("%", 0, b), h) for a, b, h in holes]
+
+
+def _filled(raw: str, holes: list, values: list) -> str:
+    """``raw`` with its ``holes`` (start, end, text) replaced by ``values``."""
+    parts, at = [], 0
+    for (a, b, _), v in zip(holes, values):
+        parts += [raw[at:a], v]
+        at = b
+    return "".join(parts) + raw[at:]
+
+
+def _json_frames(src: _Text, template: _FrameTemplate | None = None):
     """The frames of a MediaPipe JSON recording one by one: a top-level list streamed element by element
-    (``json.JSONDecoder.raw_decode``), or ``{"frames": [...]}`` parsed whole (within :data:`MAX_JSON_BYTES`)."""
+    (``json.JSONDecoder.raw_decode``), or ``{"frames": [...]}`` parsed whole (within :data:`MAX_JSON_BYTES`).
+    With a ``template``, runs of frames it reads (:meth:`_FrameTemplate.take`) are yielded as ``(count,)`` (a
+    tuple: never a JSON value), and every frame parsed is offered to it to learn from (:meth:`_FrameTemplate.learn`)."""
     at = src.skip_space(src.ahead(0, _SNIFF) + src.text.startswith("\ufeff"))
     if src.text[at:at + 1] != "[":
         data = _json(src.text + "".join(src.pieces or ()))
@@ -790,8 +988,15 @@ def _json_frames(src: _Text):
         at += 1
     else:
         while True:
-            frame, at = _decode_frame(src, decoder, src.ahead(at))
+            if template is not None:
+                at, count = template.take(src, at)
+                if count:
+                    yield (count,)
+                    continue
+            frame, start, at = _decode_frame(src, decoder, src.ahead(at))
             yield frame
+            if template is not None:
+                template.learn(frame, src.text, start, at)
             at = src.skip_space(at)
             sep = src.text[at:at + 1]
             at = src.skip_space(at + 1)
@@ -805,11 +1010,13 @@ def _json_frames(src: _Text):
 
 
 def _decode_frame(src: _Text, decoder: json.JSONDecoder, at: int) -> tuple:
-    """``(frame, end)``: the JSON value at ``src.text[at]`` (read on while it runs past the text read so far)."""
+    """``(frame, start, end)``: the JSON value at ``src.text[at]`` (read on while it runs past the text read so
+    far), which spans ``src.text[start:end]``."""
     size = _JSON_AHEAD
     while True:
         try:
-            return decoder.raw_decode(src.text, at)
+            frame, end = decoder.raw_decode(src.text, at)
+            return frame, at, end
         except json.JSONDecodeError as exc:
             if src.pieces is not None and exc.pos >= len(src.text) - size // 2:
                 size *= 2                                 # the frame may go on in the next piece

@@ -54,6 +54,11 @@ nothing is written then)"""
     eye_right_bone: bpy.props.StringProperty(name="Right Eye", description="The character's right eye bone")
     mirror: bpy.props.BoolProperty(name="Mirror", default=False,
                                    description="Swap left and right (a mirrored, selfie-view capture)")
+    calibrate: bpy.props.BoolProperty(
+        name="Calibrate", default=False,
+        description="Make the head and eye pose at the Rest Frame the rest pose (as live capture's Calibrate)")
+    rest_frame: bpy.props.IntProperty(name="Rest Frame", default=1,
+                                      description="Scene frame whose head and eye pose becomes the rest pose")
 
     @classmethod
     def poll(cls, context):
@@ -79,7 +84,8 @@ nothing is written then)"""
             self.report({"ERROR"}, "choose a CSV file, an action or a mesh performance")
             return FAILED
         bones = retarget.HeadEyeBones(self.armature, self.head_bone, self.neck_bone, self.eye_left_bone,
-                                      self.eye_right_bone, self.neck_share, self.mirror)
+                                      self.eye_right_bone, self.neck_share, self.mirror,
+                                      float(self.rest_frame) if self.calibrate else None)
         return attempt(self, retarget.read_retarget, context.active_object, source,
                        key_pose_action=self.key_pose_action or None, bones=bones, **settings)
 

@@ -244,3 +244,53 @@ def test_discard_result_gives_the_armature_back_what_it_played(scene_with_take):
     assert rep.bones_action not in bpy.data.actions and rep.action not in bpy.data.actions
     bpy.context.scene.frame_set(1)
     assert abs(arm.pose.bones["head"].rotation_quaternion[0] - 0.9) < 1e-6
+
+
+def test_cli_uses_the_bones_stored_on_the_rig(registered, scene_with_take, tmp_path):
+    """Without a bone option the CLI (and so a farm job) keys the head / neck / eye bones stored on the target
+    mesh (Retarget panel ▸ Head & Eyes), as the panel's operator does; options given replace them."""
+    ob, arm, path, _ = scene_with_take
+    st = ob.shapespace_retarget
+    st.armature, st.head_bone, st.neck_bone, st.eye_left_bone, st.eye_right_bone = arm, "head", "neck", "eye.L", ""
+    blend = tmp_path / "rig.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    run_cli = os.path.join(ROOT, "tools", "run_cli.py")
+    common = [sys.executable, run_cli, str(blend), "--", "retarget", "--source", path, "--method", "copy",
+              "--object", "FBHead", "--dry-run"]
+    for extra, bones in (([], ["head", "neck", "eye.L"]), (["--eye-bones", "eye.L", "eye.R"], ["eye.L", "eye.R"])):
+        proc = subprocess.run(common + extra, capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        rep = json.loads(proc.stdout[proc.stdout.index("{"):])["results"][0]
+        assert rep.get("bones") == bones and rep["bones_action"], proc.stderr[-2000:]
+
+
+def test_calibrate_from_the_operator_and_stored_on_the_rig_for_the_cli(registered, scene_with_take, tmp_path):
+    """*Calibrate* at a rest frame from the operator, and stored on the rig for the CLI (or --calibrate-frame):
+    the rest frame's head and eye pose becomes the rest pose, as the bridge's ``rest_frame`` makes it."""
+    ob, arm, path, _ = scene_with_take
+    scene = bpy.context.scene
+    rest, other = scene.frame_start + 40, scene.frame_start + 90
+    bpy.context.view_layer.objects.active = ob
+    assert bpy.ops.shapespace.retarget(filepath=path, method="copy", armature="Rig", head_bone="head",
+                                       eye_left_bone="eye.L", calibrate=True, rest_frame=rest) == {"FINISHED"}
+    for name in ("head", "eye.L"):
+        scene.frame_set(rest)
+        assert delta(arm, name).to_quaternion().angle < 1e-5
+        scene.frame_set(other)
+        assert delta(arm, name).to_quaternion().angle > 1e-3
+    st = ob.shapespace_retarget
+    st.armature, st.head_bone, st.calibrate, st.rest_frame = arm, "head", True, rest
+    blend, out = tmp_path / "rig.blend", tmp_path / "out.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    run_cli = os.path.join(ROOT, "tools", "run_cli.py")
+    for extra, at in (([], rest), (["--head-bone", "head", "--calibrate-frame", str(other)], other)):
+        proc = subprocess.run([sys.executable, run_cli, str(blend), "--", "retarget", "--source", path, "--method",
+                               "copy", "--object", "FBHead", "--out", str(out), "--overwrite", *extra],
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        bpy.ops.wm.open_mainfile(filepath=str(out))
+        rig, scene = bpy.data.objects["Rig"], bpy.context.scene
+        scene.frame_set(at)
+        assert delta(rig, "head").to_quaternion().angle < 1e-5
+        scene.frame_set(rest + other - at)
+        assert delta(rig, "head").to_quaternion().angle > 1e-3

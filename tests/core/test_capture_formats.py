@@ -341,3 +341,29 @@ def test_mediapipe_json_file_memory_is_bounded(take, tmp_path, monkeypatch):
         tracemalloc.stop()
     assert s.times.size == 2000
     assert peak < 0.5 * path.stat().st_size
+
+
+def test_mediapipe_json_frame_template_engages_and_equals_the_parser(take, tmp_path, monkeypatch):
+    """A recording of repeated frames is read by the frame template (all but the first and the last frame),
+    from the text and from the file in pieces; the stream is the JSON parser's, value for value."""
+    from core.retarget import formats
+    short = (take[0], take[1][:300], take[2][:300], take[3][:300])
+    text = write_mediapipe_json(short)
+    path = tmp_path / "take.json"
+    path.write_text(text, encoding="utf-8")
+    taken = []
+    real = formats._FrameTemplate.take
+
+    def counted(self, src, at):
+        end, count = real(self, src, at)
+        taken.append(count)
+        return end, count
+
+    monkeypatch.setattr(formats._FrameTemplate, "take", counted)
+    fast, pieces = parse_capture(text), read_capture(path)
+    assert sum(taken) == 2 * (300 - 2)
+    monkeypatch.setattr(formats, "_TEMPLATE_TRIES", 0)
+    slow = parse_capture(text)
+    for s in (fast, pieces):
+        assert s.names == slow.names
+        assert s.times.tobytes() == slow.times.tobytes() and s.weights.tobytes() == slow.weights.tobytes()

@@ -6,6 +6,8 @@ weights (and rotations) are finite and whose times start at 0 and strictly incre
 never a hang.  Arbitrary text and structured recordings with damaged cells, per reader.
 """
 import json
+import re
+from contextlib import contextmanager
 
 import numpy as np
 from hypothesis import example, given
@@ -165,3 +167,112 @@ def test_mediapipe_csv_damaged(text):
 @given(st.text(max_size=300))
 def test_detection_any_text(text):
     check(text)
+
+
+# --------------------------------------------------------------------------- MediaPipe JSON: template = parser
+@contextmanager
+def json_parser_only():
+    """The MediaPipe JSON reader without its frame template (:class:`core.retarget.formats._FrameTemplate`):
+    every frame through the JSON parser."""
+    from core.retarget import formats
+    tries = formats._TEMPLATE_TRIES
+    formats._TEMPLATE_TRIES = 0
+    try:
+        yield
+    finally:
+        formats._TEMPLATE_TRIES = tries
+
+
+def outcome(text):
+    """What reading ``text`` gives: the stream's names, times, weights (bytes) and issues, or the refusal."""
+    with no_hang():
+        try:
+            s = parse_capture(text, kind="mediapipe_json")
+        except ShapeSpaceError as exc:
+            return "refused", str(exc), exc.code
+    return s.names, s.times.tobytes(), s.weights.tobytes(), [i.message for i in s.issues]
+
+
+tokens = st.sampled_from(["-0", "0", "01", "1.", ".5", "+1", "1e5", "-1.5E-3", "NaN", "Infinity", "-Infinity",
+                          "12345678901234567890", "1e400", "-0.0", "true", "null", '"1"', "[]", "{}", "7", "0.25"])
+
+
+@st.composite
+def mediapipe_texts(draw):
+    """A plain MediaPipe recording as some writer lays it out (spacing, key order, extra keys), then damaged:
+    numbers swapped for other tokens, characters replaced."""
+    chans = draw(st.lists(st.sampled_from(("jawOpen", "eyeBlinkLeft", "cheekPuff", "_neutral", "mouthClose")),
+                          min_size=1, max_size=4, unique=True))
+    last = draw(st.booleans())
+    frames = []
+    for k in range(draw(st.integers(2, 7))):
+        cats = [{"index": j, "score": draw(st.floats(0, 1)), "category_name": n, "display_name": "% 1"}
+                for j, n in enumerate(chans)]
+        frame = {"face_blendshapes": [cats], "timestamp_ms": k * 33} if last else \
+            {"timestamp_ms": draw(st.sampled_from([k * 33, k * 33.5])), "face_blendshapes": [cats]}
+        frames.append(frame)
+    text = json.dumps(frames, indent=draw(st.sampled_from([None, 1])),
+                      separators=draw(st.sampled_from([None, (",", ":")])))
+    for _ in range(draw(st.integers(0, 3))):
+        numbers = [m.span() for m in re.finditer(r"-?[0-9][0-9.eE+-]*", text)]
+        if numbers and draw(st.booleans()):
+            a, b = draw(st.sampled_from(numbers))
+            text = text[:a] + draw(tokens) + text[b:]
+        else:
+            at = draw(st.integers(0, len(text) - 1))
+            text = text[:at] + draw(st.sampled_from('0123456789.-eE",{}[]:% \n')) + text[at + 1:]
+    return text
+
+
+@FUZZ
+@given(mediapipe_texts())
+def test_mediapipe_json_template_reads_as_the_json_parser(text):
+    """Whatever the text, the frame template changes nothing: the same stream, value for value (bits), or the
+    same refusal (message and code) as the JSON parser frame by frame."""
+    fast = outcome(text)
+    with json_parser_only():
+        assert fast == outcome(text)
+
+
+# --------------------------------------------------------------------------- iFacialMocap: one-pass = cell reader
+@st.composite
+def ifm_texts(draw):
+    """A plain iFacialMocap recording (every frame the first one's fields), then damaged: values swapped for other
+    text, characters replaced."""
+    chans = draw(names)
+    sep, trail = draw(st.sampled_from(["-", "&"])), draw(st.sampled_from(["|", ""]))
+    value = st.floats(-100, 100).map(lambda v: f"{v:.3f}")
+    frames = []
+    for _ in range(draw(st.integers(1, 6))):
+        parts = [f"{n}{sep}{draw(value)}" for n in chans]
+        parts.append("=head#" + ",".join(draw(value) for _ in range(6)))
+        parts.append("rightEye#" + ",".join(draw(value) for _ in range(3)))
+        parts.append("leftEye#" + ",".join(draw(value) for _ in range(3)))
+        frames.append("|".join(draw(st.permutations(parts)) if draw(st.integers(0, 9)) == 0 else parts) + trail)
+    text = draw(st.sampled_from(["\n", "\r\n"])).join(frames) + draw(st.sampled_from(["", "\n", "\n\n"]))
+    for _ in range(draw(st.integers(0, 3))):
+        numbers = [m.span() for m in re.finditer(r"-?[0-9][0-9.]*", text)]
+        if numbers and draw(st.booleans()):
+            a, b = draw(st.sampled_from(numbers))
+            text = text[:a] + draw(st.sampled_from(["", "1e5", "nan", "inf", "-", "1-2", "1,2", ".5", "5.", "1e999",
+                                                    " 1", "1\x00", "é"])) + text[b:]
+        else:
+            at = draw(st.integers(0, len(text) - 1))
+            text = text[:at] + draw(st.sampled_from("0123456789.-e,|&#=\n x")) + text[at + 1:]
+    return text
+
+
+@FUZZ
+@given(ifm_texts())
+def test_ifacialmocap_one_pass_reads_as_the_cell_reader(text):
+    """The one-pass reader reads a recording exactly as the cell reader (names, weights, poses, lines), or leaves
+    it to the cell reader."""
+    from core.retarget import formats
+    frames = text.replace("\r\n", "\n")
+    fast = formats._ifm_plain(frames)
+    if fast is None:
+        return
+    slow = formats._ifm_cells(frames)
+    assert fast[0] == slow[0]
+    for a, b in zip(fast[1:], slow[1:]):
+        assert a.shape == b.shape and a.tobytes() == b.tobytes()

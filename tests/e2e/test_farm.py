@@ -301,3 +301,73 @@ def test_flamenco_takes_as_a_json_list_keep_semicolons_and_flag_takes_are_refuse
         code, _, err = run([NODE, HARNESS, JOB_TYPE, str(path)])
         assert code == 1 and ("looks like a command-line flag" in err or "not a JSON list" in err
                               or f'"{tmp_path}/shot" is a path without a file name extension' in err), err
+
+
+# -- head, neck and eye bones (#24) -------------------------------------------------------------------------------
+
+BONES = ["head", "neck", "eye.L", "eye.R"]
+
+
+@pytest.fixture(scope="module")
+def bone_rig(tmp_path_factory):
+    """The shipped FBHead rig with an armature beside it (neck → head → eyes), saved as a .blend."""
+    path = tmp_path_factory.mktemp("bone_rig") / "rig.blend"
+    bpy.ops.wm.open_mainfile(filepath=RIG)
+    data = bpy.data.armatures.new("Rig")
+    arm = bpy.data.objects.new("Rig", data)
+    bpy.context.scene.collection.objects.link(arm)
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.mode_set(mode="EDIT")
+    for name, head, tail, parent in (("neck", (0, 0, 1.4), (0, 0.02, 1.55), None),
+                                     ("head", (0, 0.02, 1.55), (0, -0.01, 1.8), "neck"),
+                                     ("eye.L", (0.03, -0.08, 1.65), (0.03, -0.1, 1.65), "head"),
+                                     ("eye.R", (-0.03, -0.08, 1.65), (-0.03, -0.1, 1.65), "head")):
+        eb = data.edit_bones.new(name)
+        eb.head, eb.tail = head, tail
+        if parent:
+            eb.parent = data.edit_bones[parent]
+    bpy.ops.object.mode_set(mode="OBJECT")
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return str(path)
+
+
+def keyed_bones(report_path):
+    (result,) = json.loads(open(report_path, encoding="utf-8").read())["results"]
+    assert result["ok"], result
+    return result.get("bones")
+
+
+def test_openjd_bone_parameters_key_the_bones(takes, bone_rig, tmp_path):
+    """HeadBone, NeckBone, LeftEyeBone, RightEyeBone, Armature reach `retarget --head-bone … --eye-bones …`;
+    a bone name shaped like a flag is refused."""
+    params = {"Rig": bone_rig, "Takes": takes[:1], "OutputDir": str(tmp_path), "Method": "copy", "KeyTolerance": 0,
+              "Blender": shlex.join(BLENDER), "ExtensionZip": "", "HeadBone": "head", "NeckBone": "neck",
+              "LeftEyeBone": "eye.L", "RightEyeBone": "eye.R", "Armature": "Rig"}
+    step = ["--step", "Retarget", "--task-param", f"Take={takes[0]}"]
+    code, out, err = openjd("run", TEMPLATE, "-p", json.dumps(params), *step)
+    assert code == 0, (out + err)[-3000:]
+    assert keyed_bones(tmp_path / "take1.json") == BONES
+    code, out, err = openjd("run", TEMPLATE, "-p", json.dumps({**params, "NeckBone": "--overwrite"}), *step)
+    assert code != 0 and "looks like a command-line flag" in out + err
+
+
+@pytest.mark.skipif(NODE is None, reason="node is needed for the Flamenco job type")
+def test_flamenco_bone_settings_key_the_bones(takes, bone_rig, tmp_path):
+    settings = {**flamenco_settings(takes[:1], tmp_path), "blendfile": bone_rig, "method": "copy",
+                "key_tolerance": 0.0, "head_bone": "head", "neck_bone": "neck", "neck_share": 0.5,
+                "left_eye_bone": "eye.L", "right_eye_bone": "eye.R", "armature": "Rig"}
+    (retarget,) = compile_flamenco(tmp_path, settings)["tasks"][0]["commands"]
+    args = retarget["parameters"]["args"]
+    assert args[args.index("--head-bone"):args.index("--method")] == [
+        "--head-bone", "head", "--neck-bone", "neck", "--eye-bones", "eye.L", "eye.R", "--neck-share", "0.5",
+        "--armature", "Rig"]
+    code, out, err = run(worker_argv(retarget, shlex.join(BLENDER)))
+    assert code == 0, err[-3000:]
+    assert keyed_bones(tmp_path / "take1.json") == BONES
+    (plain,) = compile_flamenco(tmp_path, flamenco_settings(takes[:1], tmp_path))["tasks"][0]["commands"]
+    assert "--head-bone" not in plain["parameters"]["args"]          # no bone named: the rig's stored ones
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps({**settings, "armature": "-x"}))
+    code, _, err = run([NODE, HARNESS, JOB_TYPE, str(path)])
+    assert code == 1 and "looks like a command-line flag" in err

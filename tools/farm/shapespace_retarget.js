@@ -7,7 +7,7 @@
 // with the rig file open: `blendfile` (set by the add-on) is the rig.
 //
 // Tasks: one per take (or per chunk of `chunk_size` takes), each running, for every take of its chunk,
-//     {blender} {blenderArgs} RIG --command shapespace retarget --source TAKE [--object OBJ] --method M
+//     {blender} {blenderArgs} RIG --command shapespace retarget --source TAKE [--object OBJ] [BONES] --method M
 //         --key-tolerance T --out OUTPUT_DIR/<take>.blend --report OUTPUT_DIR/<take>.json
 // — the batch command with one --source — then a merge task (depends on all of them):
 //     {blender} {blenderArgs} RIG --command shapespace merge-reports --takes TAKE… --reports-dir OUTPUT_DIR
@@ -37,6 +37,19 @@ const JOB_TYPE = {
           description: "Reduce keys to this max slider error (0 keeps every frame)" },
         { key: "target_object", type: "string", default: "", visible: "submission",
           description: "Target mesh when the rig file has several meshes with shape keys" },
+        { key: "head_bone", type: "string", default: "", visible: "submission",
+          description: "Bone keyed from the head rotation (empty, with neck and eye bones empty too: the bones " +
+              "stored on the rig, if any)" },
+        { key: "neck_bone", type: "string", default: "", visible: "submission",
+          description: "Bone taking 'neck share' of the head rotation (empty: none)" },
+        { key: "neck_share", type: "float", default: 0.3, propargs: { min: 0.0, max: 1.0 }, visible: "submission",
+          description: "The neck bone's share of the head rotation" },
+        { key: "left_eye_bone", type: "string", default: "", visible: "submission",
+          description: "The character's left eye bone (empty: none)" },
+        { key: "right_eye_bone", type: "string", default: "", visible: "submission",
+          description: "The character's right eye bone (empty: none)" },
+        { key: "armature", type: "string", default: "", visible: "submission",
+          description: "The armature of those bones (empty: the only armature in the rig file)" },
         { key: "extension_zip", type: "string", subtype: "file_path", default: "", visible: "submission",
           description: "ShapeSpace zip to install on the worker first (empty: already installed there)" },
         { key: "blendfile", type: "string", required: true, visible: "web",
@@ -133,12 +146,39 @@ function retargetArgs(settings, take) {
     if (settings.target_object) {
         args = args.concat(["--object", settings.target_object]);
     }
-    return args.concat([
+    return args.concat(boneArgs(settings), [
         "--method", settings.method,
         "--key-tolerance", String(settings.key_tolerance),
         "--out", path.join(settings.output_dir, `${stem}.blend`),
         "--report", path.join(settings.output_dir, `${stem}.json`),
     ]);
+}
+
+// `--head-bone/--neck-bone/--eye-bones/--neck-share/--armature` when a bone is named (none: the CLI keys the bones
+// stored on the rig, if any).  A name shaped like a flag is refused.
+function boneArgs(settings) {
+    const names = ["head_bone", "neck_bone", "left_eye_bone", "right_eye_bone", "armature"];
+    for (const key of names) {
+        if ((settings[key] || "").startsWith("-")) {
+            throw `${key} ${JSON.stringify(settings[key])} looks like a command-line flag`;
+        }
+    }
+    let args = [];
+    if (settings.head_bone) {
+        args = args.concat(["--head-bone", settings.head_bone]);
+    }
+    if (settings.neck_bone) {
+        args = args.concat(["--neck-bone", settings.neck_bone]);
+    }
+    if (settings.left_eye_bone || settings.right_eye_bone) {
+        args = args.concat(["--eye-bones", settings.left_eye_bone || "", settings.right_eye_bone || ""]);
+    }
+    if (args.length === 0) {
+        return args;
+    }
+    const share = settings.neck_share === undefined ? 0.3 : settings.neck_share;
+    args = args.concat(["--neck-share", String(share)]);
+    return settings.armature ? args.concat(["--armature", settings.armature]) : args;
 }
 
 // Flamenco's Blender command: {blender} {blenderArgs} [argsBefore…] blendfile [args…].  The worker requires a
