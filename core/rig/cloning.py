@@ -170,6 +170,6 @@ def solve_take_cloning(evaluate: Callable, rest: ArrayLike, expressions: ArrayLi
                      rest=M.rest, reg=reg, pin_tol=pin_tol, xtol=xtol, max_iter=int(refine_steps), starts=C,
                      keep_linearisation=keep_linearisation, progress=scaled(progress, 0.3, 1.0))
     res.evaluations += M.diagnostics["evaluations"]
-    res.diagnostics.update(cloning_matrix=M.value, expression_rms=M.expression_rms, cloned=C,
+    res.diagnostics.update(method="cloning", cloning_matrix=M.value, expression_rms=M.expression_rms, cloned=C,
                            expression_status=M.expression_status)
     return res

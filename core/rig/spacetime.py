@@ -24,7 +24,8 @@ The scale ``λ`` uses ``mean_f tr(ΣJ_fᵀJ_fΣ) / n`` of the first linearisatio
 fit (toward the rest controls ``r``) of that linearisation, ``r + Σ (ΣJ_fᵀJ_fΣ + λI)⁻¹ ΣJ_fᵀ (T_f − P_f +
 J_f (c_f − r))``: on a linear rig (``J_f = B``, ``r = 0``) both are the shape-key route's, so the answer is the
 shape-key space-time solver's (``tests/core/test_rig_spacetime.py``).  The take stops ``OK`` when the predicted
-decrease of the last model is at most ``ftol`` of the objective or no point would move by more than ``xtol``;
+decrease of the last model is at most ``ftol`` of the objective (plus the objective's rounding when the points are
+evaluated in a given ``precision``) or no point would move by more than ``xtol``;
 ``NOT_CONVERGED`` (the best controls found returned) when ``max_outer`` steps are used or a step verified
 against the rig does not decrease the objective even when halved :data:`MAX_HALVINGS` times.
 """
@@ -41,9 +42,10 @@ from ..errors import ErrorCode
 from ..progress import ProgressFn, notify
 from ..result import Result, ShapeSpaceError, Status
 from .solve import broyden_update
+from .take import RigTakeResult
 
 __all__ = ["RigSpacetimeResult", "anchor_fit", "bounded_block_qp", "relative_lambda", "solve_take_spacetime",
-           "MAX_HALVINGS"]
+           "take_result", "MAX_HALVINGS"]
 
 #: Step halvings tried before a Gauss–Newton step that does not decrease the verified objective stops the take.
 MAX_HALVINGS = 6
@@ -215,11 +217,12 @@ def _check(C0, P0, J0, targets, sigma, lo, hi):
     return C, P, J, T, s, lo_, hi_
 
 
-def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: ArrayLike, targets: ArrayLike,
-                         sigma: ArrayLike, *, lo: ArrayLike | None = None, hi: ArrayLike | None = None,
+def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: ArrayLike | None,
+                         targets: ArrayLike, sigma: ArrayLike, *, jacobian: Callable | None = None,
+                         lo: ArrayLike | None = None, hi: ArrayLike | None = None,
                          rest: ArrayLike | None = None, lam: float = 1e-7, first: ArrayLike | None = None,
                          last: ArrayLike | None = None, max_outer: int = 8, ftol: float = 1e-8, xtol: float = 0.0,
-                         progress: ProgressFn | None = None) -> RigSpacetimeResult:
+                         precision: float = 0.0, progress: ProgressFn | None = None) -> RigSpacetimeResult:
     """Space-time controls of a take on any rig (module doc): Gauss–Newton on the whole take, each step verified.
 
     Parameters
@@ -230,11 +233,14 @@ def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: A
         Start (the per-frame pass; inside the bounds), F ≥ 3.
     P0 : array_like (F, p, 3)
         ``evaluate`` at each row of ``C0``.
-    J0 : array_like (F, 3p, n)
-        Jacobians there (fresh or Broyden-updated).
+    J0 : array_like (F, 3p, n) or None
+        Jacobians there (fresh or Broyden-updated); ``None`` with ``jacobian``.
     targets : array_like (F, p, 3)
     sigma : array_like (n,)
         Per-control scales σ (the shape-key route's per-slider σ).
+    jacobian : callable (n,), (p, 3) -> (3p, n), optional
+        A fresh Jacobian: then every frame is linearised afresh at the start (Broyden-updated Jacobians of the
+        per-frame pass drift with the evaluation's rounding) and again once when a verified step is refused.
     lo, hi : array_like (n,), optional
         Bounds.
     rest : array_like (n,), optional
@@ -247,6 +253,9 @@ def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: A
         Gauss–Newton steps before ``NOT_CONVERGED``.
     ftol, xtol : float
         Stopping tests (module doc).
+    precision : float
+        Absolute precision of the evaluated points (Blender's float32 coordinates: ``2⁻²⁴ · max |P|``): a
+        predicted decrease within the objective's rounding, ``2 · precision · Σ |D R|``, also stops ``OK``.
     progress : callable, optional
         ``progress(fraction)`` after each step; :class:`~core.progress.Cancelled` from it stops the solve.
 
@@ -254,6 +263,13 @@ def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: A
     -------
     RigSpacetimeResult
     """
+    evals = 0
+    if J0 is None:
+        if jacobian is None:
+            raise ShapeSpaceError("space-time needs the Jacobians or a jacobian function", ErrorCode.INVALID)
+        Cs, Ps = np.asarray(C0, dtype=np.float64), np.asarray(P0, dtype=np.float64)
+        J0 = np.stack([np.asarray(jacobian(c, p), dtype=np.float64) for c, p in zip(Cs, Ps)])
+        evals += Cs.size
     C, P, J, T, sig, lo_, hi_ = _check(C0, P0, J0, targets, sigma, lo, hi)
     F, n = C.shape
     if not (np.isfinite(lam) and lam > 0):
@@ -261,14 +277,13 @@ def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: A
     r = np.zeros(n) if rest is None else np.asarray(rest, dtype=np.float64).reshape(n)
     lam_abs = relative_lambda(J, sig, lam)
     A = anchor_fit(J, P, C, T, r, sig, lam_abs)
-    evals = 0
     for row, given in ((0, first), (F - 1, last)):
         if given is not None:
             C[row] = np.clip(np.asarray(given, dtype=np.float64).reshape(n), lo_, hi_)
             P[row] = np.asarray(evaluate(C[row]), dtype=np.float64).reshape(-1)
             evals += 1
     phi0 = phi = _objective(P - T, C, A, sig, lam_abs)
-    status, message, qp_its, steps = Status.NOT_CONVERGED, "", 0, 0
+    status, message, qp_its, steps, fresh = Status.NOT_CONVERGED, "", 0, 0, jacobian is not None
     notify(progress, 0.0)
     for _ in range(max_outer):
         Dg, E, g = _model(J, P - T, C, A, sig, lam_abs)
@@ -276,7 +291,8 @@ def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: A
         qp_its += its
         pred = -(float(np.sum(g * d)) + 0.5 * float(np.sum(d * _apply(Dg, E, d))))
         move = float(np.abs(np.einsum("tik,tk->ti", J[1:-1], d)).max()) if d.size else 0.0
-        if pred <= ftol * max(phi, 1e-300) or move <= xtol:
+        noise = 2.0 * precision * float(np.abs(np.diff(P - T, axis=0)).sum())
+        if pred <= ftol * max(phi, 1e-300) + noise or move <= xtol:
             status, message = Status.OK, f"converged after {steps} Gauss–Newton steps (objective {phi:.6g})"
             break
         alpha, accepted = 1.0, False
@@ -292,10 +308,17 @@ def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: A
                 accepted = True
                 break
             alpha *= 0.5
+        if not accepted and jacobian is not None and not fresh:   # re-linearise afresh, once
+            J[1:-1] = np.stack([np.asarray(jacobian(c, p.reshape(-1, 3)), dtype=np.float64)
+                                for c, p in zip(C[1:-1], P[1:-1])])
+            evals += (F - 2) * n
+            fresh = True
+            continue
         if not accepted:
             message = (f"a Gauss–Newton step verified against the rig did not decrease the objective "
                        f"({phi:.6g}) after {MAX_HALVINGS} halvings")
             break
+        fresh = False
         for f in range(1, F - 1):
             J[f] = broyden_update(J[f], Cn[f] - C[f], Pn[f] - P[f])
         C, P, phi = Cn, Pn, phin
@@ -309,3 +332,23 @@ def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: A
                               diagnostics={"objective": phi, "objective_start": phi0, "evaluations": evals,
                                            "lam": lam_abs, "qp_iterations": qp_its, "rms": rms,
                                            "points": P.reshape(F, -1, 3)})
+
+
+def take_result(per_frame: RigTakeResult, result: RigSpacetimeResult, targets: ArrayLike) -> RigTakeResult:
+    """The space-time answer as a :class:`~core.rig.take.RigTakeResult` (what :func:`core.rig.take.take_report`
+    reads): its controls, status and message; per frame the rig's evaluated RMS and largest point distance (every
+    frame ``OK``: frames are not solved one by one); evaluations of both passes; ``diagnostics['method']``
+    ``'spacetime'`` and the verified objective before and after."""
+    P = result.diagnostics["points"]
+    t = np.asarray(targets, dtype=np.float64).reshape(P.shape)
+    d = np.linalg.norm(P - t, axis=2)
+    F = P.shape[0]
+    return RigTakeResult(result.value, status=result.status, message=result.message, iterations=result.iterations,
+                         frame_status=np.zeros(F, dtype=np.int64), rms=np.sqrt(np.mean(d * d, axis=1)),
+                         pin_error_max=d.max(axis=1),
+                         evaluations=per_frame.evaluations + result.diagnostics["evaluations"],
+                         jacobians=per_frame.jacobians,
+                         diagnostics={"method": "spacetime", "objective": result.diagnostics["objective"],
+                                      "objective_start": result.diagnostics["objective_start"],
+                                      "lam": result.diagnostics["lam"],
+                                      "per_frame_status": int(per_frame.status)})

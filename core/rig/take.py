@@ -107,6 +107,9 @@ class RigTakeReport(Report):
         The capture or action retargeted (``''`` for a take given as target positions).
     mapped_channels : int
         Shape keys of the face the source's channels map to (capture route; 0 otherwise).
+    method : str
+        The route that ran: ``'perframe'``, ``'spacetime'`` (:mod:`core.rig.spacetime`) or ``'cloning'``
+        (:mod:`core.rig.cloning`).
     """
 
     frames: int = 0
@@ -124,6 +127,7 @@ class RigTakeReport(Report):
     key_fraction: float = 1.0
     source: str = ""
     mapped_channels: int = 0
+    method: str = "perframe"
 
 
 def _targets(targets: ArrayLike) -> np.ndarray:
@@ -278,8 +282,11 @@ def take_report(result: RigTakeResult, frames: ArrayLike, names: Sequence[str]) 
         issues.append(Issue("warning", "not_converged",
                             f"{len(bad)} frame(s) stopped at the iteration limit before converging: {shown}",
                             tuple(str(v) for v in bad)))
-    return RigTakeReport(status=Status.NOT_CONVERGED if bad else Status.OK, issues=issues, frames=len(as_num),
+    if result.status != Status.OK and not bad:        # a whole-take solve (space-time) that stopped early
+        issues.append(Issue("warning", "not_converged", result.message))
+    return RigTakeReport(status=Status.NOT_CONVERGED if issues else Status.OK, issues=issues, frames=len(as_num),
                          frame_range=[as_num[0], as_num[-1]], channels=list(names),
                          rms=float(np.sqrt(np.mean(result.rms ** 2))), rms_max=float(result.rms.max()),
                          pin_error_max=float(result.pin_error_max.max()), not_converged=bad,
-                         evaluations=result.evaluations, jacobians=result.jacobians)
+                         evaluations=result.evaluations, jacobians=result.jacobians,
+                         method=str(result.diagnostics.get("method", "perframe")))
