@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.linalg import solveh_banded
 
+from ..blas_threads import single_threaded
 from ..errors import ErrorCode
 from ..progress import ProgressFn, notify
 from ..result import Result, ShapeSpaceError, Status
@@ -87,35 +88,42 @@ def anchor_fit(J: np.ndarray, P: np.ndarray, C: np.ndarray, T: np.ndarray, rest:
     sigma : ndarray (n,)
     lam_abs : float
     """
-    out = np.empty_like(C)
     n = C.shape[1]
-    for f in range(C.shape[0]):
-        Js = J[f] * sigma
-        e = T[f] - P[f] + J[f] @ (C[f] - rest)
-        out[f] = rest + sigma * np.linalg.solve(Js.T @ Js + lam_abs * np.eye(n), Js.T @ e)
+    Js = J * sigma
+    E = T - P + np.matmul(J, (C - rest)[:, :, None])[:, :, 0]
+    G = np.matmul(Js.transpose(0, 2, 1), Js) + lam_abs * np.eye(n)
+    out = rest + sigma * np.linalg.solve(G, np.matmul(Js.transpose(0, 2, 1), E[:, :, None]))[:, :, 0]
     return out
 
 
-def _band(Dg: np.ndarray, E: np.ndarray, held: np.ndarray) -> np.ndarray:
-    """Upper band storage (u = 2n − 1) of the block-tridiagonal matrix with diagonal blocks ``Dg`` (N, n, n) and
-    super-diagonal blocks ``E`` (N − 1, n, n) (frame-major), rows and columns ``held`` (N·n bool) replaced by the
-    identity."""
-    N, n = Dg.shape[:2]
-    R = np.zeros((N, n, 2 * n))
-    R[:, :, :n] = Dg
-    R[:-1, :, n:] = E
-    t, k, m = np.indices(R.shape)
-    i, j = t * n + k, t * n + m
-    keep = (j >= i) & (j < N * n)
-    h = held.reshape(-1)
-    vals = R[keep]
-    ii, jj = i[keep], j[keep]
-    vals[h[ii] | h[jj]] = 0.0
-    vals[(ii == jj) & h[ii]] = 1.0
-    u = 2 * n - 1
-    ab = np.zeros((u + 1, N * n))
-    ab[u + ii - jj, jj] = vals
-    return ab
+class _BandPattern:
+    """Where each entry of the block rows (N, n, 2n) — diagonal block then super-diagonal block — goes in LAPACK
+    upper band storage (u = 2n − 1, frame-major), computed once per shape."""
+
+    def __init__(self, N: int, n: int):
+        t, k, m = np.indices((N, n, 2 * n))
+        i, j = t * n + k, t * n + m
+        self.keep = (j >= i) & (j < N * n)
+        self.i, self.j = i[self.keep], j[self.keep]
+        self.row = 2 * n - 1 + self.i - self.j
+        self.diag = self.i == self.j
+        self.shape = (2 * n, N * n)
+
+    def band(self, Dg: np.ndarray, E: np.ndarray, held: np.ndarray) -> np.ndarray:
+        """The band of the block-tridiagonal matrix (diagonal blocks ``Dg`` (N, n, n), super-diagonal blocks
+        ``E`` (N − 1, n, n)), rows and columns ``held`` (N·n bool) replaced by the identity."""
+        N, n = Dg.shape[:2]
+        R = np.zeros((N, n, 2 * n))
+        R[:, :, :n] = Dg
+        R[:-1, :, n:] = E
+        vals = R[self.keep]
+        h = held.reshape(-1)
+        hi, hj = h[self.i], h[self.j]
+        vals[hi | hj] = 0.0
+        vals[self.diag & hi] = 1.0
+        ab = np.zeros(self.shape)
+        ab[self.row, self.j] = vals
+        return ab
 
 
 def _apply(Dg: np.ndarray, E: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -153,6 +161,7 @@ def bounded_block_qp(Dg: np.ndarray, E: np.ndarray, g: np.ndarray, lo: np.ndarra
         ``(x (N, n), iterations, converged)``.
     """
     kappa = 1.0 / np.einsum("tkk->tk", Dg)
+    pattern = _BandPattern(*g.shape)
     held = np.zeros(g.shape, dtype=bool)
     x = np.zeros_like(g)
     scale = max(1.0, float(np.abs(g).max()))
@@ -161,7 +170,8 @@ def bounded_block_qp(Dg: np.ndarray, E: np.ndarray, g: np.ndarray, lo: np.ndarra
         fixed = np.where(held, x, 0.0)
         rhs = -g - _apply(Dg, E, fixed)
         rhs[held] = fixed[held]
-        x = solveh_banded(_band(Dg, E, held), rhs.reshape(-1), check_finite=False).reshape(g.shape)
+        with single_threaded():          # one banded factor after another: BLAS threads only spin
+            x = solveh_banded(pattern.band(Dg, E, held), rhs.reshape(-1), check_finite=False).reshape(g.shape)
         grad = _apply(Dg, E, x) + g
         y = x - kappa * grad
         nat = np.abs(x - np.clip(y, lo, hi)).max()
@@ -188,11 +198,12 @@ def _model(J, R, C, A, sigma, lam_abs):
     """Blocks, gradient of the Gauss–Newton quadratic in the interior steps (module doc)."""
     Ji = J[1:-1]
     w = lam_abs / (sigma * sigma)
-    Dg = 2.0 * np.einsum("tik,til->tkl", Ji, Ji, optimize=True)
+    JiT = Ji.transpose(0, 2, 1)
+    Dg = 2.0 * np.matmul(JiT, Ji)
     Dg[:, np.arange(sigma.size), np.arange(sigma.size)] += w
-    E = -np.einsum("tik,til->tkl", Ji[:-1], Ji[1:], optimize=True)
+    E = -np.matmul(JiT[:-1], Ji[1:])
     V = np.diff(R, axis=0)                                      # (F − 1, 3p): v_f = R_{f+1} − R_f
-    g = np.einsum("tik,ti->tk", Ji, V[:-1] - V[1:], optimize=True) + w * (C[1:-1] - A[1:-1])
+    g = np.matmul(JiT, (V[:-1] - V[1:])[:, :, None])[:, :, 0] + w * (C[1:-1] - A[1:-1])
     return Dg, E, g
 
 
@@ -276,7 +287,8 @@ def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: A
         raise ShapeSpaceError(f"lam = {lam} must be a positive number", ErrorCode.RANGE)
     r = np.zeros(n) if rest is None else np.asarray(rest, dtype=np.float64).reshape(n)
     lam_abs = relative_lambda(J, sig, lam)
-    A = anchor_fit(J, P, C, T, r, sig, lam_abs)
+    with single_threaded():
+        A = anchor_fit(J, P, C, T, r, sig, lam_abs)
     for row, given in ((0, first), (F - 1, last)):
         if given is not None:
             C[row] = np.clip(np.asarray(given, dtype=np.float64).reshape(n), lo_, hi_)
@@ -286,7 +298,8 @@ def solve_take_spacetime(evaluate: Callable, C0: ArrayLike, P0: ArrayLike, J0: A
     status, message, qp_its, steps, fresh = Status.NOT_CONVERGED, "", 0, 0, jacobian is not None
     notify(progress, 0.0)
     for _ in range(max_outer):
-        Dg, E, g = _model(J, P - T, C, A, sig, lam_abs)
+        with single_threaded():                 # many small products: BLAS threads only spin
+            Dg, E, g = _model(J, P - T, C, A, sig, lam_abs)
         d, its, _ok = bounded_block_qp(Dg, E, g, lo_ - C[1:-1], hi_ - C[1:-1])
         qp_its += its
         pred = -(float(np.sum(g * d)) + 0.5 * float(np.sum(d * _apply(Dg, E, d))))
