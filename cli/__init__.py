@@ -55,9 +55,11 @@ playback and exporters see the whole take; --keep-scene-range leaves it as it is
 frame_range written and the clipped_frames (scene frames where the source leaves the slider ranges) as
 [first, last] runs.
 Rig controls (--controls): each source's weights are played on the --object mesh's own shape keys (ARKit
-names, mapped as for the sliders) and the rig's channels are solved frame by frame to reproduce that surface,
-then keyed (only the channels that move) in new actions on their owners (armature/object, the mesh's Key);
-each result is the take's report (rms, pin_error_max in scene units, keyed_channels, actions). A malformed
+names, mapped as for the sliders) and the rig's channels are solved to reproduce that surface — frame by frame
+(--method perframe, the default), then over the whole take with the space-time smoothing (spacetime, --lam as
+for the sliders), or through a cloning matrix of the source's expressions refined per frame (cloning) — then
+keyed (only the channels that move) in new actions on their owners (armature/object, the mesh's Key);
+each result is the take's report (method, rms, pin_error_max in scene units, keyed_channels, actions). A malformed
 SPEC is a usage error (exit 2); a SPEC naming an object, bone, property or key the file lacks is refused by
 name before any work (exit 1). Not with --key-poses, --head-bone/--neck-bone/--eye-bones or --key-shape
 LINEAR; the scene's frame range is left as it is.
@@ -102,8 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="capture recording (Live Link Face CSV, Face Cap TXT, iFacialMocap, Audio2Face JSON, "
                     "MediaPipe JSON/CSV), action name, or an animated mesh object (repeat for a batch)")
     rt.add_argument("--object", help="target mesh (default: the only mesh with shape keys)")
-    rt.add_argument("--method", choices=("copy", "learned", "perframe", "spacetime"),
-                    help="copy, learned, perframe or spacetime (default: spacetime; with --controls only perframe)")
+    rt.add_argument("--method", choices=("copy", "learned", "perframe", "spacetime", "cloning"),
+                    help="copy, learned, perframe or spacetime (default: spacetime); with --controls perframe "
+                         "(default), spacetime or cloning")
     rt.add_argument("--controls", nargs="+", metavar="SPEC",
                     help="retarget onto these rig channels instead of the sliders (any face rig: bones, custom "
                     "properties, sliders; per-frame, through the --object mesh's own ARKit shape keys): "

@@ -116,7 +116,8 @@ def _one_rig_source(obj, controls, src: str, args) -> tuple:
                                   "shape-key actions are retargeted", ErrorCode.METHOD)
         name = f"{obj.name}_{os.path.splitext(os.path.basename(src))[0]}"
         return brig.retarget_capture_onto_rig(obj, controls, src, key_tolerance=args.key_tolerance,
-                                              action_name=name, progress=_ProgressLines(src))
+                                              action_name=name, method=args.method, lam=args.lam,
+                                              progress=_ProgressLines(src))
 
     return _batch_item(src, work, RigTakeReport(status=Status.FAILED, source=src),
                        "not enough memory for this source (split the take)")
@@ -145,15 +146,21 @@ def _batch_item(src: str, work, failed, memory_message: str) -> tuple:
     return failed, {"source": src, "ok": False, "error": message}
 
 
+#: ``--method`` values with ``--controls`` (None: the default, per frame).
+RIG_METHODS = (None, "perframe", "spacetime", "cloning")
+
+
 def _rig_specs(args) -> list | None:
     """``--controls`` parsed (syntax only, before any work) and the options it excludes refused: usage errors."""
     from .controls import parse_specs
     if not args.controls:
+        if args.method == "cloning":
+            raise ShapeSpaceError("--method cloning is the rig route's: give the rig's --controls", ErrorCode.USAGE)
         args.method = args.method or "spacetime"
         return None
-    if args.method not in (None, "perframe"):
-        raise ShapeSpaceError(f"--controls retargets per frame: --method {args.method} is not available with it",
-                              ErrorCode.USAGE)
+    if args.method not in RIG_METHODS:
+        raise ShapeSpaceError(f"--controls retargets by {', '.join(RIG_METHODS[1:])}: --method {args.method} is not "
+                              "available with it", ErrorCode.USAGE)
     excluded = [flag for flag, given in (("--key-poses", args.key_poses), ("--head-bone", args.head_bone),
                                          ("--neck-bone", args.neck_bone), ("--eye-bones", args.eye_bones),
                                          ("--mirror", args.mirror),
@@ -162,7 +169,7 @@ def _rig_specs(args) -> list | None:
                 if given]
     if excluded:
         raise ShapeSpaceError(f"{excluded[0]} is not available with --controls", ErrorCode.USAGE)
-    args.method = "perframe"
+    args.method = args.method or "perframe"
     return parse_specs(args.controls)
 
 

@@ -72,6 +72,22 @@ Per-frame retarget onto the rig's controls (``bridge/rig/take.py``), for ``hybri
 - ``rig_retarget_s_1640_rigify``: wall time of retargeting (solve, key reduction, keying) a 1,640-frame take of
   the Rigify face's own smooth curves.  Goal ≤ 60 s.  With ``--quick`` 160 frames are retargeted and the time
   scaled by 1640/160 (``rig_retarget_frames_measured_rigify`` and ``rig_retarget_s_1640_rigify_note`` say so).
+
+Cross-rig (``bridge/rig/capture.py``), for ``hybrid`` (here: the jaw bone *instead of* ``jawOpen``, every other
+ARKit key of the head a control) and ``rigify`` (its bench control set above):
+
+- ``rig_cross_landmark_ratio_<rig>``: the shipped Live Link Face take (``assets/llf_fbhead``) retargeted onto the
+  rig, played by Blender, its landmark error over the
+  same take retargeted onto the head's shape-key version (the same head, its ARKit keys, the shape-key
+  space-time route), both against the truth: the capture's weights on the head's own keys (Eq. 3.1).  Landmarks:
+  the peak vertex of each mapped key (``core.retarget.peak_landmarks``); error: RMS over landmarks and frames in mm
+  at a 30 cm head (``core.retarget.metrics.HEAD_MM``).  Goal ≤ 1.2.  The key is the rig route's default
+  (``perframe``, the CLI's with ``--controls``); the shape-key space-time route reproduces the capture on its own
+  keys almost exactly, so the reference is tiny and ``rig_cross_motion_mm_<rig>`` (RMS landmark motion of the take
+  from rest) gives the scale the rig's error is to be read against; ``rig_cross_worst_landmarks_<rig>_<route>``
+  names the three landmarks (by their key) with the largest error.  ``rig_cross_landmark_mm_<rig>_<route>``,
+  ``rig_cross_landmark_ratio_<rig>_<route>`` and ``rig_cross_s_<rig>_<route>`` for each route (``perframe``,
+  ``spacetime``, ``cloning``); ``rig_cross_landmark_mm_shapekey_<rig>`` the reference.
 """
 from __future__ import annotations
 
@@ -338,6 +354,88 @@ def _measure_live(name: str, build, reps: int) -> dict:
             f"rig_live_redisplay_frac_{name}": pipe.redisplays / max(pipe.frames, 1)}
 
 
+LLF_CSV = os.path.join("llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
+CROSS_ROUTES = ("perframe", "spacetime", "cloning")
+
+
+def _cross_rigs(facecap: str) -> list:
+    """(name, builder) of the cross-rig cases: the hybrid with its jaw bone *instead of* ``jawOpen`` (every other
+    ARKit key a control) and the Rigify face (its bench control set); both on facecap's head, whose ARKit keys
+    are the shape-key version."""
+    import rigs
+
+    def hybrid():
+        ob = rigs.load_head(facecap)
+        keys = [kb.name for kb in ob.data.shape_keys.key_blocks[1:]
+                if kb.name != "jawOpen" and np.abs(rigs._shape_delta(ob, kb.name)).max() > 0]
+        return rigs.hybrid_rig(facecap, keys=keys)
+
+    return [("hybrid", hybrid), ("rigify", lambda: rigs.rigify_rig(facecap))]
+
+
+def _played(rig, frames, lm) -> np.ndarray:
+    import bpy
+    out = []
+    for f in frames:
+        bpy.context.scene.frame_set(int(f))
+        out.append(rig.world_points()[lm])
+    return np.stack(out)
+
+
+def _measure_cross(name: str, build, csv: str) -> dict:
+    """``rig_cross_landmark_ratio_<rig>`` (module doc): landmark error in mm at a 30 cm head of the Live Link Face
+    take retargeted onto the rig, over the same error of the take retargeted onto the head's shape keys."""
+    import rigs
+    from shapespace.bridge import retarget as bret
+    from shapespace.bridge import rig as brig
+    from shapespace.bridge.shapekeys import read_blendshape_model
+    from shapespace.core.retarget import peak_landmarks
+    from shapespace.core.retarget.metrics import HEAD_MM
+    rig = build()
+    mesh = rig.mesh
+    names, frames, W, _ = brig.capture_weights(mesh, csv)
+    model = read_blendshape_model(mesh)
+    cols = [model.names.index(n) for n in names]
+    _, lm, used = peak_landmarks(model.deltas, model.deltas, [(j, j) for j in cols])
+    used_cols = [j for _, j in used]
+    truth = brig.shape_key_targets(mesh, names, W, lm)                # the capture on the shape-key head
+    mm = HEAD_MM / rigs.diagonal(rig.world_points())
+
+    def err(played):
+        return float(np.sqrt(np.mean(np.sum((played - truth) ** 2, axis=-1)))) * mm
+
+    print(f"bench rig: {name} cross-rig, shape-key version ({len(frames)} frames)", file=sys.stderr)
+    t0 = time.perf_counter()
+    rep = bret.retarget(mesh, csv, "spacetime", extend_scene_range=False)
+    rest = rig.world_points()[lm]
+    out = {f"rig_cross_shapekey_s_{name}": time.perf_counter() - t0,
+           f"rig_cross_landmark_mm_shapekey_{name}": err(_played(rig, frames, lm)),
+           f"rig_cross_motion_mm_{name}": float(np.sqrt(np.mean(np.sum((truth - rest) ** 2, axis=-1)))) * mm,
+           f"rig_cross_landmarks_{name}": int(lm.size), f"rig_cross_frames_{name}": int(len(frames))}
+    del rep
+    mesh.data.shape_keys.animation_data_clear()
+    for kb in mesh.data.shape_keys.key_blocks[1:]:
+        kb.value = 0.0
+    ref = out[f"rig_cross_landmark_mm_shapekey_{name}"]
+    for route in CROSS_ROUTES:
+        print(f"bench rig: {name} cross-rig, {route}", file=sys.stderr)
+        t0 = time.perf_counter()
+        rep = brig.retarget_capture_onto_rig(mesh, rig.controls, csv, method=route)
+        out[f"rig_cross_s_{name}_{route}"] = time.perf_counter() - t0
+        played = _played(rig, frames, lm)
+        e = err(played)
+        per_lm = np.sqrt(np.mean(np.sum((played - truth) ** 2, axis=-1), axis=0)) * mm
+        worst = np.argsort(-per_lm)[:3]
+        out[f"rig_cross_worst_landmarks_{name}_{route}"] = "; ".join(
+            f"{model.names[j]}: {per_lm[i]:.2f} mm" for i, j in zip(worst, np.asarray(used_cols)[worst]))
+        out[f"rig_cross_landmark_mm_{name}_{route}"] = e
+        out[f"rig_cross_landmark_ratio_{name}_{route}"] = e / ref
+        out[f"rig_cross_status_{name}_{route}"] = rep.status.name.lower()
+        brig.restore_previous(rep, rig.controls)
+    out[f"rig_cross_landmark_ratio_{name}"] = out[f"rig_cross_landmark_ratio_{name}_perframe"]
+    return out
+
+
 def run(quick: bool = False) -> dict:
     import package
     sys.path.insert(0, os.path.join(env.ROOT, "tests"))
@@ -361,6 +459,10 @@ def run(quick: bool = False) -> dict:
     for name in ("hybrid", "driver", "rigify"):
         if name in builders:
             metrics.update(_measure_live(name, builders[name], 1 if quick else 3))
+    facecap, csv = shared_data(FACECAP, "cross-rig cases"), shared_data(LLF_CSV, "cross-rig cases")
+    if facecap is not None and csv is not None:
+        for name, build in _cross_rigs(facecap):
+            metrics.update(_measure_cross(name, build, csv))
     errs = [v for k, v in metrics.items() if k.startswith("rig_drag_pin_err_max_")]
     metrics["rig_drag_pin_err_goal_met"] = bool(errs) and max(errs) <= 1e-3
     return metrics

@@ -1,4 +1,4 @@
-"""Retarget a capture onto any rig's controls through the face's own shape keys (issue #25, item 3, per-frame).
+"""Retarget a capture onto any rig's controls through the face's own shape keys (issue #25, item 3).
 
 The cloning route for ARKit-named sources: a capture (Live Link Face CSV, Face Cap TXT, iFacialMocap,
 Audio2Face JSON, MediaPipe JSON/CSV, or a shape-key action; :func:`bridge.retarget.sources.read_source`) gives
@@ -13,6 +13,12 @@ frame by frame to reproduce it (:func:`bridge.rig.take.compute_take`) and keyed 
 The target is the keys' model alone (sliders the source does not map stay at 0 in it); the rig is evaluated as
 it is apart from its controls, so sliders that are not controls should rest at 0 and datablocks without a
 control should play no action (the actions of datablocks that own controls are set aside while it solves).
+
+Routes (``method``): ``perframe`` solves each frame (:func:`core.rig.take.solve_take`); ``spacetime`` then solves
+the whole take with the shape-key space-time route's smoothing (:mod:`core.rig.spacetime`); ``cloning`` solves once,
+per mapped key, the controls that reproduce that key at weight 1 (the key's surface on the face), maps the
+capture's weights to controls linearly and refines each frame by a few warm-started steps (:mod:`core.rig.cloning`).
+The report's ``method`` says which route ran.
 
 So the rig may replace a key by a bone (a jaw bone for ``jawOpen``), drive keys through drivers, or be any mix:
 what is matched is the surface the face's own keys would make.  Nothing is written before every frame is solved;
@@ -92,8 +98,8 @@ def sample_vertices(mesh_obj, key_names, minimum: int = MIN_SAMPLE) -> np.ndarra
 
 def retarget_capture_onto_rig(mesh_obj, controls: ControlSet, source, *, scene=None, indices=None,
                               reg: float = 1e-6, smooth: float = 0.0, key_tolerance: float = 0.0,
-                              max_iter: int = 20, action_name: str | None = None,
-                              progress=None) -> RigTakeReport:
+                              max_iter: int = 20, action_name: str | None = None, method: str = "perframe",
+                              lam: float = 1e-7, progress=None) -> RigTakeReport:
     """Retarget a capture ``source`` onto ``controls`` (module doc) and key them; returns the take's report.
 
     Parameters
@@ -112,6 +118,10 @@ def retarget_capture_onto_rig(mesh_obj, controls: ControlSet, source, *, scene=N
         As in :func:`bridge.rig.take.compute_take`.
     key_tolerance : float
         Key reduction in surface units (:func:`bridge.rig.take.write_take`; 0 keeps every frame).
+    method : str
+        ``'perframe'``, ``'spacetime'`` or ``'cloning'`` (module doc).
+    lam : float
+        The space-time λ (relative, as the retarget command's ``--lam``).
     progress : callable, optional
         ``progress(fraction)``; raising :class:`~core.progress.Cancelled` stops it with nothing written.
     """
@@ -120,8 +130,12 @@ def retarget_capture_onto_rig(mesh_obj, controls: ControlSet, source, *, scene=N
     idx = sample_vertices(mesh_obj, names) if indices is None else np.asarray(indices, dtype=np.int64)
     targets = shape_key_targets(mesh_obj, names, W, idx)
     notify(progress, 0.05)
+    cloning = None
+    if method == "cloning":
+        cloning = (shape_key_targets(mesh_obj, names, np.eye(len(names)), idx), W)
     outcome = compute_take(mesh_obj, controls, idx, targets, frames, reg=reg, smooth=smooth, max_iter=max_iter,
-                           action_name=action_name, progress=scaled(progress, 0.05, 0.95))
+                           action_name=action_name, method=method, lam=lam, cloning=cloning,
+                           progress=scaled(progress, 0.05, 0.95))
     report = write_take(outcome, key_tolerance, scaled(progress, 0.95, 1.0))
     report.issues = issues + report.issues
     report.source = str(getattr(source, "name", source))

@@ -1,8 +1,10 @@
-"""Retarget a take onto any rig's controls and key it on the rig's actions (issue #25, per-frame).
+"""Retarget a take onto any rig's controls and key it on the rig's actions (issue #25, item 3).
 
 :func:`retarget_take` = :func:`compute_take` (the rig evaluated through the depsgraph by a
-:class:`~bridge.rig.evaluate.RigEvaluator`, each frame solved by :func:`core.rig.take.solve_take`) then
-:func:`write_take`.  Nothing is written before everything is computed and checked; a failure or
+:class:`~bridge.rig.evaluate.RigEvaluator`; each frame solved by :func:`core.rig.take.solve_take`, then, by the
+``spacetime`` method, the whole take by Gauss–Newton with the shape-key space-time route's smoothing
+(:mod:`core.rig.spacetime`), or by the ``cloning`` method's cloning matrix and refinement (:mod:`core.rig.cloning`))
+then :func:`write_take`.  Nothing is written before everything is computed and checked; a failure or
 :class:`~core.progress.Cancelled` from ``progress`` leaves the file exactly as it was (the evaluator restores
 every channel; actions the rig played are re-attached).
 
@@ -30,6 +32,7 @@ from ...core.errors import ErrorCode
 from ...core.keyreduce import reduce_keys_bezier_curves
 from ...core.progress import notify, scaled
 from ...core.result import ShapeSpaceError
+from ...core.retarget.metrics import slider_scales
 from ...core.rig import (
     ChannelKind,
     ControlSet,
@@ -39,14 +42,17 @@ from ...core.rig import (
     solve_take,
     take_report,
 )
+from ...core.rig.cloning import REFINE_STEPS, solve_take_cloning
+from ...core.rig.spacetime import solve_take_spacetime
+from ...core.rig.spacetime import take_result as spacetime_take_result
 from .. import actions
 from ..meshes import world_matrix
 from .analytic import key_coords, key_delta
 from .channels import EULER_MODES, Binding, bind
 from .evaluate import RigEvaluator
 
-__all__ = ["TakeOutcome", "compute_take", "restore_previous", "rest_controls", "retarget_take",
-           "shape_key_targets", "write_take"]
+__all__ = ["METHODS", "TakeOutcome", "compute_take", "control_sigma", "restore_previous", "rest_controls",
+           "retarget_take", "shape_key_targets", "write_take"]
 
 SHAPE_KEY_PREFIX = "data.shape_keys."
 #: A channel is keyed when the take moves the surface through it by more than this fraction of the diagonal (or
@@ -54,6 +60,8 @@ SHAPE_KEY_PREFIX = "data.shape_keys."
 CHANGED_REL_TOL = 1e-7
 #: Default stopping distances of a frame, as fractions of the evaluated mesh's bounding-box diagonal.
 PIN_TOL_REL, XTOL_REL = 1e-5, 1e-6
+#: Relative precision of Blender's evaluated coordinates (float32), the space-time pass's rounding level.
+FLOAT32_EPS = 2.0 ** -24
 
 
 @dataclass
@@ -162,9 +170,47 @@ def _check_take(ev: RigEvaluator, targets, frames) -> tuple:
     return t, f
 
 
+METHODS = ("perframe", "spacetime", "cloning")
+
+
+def control_sigma(values: np.ndarray, lo: np.ndarray, hi: np.ndarray, scale: np.ndarray,
+                  diagonal: float) -> np.ndarray:
+    """Per-control σ of the space-time pass (n,): the shape-key route's per-slider σ
+    (:func:`core.retarget.slider_scales`: the spread of the ideal values, floored at a fraction of the range)
+    with the per-frame pass's controls ``values`` (F, n) as the ideal; a channel without finite bounds takes as its
+    range the motion that moves the surface by a tenth of the diagonal (``0.1 · diagonal / scale``)."""
+    rng = np.where(np.isfinite(hi - lo), hi - lo, 0.1 * diagonal / scale)
+    return slider_scales(values, np.zeros_like(rng), np.maximum(rng, 1e-12))
+
+
+def _solve(ev: RigEvaluator, t, r, lo, hi, method, *, reg, smooth, lam, pin_tol, xtol, max_iter, cloning,
+           refine_steps, progress):
+    """The take's :class:`RigTakeResult` on ``ev`` by ``method`` (:func:`compute_take`)."""
+    common = dict(lo=lo, hi=hi, scale=ev.controls.scale, jacobian=ev.jacobian, steps=ev.steps, reg=reg,
+                  pin_tol=pin_tol, xtol=xtol)
+    if method == "cloning":
+        expressions, weights = cloning
+        return solve_take_cloning(ev.evaluate, r, expressions, weights, t, refine_steps=refine_steps,
+                                  progress=progress, **common)
+    split = 1.0 if method == "perframe" else 0.6
+    res = solve_take(ev.evaluate, ev.c0, t, rest=r, smooth=smooth, max_iter=max_iter,
+                     keep_linearisation=method == "spacetime", progress=scaled(progress, 0.0, split), **common)
+    res.diagnostics["jacobians"] = None                           # linearised afresh by the space-time pass
+    if method == "perframe":
+        return res
+    sigma = control_sigma(res.value, lo, hi, ev.controls.scale, ev.diagonal)
+    st = solve_take_spacetime(ev.evaluate, res.value, res.diagnostics["points"], None, t, sigma,
+                              jacobian=ev.jacobian, lo=lo, hi=hi, rest=r, lam=lam, xtol=0.1 * xtol,
+                              precision=FLOAT32_EPS * float(np.abs(res.diagnostics["points"]).max()),
+                              progress=scaled(progress, split, 1.0))
+    return spacetime_take_result(res, st, t)
+
+
 def compute_take(mesh_obj, controls: ControlSet, indices, targets, frames, *, reg: float = 1e-6,
                  smooth: float = 0.0, rest=None, pin_tol: float | None = None, xtol: float | None = None,
-                 max_iter: int = 20, action_name: str | None = None, progress=None) -> TakeOutcome:
+                 max_iter: int = 20, action_name: str | None = None, method: str = "perframe",
+                 lam: float = 1e-7, cloning: tuple | None = None, refine_steps: int = REFINE_STEPS,
+                 progress=None) -> TakeOutcome:
     """Solve every frame of a take (module doc); nothing is written, the rig is left exactly as it was.
 
     Parameters
@@ -184,23 +230,41 @@ def compute_take(mesh_obj, controls: ControlSet, indices, targets, frames, *, re
         What the ridge pulls toward (:func:`rest_controls` by default).
     pin_tol, xtol : float, optional
         Stopping distances (default 1e-5 and 1e-6 of the evaluated mesh's diagonal).
+    method : str
+        ``'perframe'`` (:func:`core.rig.take.solve_take`), ``'spacetime'`` (the per-frame pass, then Gauss–Newton
+        on the whole take with the shape-key space-time route's smoothing: :mod:`core.rig.spacetime`, σ from
+        :func:`control_sigma`, relative λ ``lam``) or ``'cloning'`` (:mod:`core.rig.cloning`; needs ``cloning``).
+    lam : float
+        The space-time λ, relative as the retarget command's ``--lam``.
+    cloning : tuple, optional
+        ``(expressions (k, p, 3), weights (F, k))``: each source expression's world-space target at the vertices
+        and the source's weights per frame (the cloning route).
+    refine_steps : int
+        The cloning route's refinement steps per frame.
     progress : callable, optional
         ``progress(fraction)``; raising :class:`~core.progress.Cancelled` stops the take.
     """
+    if method not in METHODS:
+        raise ShapeSpaceError(f"method {method!r}: expected one of {', '.join(METHODS)}", ErrorCode.METHOD)
+    if method == "cloning" and cloning is None:
+        raise ShapeSpaceError("the cloning route needs the source's expressions and weights", ErrorCode.METHOD)
     name = action_name or f"{mesh_obj.name} rig take"
     r = rest_controls(controls) if rest is None else controls.vector(rest, "rest")
     with _actions_set_aside(_ids(bind(controls))):
         notify(progress, 0.0)
         with RigEvaluator(mesh_obj, controls, indices) as ev:
             t, f = _check_take(ev, targets, frames)
+            if method == "spacetime" and t.shape[0] < 3:
+                raise ShapeSpaceError(f"space-time needs a take of at least 3 frames, got {t.shape[0]}",
+                                      ErrorCode.RANGE)
             lo, hi = ev.controls.solve_bounds(ev.c0)
             d = ev.diagonal
-            res = solve_take(ev.evaluate, ev.c0, t, lo=lo, hi=hi, scale=ev.controls.scale, jacobian=ev.jacobian,
-                             steps=ev.steps, rest=np.clip(r, lo, hi), reg=reg, smooth=smooth,
-                             pin_tol=PIN_TOL_REL * d if pin_tol is None else pin_tol,
-                             xtol=XTOL_REL * d if xtol is None else xtol, max_iter=max_iter,
-                             progress=scaled(progress, 0.05, 1.0))
+            res = _solve(ev, t, np.clip(r, lo, hi), lo, hi, method, reg=reg, smooth=smooth, lam=lam,
+                         pin_tol=PIN_TOL_REL * d if pin_tol is None else pin_tol,
+                         xtol=XTOL_REL * d if xtol is None else xtol, max_iter=max_iter, cloning=cloning,
+                         refine_steps=refine_steps, progress=scaled(progress, 0.05, 1.0))
             res.diagnostics["rig_evaluations"] = ev.evaluations
+            res.diagnostics.setdefault("method", method)
             return TakeOutcome(ev.controls, f, res.value, res, d, name)
 
 
@@ -346,11 +410,12 @@ def write_take(outcome: TakeOutcome, key_tolerance: float = 0.0, progress=None) 
 def retarget_take(mesh_obj, controls: ControlSet, indices, targets, frames, *, reg: float = 1e-6,
                   smooth: float = 0.0, rest=None, key_tolerance: float = 0.0, pin_tol: float | None = None,
                   xtol: float | None = None, max_iter: int = 20, action_name: str | None = None,
-                  progress=None) -> RigTakeReport:
-    """:func:`compute_take` then :func:`write_take` (module doc); ``progress`` over both."""
+                  method: str = "perframe", lam: float = 1e-7, progress=None) -> RigTakeReport:
+    """:func:`compute_take` (``method`` ``'perframe'`` or ``'spacetime'``) then :func:`write_take` (module doc);
+    ``progress`` over both."""
     outcome = compute_take(mesh_obj, controls, indices, targets, frames, reg=reg, smooth=smooth, rest=rest,
-                           pin_tol=pin_tol, xtol=xtol, max_iter=max_iter, action_name=action_name,
-                           progress=scaled(progress, 0.0, 0.95))
+                           pin_tol=pin_tol, xtol=xtol, max_iter=max_iter, action_name=action_name, method=method,
+                           lam=lam, progress=scaled(progress, 0.0, 0.95))
     return write_take(outcome, key_tolerance, scaled(progress, 0.95, 1.0))
 
 

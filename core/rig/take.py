@@ -35,9 +35,12 @@ from numpy.typing import ArrayLike
 from ..errors import ErrorCode
 from ..progress import ProgressFn, notify
 from ..result import Issue, Report, Result, ShapeSpaceError, Status
-from .solve import finite_difference_jacobian, solve_controls
+from .solve import broyden_update, finite_difference_jacobian, solve_controls
 
-__all__ = ["RigTakeReport", "RigTakeResult", "solve_take", "take_report"]
+__all__ = ["LINEARISATION_BYTES", "RigTakeReport", "RigTakeResult", "solve_take", "take_report"]
+
+#: Largest linearisation (points and Jacobians of every frame, float64) :func:`solve_take` keeps for space-time.
+LINEARISATION_BYTES = 2 * 2 ** 30
 
 
 @dataclass(kw_only=True)
@@ -104,6 +107,9 @@ class RigTakeReport(Report):
         The capture or action retargeted (``''`` for a take given as target positions).
     mapped_channels : int
         Shape keys of the face the source's channels map to (capture route; 0 otherwise).
+    method : str
+        The route that ran: ``'perframe'``, ``'spacetime'`` (:mod:`core.rig.spacetime`) or ``'cloning'``
+        (:mod:`core.rig.cloning`).
     """
 
     frames: int = 0
@@ -121,6 +127,7 @@ class RigTakeReport(Report):
     key_fraction: float = 1.0
     source: str = ""
     mapped_channels: int = 0
+    method: str = "perframe"
 
 
 def _targets(targets: ArrayLike) -> np.ndarray:
@@ -145,7 +152,8 @@ def solve_take(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo: Arr
                hi: ArrayLike | None = None, scale: ArrayLike | None = None, jacobian: Callable | None = None,
                steps: ArrayLike | None = None, weights: ArrayLike | None = None, rest: ArrayLike | None = None,
                reg: float = 1e-6, smooth: float = 0.0, pin_tol: float = 0.0, xtol: float = 0.0,
-               max_iter: int = 20, progress: ProgressFn | None = None) -> RigTakeResult:
+               max_iter: int = 20, starts: ArrayLike | None = None, keep_linearisation: bool = False,
+               progress: ProgressFn | None = None) -> RigTakeResult:
     """Controls of every frame of a take (module doc): frame by frame, warm-started, the Jacobian carried over.
 
     Parameters
@@ -169,6 +177,13 @@ def solve_take(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo: Arr
         Stopping distances of a frame (module doc; 0: off).
     max_iter : int
         Trial steps per frame.
+    starts : array_like (F, n), optional
+        Start of every frame (clipped into the bounds) instead of the previous frame's controls — the cloning
+        route's per-frame guesses (:mod:`core.rig.cloning`); the Jacobian is still carried over.
+    keep_linearisation : bool
+        Keep every frame's points (F, p, 3) and last Jacobian (F, 3p, n) in ``diagnostics`` (``points``,
+        ``jacobians``): the linearisation the space-time pass starts from (:mod:`core.rig.spacetime`);
+        refused beyond :data:`LINEARISATION_BYTES`.
     progress : callable, optional
         ``progress(fraction)`` once per frame (:mod:`core.progress`); raising
         :class:`~core.progress.Cancelled` from it stops the take (nothing is returned).
@@ -203,23 +218,43 @@ def solve_take(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo: Arr
     w3 = np.ones(J.shape[0]) if weights is None else np.repeat(np.asarray(weights, dtype=np.float64), 3)
     unit = float(np.einsum("ij,ij,i->", J, J, w3)) / n / float(np.mean(s * s))
     F = t.shape[0]
+    starts_ = None if starts is None else np.clip(np.asarray(starts, dtype=np.float64), lo_, hi_)
+    if starts_ is not None and starts_.shape != (F, n):
+        raise ShapeSpaceError(f"starts: expected ({F}, {n}), got {starts_.shape}", ErrorCode.SHAPE)
+    keep_P = keep_J = None
+    if keep_linearisation:
+        size = F * J.shape[0] * n * 8
+        if size > LINEARISATION_BYTES:
+            raise ShapeSpaceError(f"the take's linearisation ({F} frames × {J.shape[0]} coordinates × {n} controls) "
+                                  f"needs {size / 2 ** 30:.1f} GiB, more than {LINEARISATION_BYTES / 2 ** 30:g} GiB: "
+                                  "split the take or sample fewer vertices", ErrorCode.TOO_LARGE)
+        keep_P, keep_J = np.empty((F,) + P.shape), np.empty((F,) + J.shape)
     out = np.empty((F, n))
     status = np.empty(F, dtype=np.int64)
     rms, emax = np.empty(F), np.empty(F)
     evals, jacs, messages = first[0], 1, {}
+    first[0] = 0
     for f in range(F):
         notify(progress, f / F)
         w_s = smooth if f > 0 else 0.0
         ref = (reg * r + w_s * c) / (reg + w_s) if reg + w_s > 0 else r
+        if starts_ is not None:                     # the given start, its points; the Jacobian carried over
+            Pn = np.asarray(counted(starts_[f]), dtype=np.float64)
+            if f > 0:
+                J = broyden_update(np.array(J), starts_[f] - c, (Pn - P).reshape(-1))
+            c, P = starts_[f], Pn
         res = solve_controls(evaluate, c, t[f], lo=lo, hi=hi, scale=s, jacobian=jacobian, steps=steps,
                              weights=weights, reference=ref, mu=(reg + w_s) * unit, pin_tol=pin_tol, xtol=xtol,
                              max_iter=max_iter, first_jacobian=J, first_points=P)
         c, P, J = res.x, res.points, res.jacobian
+        if keep_linearisation:
+            keep_P[f], keep_J[f] = P, J
         out[f] = c
         status[f] = int(res.status)
         rms[f] = float(np.sqrt(np.mean(res.pin_errors ** 2)))
         emax[f] = res.pin_error_max
-        evals += res.evaluations
+        evals += res.evaluations + first[0]
+        first[0] = 0
         jacs += res.jacobians
         if res.status != Status.OK:
             messages[f] = res.message
@@ -230,7 +265,7 @@ def solve_take(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo: Arr
                if bad.size else f"{F} frames solved")
     return RigTakeResult(out, status=take_status, message=message, frame_status=status, rms=rms,
                          pin_error_max=emax, evaluations=evals, jacobians=jacs,
-                         diagnostics={"ridge_unit": unit})
+                         diagnostics={"ridge_unit": unit, "points": keep_P, "jacobians": keep_J})
 
 
 def take_report(result: RigTakeResult, frames: ArrayLike, names: Sequence[str]) -> RigTakeReport:
@@ -247,8 +282,11 @@ def take_report(result: RigTakeResult, frames: ArrayLike, names: Sequence[str]) 
         issues.append(Issue("warning", "not_converged",
                             f"{len(bad)} frame(s) stopped at the iteration limit before converging: {shown}",
                             tuple(str(v) for v in bad)))
-    return RigTakeReport(status=Status.NOT_CONVERGED if bad else Status.OK, issues=issues, frames=len(as_num),
+    if result.status != Status.OK and not bad:        # a whole-take solve (space-time) that stopped early
+        issues.append(Issue("warning", "not_converged", result.message))
+    return RigTakeReport(status=Status.NOT_CONVERGED if issues else Status.OK, issues=issues, frames=len(as_num),
                          frame_range=[as_num[0], as_num[-1]], channels=list(names),
                          rms=float(np.sqrt(np.mean(result.rms ** 2))), rms_max=float(result.rms.max()),
                          pin_error_max=float(result.pin_error_max.max()), not_converged=bad,
-                         evaluations=result.evaluations, jacobians=result.jacobians)
+                         evaluations=result.evaluations, jacobians=result.jacobians,
+                         method=str(result.diagnostics.get("method", "perframe")))

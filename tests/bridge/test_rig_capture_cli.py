@@ -148,8 +148,8 @@ def test_malformed_specs_exit_2_naming_the_spec(tmp_path, spec, message):
 def test_controls_exclude_other_methods_with_exit_2(tmp_path):
     blend, _ = _hybrid_blend(tmp_path)
     code, out, err = _cli(blend, "--", "retarget", "--source", _csv(), "--controls", "key:cheekPuff",
-                          "--method", "spacetime", "--dry-run")
-    assert code == 2 and out == "" and "--method spacetime" in _errors(err)[0]
+                          "--method", "copy", "--dry-run")
+    assert code == 2 and out == "" and "--method copy" in _errors(err)[0]
 
 
 @pytest.mark.parametrize("spec, missing", [
@@ -275,3 +275,23 @@ def test_stored_spec_is_the_faces_stored_control_set():
     with pytest.raises(ShapeSpaceError, match="stands alone") as err:
         parse_specs(["stored", "key:cheekPuff"])
     assert err.value.code == "usage"
+
+
+@pytest.mark.parametrize("method", ["spacetime", "cloning"])
+def test_cli_rig_routes_run_and_say_which_route_ran(tmp_path, method):
+    """``--method spacetime`` and ``--method cloning`` with ``--controls`` (issue #25 item 3): the batch runs the
+    named route, its report says so, and the written take plays the jaw and the sliders."""
+    blend, keys = _hybrid_blend(tmp_path)
+    out_file = str(tmp_path / f"{method}.blend")
+    specs = ["FaceRig:jaw:rotation:xz", *[f"key:{k}" for k in ("mouthSmile_L", "mouthSmile_R", "eyeBlink_L",
+                                                                 "eyeBlink_R", "browInnerUp")]]
+    code, out, err = _cli(blend, "--", "retarget", "--source", _csv(), "--object", MESH, "--controls", *specs,
+                          "--method", method, "--out", out_file)
+    payload = json.loads(out)
+    (rep,) = payload["results"]
+    assert rep["ok"] and rep["method"] == method, err
+    assert code == (0 if rep["status"] == "ok" else 1)
+    assert "jaw rotation X" in rep["keyed_channels"] and {a["id"] for a in rep["actions"]} == {"OBJECT", "KEY"}
+    code, out, err = _cli(blend, "--", "retarget", "--source", _csv(), "--object", MESH, "--method", "cloning",
+                          "--dry-run")
+    assert code == 2 and "--method cloning" in _errors(err)[0]
