@@ -316,6 +316,8 @@ def _valid_window(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span:
     it is valid when the samples' range widened by that is ≤ tol); spans up to 12 are then evaluated at every
     interior sample, longer ones at their middle sample, and the survivors (gathered) on 4, every 8th, then
     all interior samples (failing anywhere is failing).  Exactly the segments whose max error is ≤ tol."""
+    if uniform:
+        return _valid_window_uniform(t, np.ascontiguousarray(V), np.ascontiguousarray(M), tol, span)
     C, n = V.shape
     top, bottom = V.copy(), V.copy()                                  # range of the samples in [i, i + d]
     valid = np.zeros((C, n, span + 1), dtype=bool)
@@ -345,6 +347,121 @@ def _valid_window(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span:
                 ok[c, i] = True
         valid[:, :w, d] = ok
     return valid
+
+
+def _valid_window_uniform(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span: int) -> np.ndarray:
+    """:func:`_valid_window` for uniform time steps (scene frames): every segment of span d has the same length
+    h, so the Hermite basis at each interior offset is four numbers and each offset costs a few in-place passes
+    over the (c, f) window; the survivors of the middle-sample test are checked on their whole window at once
+    (:func:`_window_fails`: a strided view, one small matrix product).  The same tests in the same order as the
+    general path: exactly the segments whose max error is ≤ tol."""
+    C, n = V.shape
+    step = float(t[1] - t[0])
+    top, bottom = V.copy(), V.copy()                                  # range of the samples in [i, i + d]
+    aM = np.abs(M)
+    d2V = np.abs(np.diff(V, 2, axis=1))
+    bend = np.zeros((C, max(n - 2, 0)))                              # largest |Δ²V| in [i, i + d]
+    valid = np.zeros((C, n, span + 1), dtype=bool)
+    bound, tmp, err = np.empty((C, n)), np.empty((C, n)), np.empty((C, n))
+    for d in range(1, min(span, n - 1) + 1):
+        w = n - d
+        np.maximum(top[:, :w], V[:, d:], out=top[:, :w])
+        np.minimum(bottom[:, :w], V[:, d:], out=bottom[:, :w])
+        if d > 1:
+            np.maximum(bend[:, :w], d2V[:, d - 2:], out=bend[:, :w])
+        if d == 1:                                                    # no sample between: always valid
+            valid[:, :w, 1] = True
+            continue
+        h = d * step
+        b, x, e_max = bound[:, :w], tmp[:, :w], err[:, :w]
+        np.subtract(top[:, :w], bottom[:, :w], out=b)
+        np.add(aM[:, :w], aM[:, d:], out=x)
+        x *= 4.0 / 27.0 * h
+        b += x
+        ok = b <= tol
+        for k, e in enumerate(range(1, d) if d <= 12 else (d // 2,)):  # short spans whole, long ones at the middle
+            _hermite_at(V, M, w, d, e, h, b, x)
+            if k == 0:
+                e_max[...] = b
+            else:
+                np.maximum(e_max, b, out=e_max)
+        if d <= 12:
+            ok |= e_max <= tol
+        else:
+            c, i = np.nonzero(~ok & (e_max <= tol))
+            if i.size:
+                keep = ~_window_fails(V, M, c, i, d, h, np.arange(1, 5) * d // 5, tol)
+                c, i = c[keep], i[keep]
+            if i.size:
+                c, i, sure = _grid_check(V, M, bend, c, i, d, h, step, tol)
+                ok[sure] = True
+            if i.size:
+                keep = ~_window_fails(V, M, c, i, d, h, None, tol)
+                ok[c[keep], i[keep]] = True
+        valid[:, :w, d] = ok
+    return valid
+
+
+#: Spacing (samples) of the grid on which :func:`_grid_check` evaluates a segment.
+_GRID = 8
+
+
+def _grid_check(V: np.ndarray, M: np.ndarray, bend: np.ndarray, c: np.ndarray, i: np.ndarray, d: int, h: float,
+                step: float, tol: float) -> tuple:
+    """Segments (curve ``c``, start i, span d) decided on a grid of every :data:`_GRID`-th interior sample: a
+    segment off by more than ``tol`` there fails; one whose grid error plus a bound of the rest is ≤ ``tol``
+    is valid.  The error E = P − V at the samples between two neighbouring known points a < b (grid samples
+    or the ends, where E = 0) is within ``(k − a)(b − k) / 2 · max|Δ²E| ≤ g² / 8 · max|Δ²E|`` (g = b − a ≤
+    :data:`_GRID`) of the chord between E(a) and E(b), and ``|Δ²E| ≤ step² · max|P″| + max|Δ²V|``: the
+    cubic's P″ is linear, so its largest size is at an end, ``|6 δ − 4 m_i − 2 m_j| / h`` or
+    ``|6 δ − 2 m_i − 4 m_j| / h`` (δ = (v_j − v_i) / h), and ``max|Δ²V|`` over the window is ``bend``
+    (c, f − 2).  Returns the undecided ``(c, i)`` and the index ``(c, i)`` of the proven-valid ones."""
+    offs = np.arange(_GRID, d, _GRID)
+    fails, grid_err = _window_fails(V, M, c, i, d, h, offs, tol, with_err=True)
+    delta = 6.0 * (V[c, i + d] - V[c, i]) / h
+    mi, mj = M[c, i], M[c, i + d]
+    curv = np.maximum(np.abs(delta - 4.0 * mi - 2.0 * mj), np.abs(delta - 2.0 * mi - 4.0 * mj)) / h
+    sure = ~fails & (grid_err + _GRID * _GRID / 8.0 * (step * step * curv + bend[c, i]) <= tol)
+    rest = ~fails & ~sure
+    return c[rest], i[rest], (c[sure], i[sure])
+
+
+def _hermite_at(V: np.ndarray, M: np.ndarray, w: int, d: int, e: int, h: float, out: np.ndarray,
+                tmp: np.ndarray) -> None:
+    """``|Hermite − sample|`` at offset e of every segment of span d (length h) starting at 0 … w − 1, into
+    ``out`` (c, w) (``tmp`` the same shape, scratch)."""
+    a0, a1, a2, a3 = (float(a) for a in _hermite_basis(np.float64(e / d)))
+    np.multiply(V[:, :w], a0, out=out)
+    np.multiply(M[:, :w], a1 * h, out=tmp)
+    out += tmp
+    np.multiply(V[:, d:], a2, out=tmp)
+    out += tmp
+    np.multiply(M[:, d:], a3 * h, out=tmp)
+    out += tmp
+    out -= V[:, e:e + w]
+    np.abs(out, out=out)
+
+
+def _window_fails(V: np.ndarray, M: np.ndarray, c: np.ndarray, i: np.ndarray, d: int, h: float, e, tol: float,
+                  with_err: bool = False):
+    """``True`` where the Hermite of curve ``c`` from sample i to i + d (length h, uniform steps) is more than
+    ``tol`` off at a sample i + e (``e`` interior offsets, or None: all of them), shape (len(i),).  The
+    windows are rows of a strided view of ``V`` (c, f), taken in blocks that bound the memory."""
+    win = np.lib.stride_tricks.sliding_window_view(V, d + 1, axis=1)    # (c, f − d, d + 1), no copy
+    offs = np.arange(1, d) if e is None else np.asarray(e)
+    H = np.column_stack(_hermite_basis(offs / d)) * np.array([1.0, h, 1.0, h])      # (E, 4)
+    worst = np.zeros(i.size)
+    step = max(1, _EVAL_BLOCK // (d + 1))
+    for lo in range(0, i.size, step):
+        ci, ii = c[lo:lo + step], i[lo:lo + step]
+        P = np.column_stack([V[ci, ii], M[ci, ii], V[ci, ii + d], M[ci, ii + d]])
+        if e is None:
+            r = P @ H.T
+            r -= win[ci, ii][:, 1:d]
+        else:
+            r = P @ H.T - V[ci[:, None], ii[:, None] + offs]
+        worst[lo:lo + step] = np.abs(r).max(axis=1) if r.shape[1] else 0.0
+    return (worst > tol, worst) if with_err else worst > tol
 
 
 def _fewest_keys(ok: np.ndarray) -> list:
@@ -458,8 +575,8 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
     for lo in range(0, V.shape[0], block):
         idx += [_fewest_keys(ok) for ok in _valid_segments(t, V[lo:lo + block], M[lo:lo + block], tol, max_span)]
         notify(progress, first * min(lo + block, V.shape[0]) / V.shape[0])
-    kv = [list(V[k, i]) for k, i in enumerate(idx)]
-    km = [list(M[k, i]) for k, i in enumerate(idx)]
+    kv = [V[k, i].tolist() for k, i in enumerate(idx)]
+    km = [M[k, i].tolist() for k, i in enumerate(idx)]
     if refine:                                                        # stage 2: all curves in lock step
         _absorb_keys(t, V, idx, kv, km, tol, progress=scaled(progress, first, 1.0))
     notify(progress, 1.0)
@@ -578,8 +695,9 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
     norm = np.sqrt(np.add.reduceat(res * res, starts))
     out = [None] * B
     accept = good & (err <= tol * (1 - 1e-6))
-    for g in np.flatnonzero(accept):
-        out[g] = tuple(float(a) for a in x[g])
+    xs = x.tolist()
+    for g in np.flatnonzero(accept).tolist():
+        out[g] = tuple(xs[g])
     # minimax where least squares misses but ‖r‖∞ ≥ ‖r_ls‖₂ / √m does not rule it out
     # the minimax fit starts from four samples of segment M (its ends and thirds: independent rows) and the
     # worst row of the least-squares fit; a segment M of three samples takes the scalar path
@@ -606,9 +724,8 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
         except np.linalg.LinAlgError:                                 # a degenerate reference: the scalar path
             xc, ec = np.zeros((g.size, 4)), np.full(g.size, np.inf)
             startable[g] = False
-        for q, gg in enumerate(g):
-            if ec[q] <= tol * (1 - 1e-6):
-                out[gg] = tuple(float(a) for a in xc[q])
+        for q in np.flatnonzero(ec <= tol * (1 - 1e-6)).tolist():
+            out[int(g[q])] = tuple(xc[q].tolist())
     # rank-deficient or tiny systems: the scalar path
     for gg in np.flatnonzero(~good | ((err > tol) & (norm <= tol * np.sqrt(rows)) & ~startable)):
         c, p, _, _ = tests[gg]
