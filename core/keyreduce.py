@@ -646,6 +646,24 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
     return x, err
 
 
+def _chebyshev_each(A: np.ndarray, y: np.ndarray, starts: np.ndarray, first: np.ndarray, stop_above: float) -> tuple:
+    """:func:`_chebyshev_batch` system by system (the same arithmetic, so a system's result does not depend on
+    the batch it came in): ``x`` (G, 4), ``err`` (G,) and ``bad`` (G,) where the exchange met a singular
+    reference (``err`` inf there)."""
+    G = starts.size
+    ends = np.r_[starts[1:], y.size]
+    x, err, bad = np.zeros((G, 4)), np.full(G, np.inf), np.zeros(G, dtype=bool)
+    for q in range(G):
+        lo, hi = int(starts[q]), int(ends[q])
+        try:
+            xq, eq = _chebyshev_batch(A[lo:hi], y[lo:hi], np.zeros(hi - lo, dtype=np.intp), np.zeros(1, dtype=np.intp),
+                                      first[q:q + 1] - lo, stop_above)
+            x[q], err[q] = xq[0], eq[0]
+        except np.linalg.LinAlgError:
+            bad[q] = True
+    return x, err, bad
+
+
 def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list, km: list, tol: float,
                   curves: list | None = None, sigs: list | None = None) -> list:
     """Stage 2's absorption tests, one per entry of ``tests`` ``(curve, p, a, b)``: can keys p − 1 and p + 1
@@ -706,7 +724,10 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
     # the minimax fit starts from four samples of segment M (its ends and thirds: independent rows) and the
     # worst row of the least-squares fit; a segment M of three samples takes the scalar path
     mid_rows = K[:, 2] - K[:, 1] + 1
-    startable = mid_rows >= 4
+    # a segment M of three samples (keys p − 1, p, p + 1 adjacent) starts from its three rows and an interior
+    # row of segment L (or R): independent, as only that row and M's middle one involve the slopes
+    inner_l, inner_r = K[:, 1] - K[:, 0] >= 2, K[:, 3] - K[:, 2] >= 2
+    startable = (mid_rows >= 4) | ((mid_rows == 3) & (inner_l | inner_r))
     cheb = good & (err > tol) & (norm <= tol * np.sqrt(rows)) & startable
     if cheb.any():
         g = np.flatnonzero(cheb)
@@ -719,15 +740,18 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
         m0 = starts[g] + np.where(has[g, 0], K[g, 1] - K[g, 0] + 1, 0)      # first row of segment M
         first = np.empty((g.size, 5), dtype=np.intp)
         pick = m0[:, None] + (np.arange(4) * (mid_rows[g, None] - 1)) // 3
+        three = mid_rows[g] == 3
+        pick[three, :3] = m0[three, None] + np.arange(3)
+        pick[three, 3] = np.where(inner_l[g[three]], starts[g[three]] + 1, m0[three] + 4)
         first[:, :4] = remap[pick]
         score = np.abs(res[keep])
         score[first[:, :4].ravel()] = -1.0
         first[:, 4] = _ragged_argmax(score, sub_starts, sub_owner)[1]
         try:
             xc, ec = _chebyshev_batch(A[keep], y[keep], sub_owner, sub_starts, first, tol)
-        except np.linalg.LinAlgError:                                 # a degenerate reference: the scalar path
-            xc, ec = np.zeros((g.size, 4)), np.full(g.size, np.inf)
-            startable[g] = False
+        except np.linalg.LinAlgError:                                 # a degenerate reference: one at a time
+            xc, ec, bad = _chebyshev_each(A[keep], y[keep], sub_starts, first, tol)
+            startable[g[bad]] = False                                 # … and those the scalar path
         for q in np.flatnonzero(ec <= tol * (1 - 1e-6)).tolist():
             out[int(g[q])] = tuple(xc[q].tolist())
     # rank-deficient or tiny systems: the scalar path
