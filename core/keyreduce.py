@@ -612,18 +612,23 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
     sigma = np.where(u < 0, -1.0, 1.0)
     w = np.abs(u) / np.abs(u).sum(axis=1, keepdims=True)
     act = np.arange(G)
+    rows, grp, A_c, y_c = np.arange(y.size), owner, A, y                 # the rows of the running systems
     for _ in range(max_iter):
         if act.size == 0:
             break
+        if act.size != grp[-1] + 1:                                   # systems finished: drop their rows
+            keep = np.zeros(G, dtype=bool)
+            keep[act] = True
+            m = keep[owner[rows]]
+            rows, A_c, y_c = rows[m], A_c[m], y_c[m]
+            grp = np.searchsorted(act, owner[rows])
         Sa, sa = S[act], sigma[act]
         Mm = np.concatenate([np.transpose(A[Sa] * sa[..., None], (0, 2, 1)), np.ones((act.size, 1, 5))], axis=1)
         pi = np.linalg.solve(np.transpose(Mm, (0, 2, 1)), (sa * y[Sa])[..., None])[..., 0]
         xa, h = pi[:, :4], pi[:, 4]
-        full = np.zeros((G, 4))
-        full[act] = xa
-        res = y - np.einsum("rk,rk->r", A, full[owner])
-        top, j = _ragged_argmax(np.abs(res), starts, owner)
-        top, j = top[act], j[act]
+        res = y_c - np.einsum("rk,rk->r", A_c, xa[grp])
+        top, jl = _ragged_argmax(np.abs(res), np.searchsorted(grp, np.arange(act.size)), grp)
+        j = rows[jl]
         over = h > stop_above
         conv = ~over & (top <= h + 1e-13 * scale[act])
         x[act[conv]], err[act[conv]] = xa[conv], top[conv]
@@ -631,7 +636,7 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
         if not go.any():
             break
         g, jj, wa = act[go], j[go], w[act[go]]
-        tau = np.where(res[jj] > 0, 1.0, -1.0)
+        tau = np.where(res[jl[go]] > 0, 1.0, -1.0)
         dd = np.linalg.solve(Mm[go], np.concatenate([tau[:, None] * A[jj], np.ones((g.size, 1))], axis=1)[..., None])
         dd = dd[..., 0]
         pos = dd > 1e-14
