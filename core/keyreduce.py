@@ -652,20 +652,26 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
 
 
 def _chebyshev_each(A: np.ndarray, y: np.ndarray, starts: np.ndarray, first: np.ndarray, stop_above: float) -> tuple:
-    """:func:`_chebyshev_batch` system by system (the same arithmetic, so a system's result does not depend on
-    the batch it came in): ``x`` (G, 4), ``err`` (G,) and ``bad`` (G,) where the exchange met a singular
-    reference (``err`` inf there)."""
+    """:func:`_chebyshev_batch` on a batch where some system met a singular reference: the batch split in halves
+    until the singular systems stand alone (a system's arithmetic does not depend on the batch it is in, so
+    the others get the same result as in any batch): ``x`` (G, 4), ``err`` (G,) and ``bad`` (G,) where the
+    exchange met a singular reference (``err`` inf there)."""
     G = starts.size
     ends = np.r_[starts[1:], y.size]
     x, err, bad = np.zeros((G, 4)), np.full(G, np.inf), np.zeros(G, dtype=bool)
-    for q in range(G):
-        lo, hi = int(starts[q]), int(ends[q])
+    todo = [(0, G)]
+    while todo:
+        q0, q1 = todo.pop()
+        lo, hi = int(starts[q0]), int(ends[q1 - 1])
+        sub = starts[q0:q1] - lo
+        owner = np.repeat(np.arange(q1 - q0), np.diff(np.r_[sub, hi - lo]))
         try:
-            xq, eq = _chebyshev_batch(A[lo:hi], y[lo:hi], np.zeros(hi - lo, dtype=np.intp), np.zeros(1, dtype=np.intp),
-                                      first[q:q + 1] - lo, stop_above)
-            x[q], err[q] = xq[0], eq[0]
+            x[q0:q1], err[q0:q1] = _chebyshev_batch(A[lo:hi], y[lo:hi], owner, sub, first[q0:q1] - lo, stop_above)
         except np.linalg.LinAlgError:
-            bad[q] = True
+            if q1 - q0 == 1:
+                bad[q0] = True
+            else:
+                todo += [(q0, (q0 + q1) // 2), ((q0 + q1) // 2, q1)]
     return x, err, bad
 
 
