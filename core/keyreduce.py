@@ -247,6 +247,10 @@ def chebyshev_fit(A: ArrayLike, y: ArrayLike, stop_above: float = np.inf, max_it
     return None, np.inf
 
 
+#: Longest stage-1 segment searched by default, in samples.  A shorter search (32) makes stage 1 four times
+#: cheaper but leaves held poses in many keys, and stage 2 absorbing them one by one into ever longer segments
+#: costs far more (2.5× the whole reduction on the 36,000-frame take).
+_MAX_SPAN = 128
 #: Curves × samples processed together by :func:`reduce_keys_bezier_curves` (bounds its memory for long takes).
 _BLOCK_SAMPLES = 1 << 18
 #: Largest evaluation block (candidate segments × samples) in stage 1.
@@ -316,6 +320,8 @@ def _valid_window(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span:
     it is valid when the samples' range widened by that is ≤ tol); spans up to 12 are then evaluated at every
     interior sample, longer ones at their middle sample, and the survivors (gathered) on 4, every 8th, then
     all interior samples (failing anywhere is failing).  Exactly the segments whose max error is ≤ tol."""
+    if uniform:
+        return _valid_window_uniform(t, np.ascontiguousarray(V), np.ascontiguousarray(M), tol, span)
     C, n = V.shape
     top, bottom = V.copy(), V.copy()                                  # range of the samples in [i, i + d]
     valid = np.zeros((C, n, span + 1), dtype=bool)
@@ -347,6 +353,121 @@ def _valid_window(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span:
     return valid
 
 
+def _valid_window_uniform(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span: int) -> np.ndarray:
+    """:func:`_valid_window` for uniform time steps (scene frames): every segment of span d has the same length
+    h, so the Hermite basis at each interior offset is four numbers and each offset costs a few in-place passes
+    over the (c, f) window; the survivors of the middle-sample test are checked on their whole window at once
+    (:func:`_window_fails`: a strided view, one small matrix product).  The same tests in the same order as the
+    general path: exactly the segments whose max error is ≤ tol."""
+    C, n = V.shape
+    step = float(t[1] - t[0])
+    top, bottom = V.copy(), V.copy()                                  # range of the samples in [i, i + d]
+    aM = np.abs(M)
+    d2V = np.abs(np.diff(V, 2, axis=1))
+    bend = np.zeros((C, max(n - 2, 0)))                              # largest |Δ²V| in [i, i + d]
+    valid = np.zeros((C, n, span + 1), dtype=bool)
+    bound, tmp, err = np.empty((C, n)), np.empty((C, n)), np.empty((C, n))
+    for d in range(1, min(span, n - 1) + 1):
+        w = n - d
+        np.maximum(top[:, :w], V[:, d:], out=top[:, :w])
+        np.minimum(bottom[:, :w], V[:, d:], out=bottom[:, :w])
+        if d > 1:
+            np.maximum(bend[:, :w], d2V[:, d - 2:], out=bend[:, :w])
+        if d == 1:                                                    # no sample between: always valid
+            valid[:, :w, 1] = True
+            continue
+        h = d * step
+        b, x, e_max = bound[:, :w], tmp[:, :w], err[:, :w]
+        np.subtract(top[:, :w], bottom[:, :w], out=b)
+        np.add(aM[:, :w], aM[:, d:], out=x)
+        x *= 4.0 / 27.0 * h
+        b += x
+        ok = b <= tol
+        for k, e in enumerate(range(1, d) if d <= 12 else (d // 2,)):  # short spans whole, long ones at the middle
+            _hermite_at(V, M, w, d, e, h, b, x)
+            if k == 0:
+                e_max[...] = b
+            else:
+                np.maximum(e_max, b, out=e_max)
+        if d <= 12:
+            ok |= e_max <= tol
+        else:
+            c, i = np.nonzero(~ok & (e_max <= tol))
+            if i.size:
+                keep = ~_window_fails(V, M, c, i, d, h, np.arange(1, 5) * d // 5, tol)
+                c, i = c[keep], i[keep]
+            if i.size:
+                c, i, sure = _grid_check(V, M, bend, c, i, d, h, step, tol)
+                ok[sure] = True
+            if i.size:
+                keep = ~_window_fails(V, M, c, i, d, h, None, tol)
+                ok[c[keep], i[keep]] = True
+        valid[:, :w, d] = ok
+    return valid
+
+
+#: Spacing (samples) of the grid on which :func:`_grid_check` evaluates a segment.
+_GRID = 8
+
+
+def _grid_check(V: np.ndarray, M: np.ndarray, bend: np.ndarray, c: np.ndarray, i: np.ndarray, d: int, h: float,
+                step: float, tol: float) -> tuple:
+    """Segments (curve ``c``, start i, span d) decided on a grid of every :data:`_GRID`-th interior sample: a
+    segment off by more than ``tol`` there fails; one whose grid error plus a bound of the rest is ≤ ``tol``
+    is valid.  The error E = P − V at the samples between two neighbouring known points a < b (grid samples
+    or the ends, where E = 0) is within ``(k − a)(b − k) / 2 · max|Δ²E| ≤ g² / 8 · max|Δ²E|`` (g = b − a ≤
+    :data:`_GRID`) of the chord between E(a) and E(b), and ``|Δ²E| ≤ step² · max|P″| + max|Δ²V|``: the
+    cubic's P″ is linear, so its largest size is at an end, ``|6 δ − 4 m_i − 2 m_j| / h`` or
+    ``|6 δ − 2 m_i − 4 m_j| / h`` (δ = (v_j − v_i) / h), and ``max|Δ²V|`` over the window is ``bend``
+    (c, f − 2).  Returns the undecided ``(c, i)`` and the index ``(c, i)`` of the proven-valid ones."""
+    offs = np.arange(_GRID, d, _GRID)
+    fails, grid_err = _window_fails(V, M, c, i, d, h, offs, tol, with_err=True)
+    delta = 6.0 * (V[c, i + d] - V[c, i]) / h
+    mi, mj = M[c, i], M[c, i + d]
+    curv = np.maximum(np.abs(delta - 4.0 * mi - 2.0 * mj), np.abs(delta - 2.0 * mi - 4.0 * mj)) / h
+    sure = ~fails & (grid_err + _GRID * _GRID / 8.0 * (step * step * curv + bend[c, i]) <= tol)
+    rest = ~fails & ~sure
+    return c[rest], i[rest], (c[sure], i[sure])
+
+
+def _hermite_at(V: np.ndarray, M: np.ndarray, w: int, d: int, e: int, h: float, out: np.ndarray,
+                tmp: np.ndarray) -> None:
+    """``|Hermite − sample|`` at offset e of every segment of span d (length h) starting at 0 … w − 1, into
+    ``out`` (c, w) (``tmp`` the same shape, scratch)."""
+    a0, a1, a2, a3 = (float(a) for a in _hermite_basis(np.float64(e / d)))
+    np.multiply(V[:, :w], a0, out=out)
+    np.multiply(M[:, :w], a1 * h, out=tmp)
+    out += tmp
+    np.multiply(V[:, d:], a2, out=tmp)
+    out += tmp
+    np.multiply(M[:, d:], a3 * h, out=tmp)
+    out += tmp
+    out -= V[:, e:e + w]
+    np.abs(out, out=out)
+
+
+def _window_fails(V: np.ndarray, M: np.ndarray, c: np.ndarray, i: np.ndarray, d: int, h: float, e, tol: float,
+                  with_err: bool = False):
+    """``True`` where the Hermite of curve ``c`` from sample i to i + d (length h, uniform steps) is more than
+    ``tol`` off at a sample i + e (``e`` interior offsets, or None: all of them), shape (len(i),).  The
+    windows are rows of a strided view of ``V`` (c, f), taken in blocks that bound the memory."""
+    win = np.lib.stride_tricks.sliding_window_view(V, d + 1, axis=1)    # (c, f − d, d + 1), no copy
+    offs = np.arange(1, d) if e is None else np.asarray(e)
+    H = np.column_stack(_hermite_basis(offs / d)) * np.array([1.0, h, 1.0, h])      # (E, 4)
+    worst = np.zeros(i.size)
+    step = max(1, _EVAL_BLOCK // (d + 1))
+    for lo in range(0, i.size, step):
+        ci, ii = c[lo:lo + step], i[lo:lo + step]
+        P = np.column_stack([V[ci, ii], M[ci, ii], V[ci, ii + d], M[ci, ii + d]])
+        if e is None:
+            r = P @ H.T
+            r -= win[ci, ii][:, 1:d]
+        else:
+            r = P @ H.T - V[ci[:, None], ii[:, None] + offs]
+        worst[lo:lo + step] = np.abs(r).max(axis=1) if r.shape[1] else 0.0
+    return (worst > tol, worst) if with_err else worst > tol
+
+
 def _fewest_keys(ok: np.ndarray) -> list:
     """Shortest path from sample 0 to the last over the valid segments ``ok[i, d]`` (f, D + 1) (breadth-first:
     every segment costs one key); ties: the earliest previous key."""
@@ -367,7 +488,7 @@ def _fewest_keys(ok: np.ndarray) -> list:
     return keys[::-1]
 
 
-def reduce_keys_bezier(times: ArrayLike, values: ArrayLike, tol: float, max_span: int = 128,
+def reduce_keys_bezier(times: ArrayLike, values: ArrayLike, tol: float, max_span: int = _MAX_SPAN,
                        refine: bool = True) -> tuple:
     """Fewest smooth Bézier keys (aligned handles) whose curve stays within ``tol`` (3.5.5).
 
@@ -411,7 +532,7 @@ def reduce_keys_bezier(times: ArrayLike, values: ArrayLike, tol: float, max_span
     return reduce_keys_bezier_curves(t, v[:, None], tol, max_span, refine)[0]
 
 
-def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, max_span: int = 128,
+def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, max_span: int = _MAX_SPAN,
                               refine: bool = True, *, progress: ProgressFn | None = None) -> list:
     """:func:`reduce_keys_bezier` for many curves sampled at the same times, vectorised over the curves.
 
@@ -458,8 +579,8 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
     for lo in range(0, V.shape[0], block):
         idx += [_fewest_keys(ok) for ok in _valid_segments(t, V[lo:lo + block], M[lo:lo + block], tol, max_span)]
         notify(progress, first * min(lo + block, V.shape[0]) / V.shape[0])
-    kv = [list(V[k, i]) for k, i in enumerate(idx)]
-    km = [list(M[k, i]) for k, i in enumerate(idx)]
+    kv = [V[k, i].tolist() for k, i in enumerate(idx)]
+    km = [M[k, i].tolist() for k, i in enumerate(idx)]
     if refine:                                                        # stage 2: all curves in lock step
         _absorb_keys(t, V, idx, kv, km, tol, progress=scaled(progress, first, 1.0))
     notify(progress, 1.0)
@@ -491,18 +612,23 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
     sigma = np.where(u < 0, -1.0, 1.0)
     w = np.abs(u) / np.abs(u).sum(axis=1, keepdims=True)
     act = np.arange(G)
+    rows, grp, A_c, y_c = np.arange(y.size), owner, A, y                 # the rows of the running systems
     for _ in range(max_iter):
         if act.size == 0:
             break
+        if act.size != grp[-1] + 1:                                   # systems finished: drop their rows
+            keep = np.zeros(G, dtype=bool)
+            keep[act] = True
+            m = keep[owner[rows]]
+            rows, A_c, y_c = rows[m], A_c[m], y_c[m]
+            grp = np.searchsorted(act, owner[rows])
         Sa, sa = S[act], sigma[act]
         Mm = np.concatenate([np.transpose(A[Sa] * sa[..., None], (0, 2, 1)), np.ones((act.size, 1, 5))], axis=1)
         pi = np.linalg.solve(np.transpose(Mm, (0, 2, 1)), (sa * y[Sa])[..., None])[..., 0]
         xa, h = pi[:, :4], pi[:, 4]
-        full = np.zeros((G, 4))
-        full[act] = xa
-        res = y - np.einsum("rk,rk->r", A, full[owner])
-        top, j = _ragged_argmax(np.abs(res), starts, owner)
-        top, j = top[act], j[act]
+        res = y_c - np.einsum("rk,rk->r", A_c, xa[grp])
+        top, jl = _ragged_argmax(np.abs(res), np.searchsorted(grp, np.arange(act.size)), grp)
+        j = rows[jl]
         over = h > stop_above
         conv = ~over & (top <= h + 1e-13 * scale[act])
         x[act[conv]], err[act[conv]] = xa[conv], top[conv]
@@ -510,7 +636,7 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
         if not go.any():
             break
         g, jj, wa = act[go], j[go], w[act[go]]
-        tau = np.where(res[jj] > 0, 1.0, -1.0)
+        tau = np.where(res[jl[go]] > 0, 1.0, -1.0)
         dd = np.linalg.solve(Mm[go], np.concatenate([tau[:, None] * A[jj], np.ones((g.size, 1))], axis=1)[..., None])
         dd = dd[..., 0]
         pos = dd > 1e-14
@@ -523,6 +649,30 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
         S[g, leave], sigma[g, leave] = jj, tau
         act = g
     return x, err
+
+
+def _chebyshev_each(A: np.ndarray, y: np.ndarray, starts: np.ndarray, first: np.ndarray, stop_above: float) -> tuple:
+    """:func:`_chebyshev_batch` on a batch where some system met a singular reference: the batch split in halves
+    until the singular systems stand alone (a system's arithmetic does not depend on the batch it is in, so
+    the others get the same result as in any batch): ``x`` (G, 4), ``err`` (G,) and ``bad`` (G,) where the
+    exchange met a singular reference (``err`` inf there)."""
+    G = starts.size
+    ends = np.r_[starts[1:], y.size]
+    x, err, bad = np.zeros((G, 4)), np.full(G, np.inf), np.zeros(G, dtype=bool)
+    todo = [(0, G)]
+    while todo:
+        q0, q1 = todo.pop()
+        lo, hi = int(starts[q0]), int(ends[q1 - 1])
+        sub = starts[q0:q1] - lo
+        owner = np.repeat(np.arange(q1 - q0), np.diff(np.r_[sub, hi - lo]))
+        try:
+            x[q0:q1], err[q0:q1] = _chebyshev_batch(A[lo:hi], y[lo:hi], owner, sub, first[q0:q1] - lo, stop_above)
+        except np.linalg.LinAlgError:
+            if q1 - q0 == 1:
+                bad[q0] = True
+            else:
+                todo += [(q0, (q0 + q1) // 2), ((q0 + q1) // 2, q1)]
+    return x, err, bad
 
 
 def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list, km: list, tol: float,
@@ -578,13 +728,17 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
     norm = np.sqrt(np.add.reduceat(res * res, starts))
     out = [None] * B
     accept = good & (err <= tol * (1 - 1e-6))
-    for g in np.flatnonzero(accept):
-        out[g] = tuple(float(a) for a in x[g])
+    xs = x.tolist()
+    for g in np.flatnonzero(accept).tolist():
+        out[g] = tuple(xs[g])
     # minimax where least squares misses but ‖r‖∞ ≥ ‖r_ls‖₂ / √m does not rule it out
     # the minimax fit starts from four samples of segment M (its ends and thirds: independent rows) and the
     # worst row of the least-squares fit; a segment M of three samples takes the scalar path
     mid_rows = K[:, 2] - K[:, 1] + 1
-    startable = mid_rows >= 4
+    # a segment M of three samples (keys p − 1, p, p + 1 adjacent) starts from its three rows and an interior
+    # row of segment L (or R): independent, as only that row and M's middle one involve the slopes
+    inner_l, inner_r = K[:, 1] - K[:, 0] >= 2, K[:, 3] - K[:, 2] >= 2
+    startable = (mid_rows >= 4) | ((mid_rows == 3) & (inner_l | inner_r))
     cheb = good & (err > tol) & (norm <= tol * np.sqrt(rows)) & startable
     if cheb.any():
         g = np.flatnonzero(cheb)
@@ -597,18 +751,20 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
         m0 = starts[g] + np.where(has[g, 0], K[g, 1] - K[g, 0] + 1, 0)      # first row of segment M
         first = np.empty((g.size, 5), dtype=np.intp)
         pick = m0[:, None] + (np.arange(4) * (mid_rows[g, None] - 1)) // 3
+        three = mid_rows[g] == 3
+        pick[three, :3] = m0[three, None] + np.arange(3)
+        pick[three, 3] = np.where(inner_l[g[three]], starts[g[three]] + 1, m0[three] + 4)
         first[:, :4] = remap[pick]
         score = np.abs(res[keep])
         score[first[:, :4].ravel()] = -1.0
         first[:, 4] = _ragged_argmax(score, sub_starts, sub_owner)[1]
         try:
             xc, ec = _chebyshev_batch(A[keep], y[keep], sub_owner, sub_starts, first, tol)
-        except np.linalg.LinAlgError:                                 # a degenerate reference: the scalar path
-            xc, ec = np.zeros((g.size, 4)), np.full(g.size, np.inf)
-            startable[g] = False
-        for q, gg in enumerate(g):
-            if ec[q] <= tol * (1 - 1e-6):
-                out[gg] = tuple(float(a) for a in xc[q])
+        except np.linalg.LinAlgError:                                 # a degenerate reference: one at a time
+            xc, ec, bad = _chebyshev_each(A[keep], y[keep], sub_starts, first, tol)
+            startable[g[bad]] = False                                 # … and those the scalar path
+        for q in np.flatnonzero(ec <= tol * (1 - 1e-6)).tolist():
+            out[int(g[q])] = tuple(xc[q].tolist())
     # rank-deficient or tiny systems: the scalar path
     for gg in np.flatnonzero(~good | ((err > tol) & (norm <= tol * np.sqrt(rows)) & ~startable)):
         c, p, _, _ = tests[gg]
@@ -651,7 +807,7 @@ def _absorb_system(t: np.ndarray, v: np.ndarray, idx: list, kv: list, km: list, 
 #: Keys per lane of :func:`_absorb_keys`: each curve's sweep is split into lanes of about this many keys.
 _LANE_KEYS = 128
 #: Most absorption tests solved together by :func:`_absorb_batch` (its temporaries stay in cache).
-_BATCH_TESTS = 256
+_BATCH_TESTS = 1024
 
 
 class _Lane:

@@ -66,8 +66,9 @@ def test_key_reduction_calls_no_general_lp_solver(monkeypatch):
     t = np.arange(1.0, 401.0)
     v = np.convolve(rng.normal(size=440), np.hanning(31), "same")[20:420] * 0.08 + rng.normal(size=400) * 0.002
     calls = []
-    real = keyreduce.chebyshev_fit
+    real, batched = keyreduce.chebyshev_fit, keyreduce._chebyshev_batch      # the scalar and the batched fits
     monkeypatch.setattr(keyreduce, "chebyshev_fit", lambda *a, **k: calls.append(1) or real(*a, **k))
+    monkeypatch.setattr(keyreduce, "_chebyshev_batch", lambda *a, **k: calls.append(1) or batched(*a, **k))
     idx, kv, km = reduce_keys_bezier(t, v, 0.002)
     assert calls, "the refinement never needed a minimax fit; the test would prove nothing"
     assert np.abs(hermite(t[idx], kv, km, t) - v).max() <= 0.002
