@@ -153,7 +153,10 @@ def test_long_take_keys_within_tolerance_at_todays_count_without_linprog(monkeyp
     total = sum(k[0].size for k in keys)
     worst = max(np.abs(hermite(frames[i], kv, km, frames) - dense[:, j]).max() for j, (i, kv, km) in enumerate(keys))
     assert worst <= 0.01
-    assert total <= 7237                     # the per-curve LP-free reduction of session 2 kept 7,237 keys
+    # the per-curve LP-free reduction of session 2 kept 7,237 keys; the count depends on rounding in the batched
+    # 4 × 4 solves, which OpenBLAS computes with the kernel it picks for the CPU: measured 7,237 (SkylakeX kernel) and
+    # 7,247 (Zen, Haswell) with the same code and data (OPENBLAS_CORETYPE), so the bar carries half a percent
+    assert total <= 7237 * 1.005
     assert total < 0.10 * dense.size         # Blender's Decimate keeps 14 % at this error (docs/bench)
 
 
