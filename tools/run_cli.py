@@ -12,6 +12,7 @@ unreadable FILE is a one-line error and exit 1.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 
@@ -33,17 +34,18 @@ def main(argv) -> int:
     import env  # noqa: E402  (tools/env.py)
     env.reexec_in("bpy50", os.path.abspath(__file__), argv)
     import package  # noqa: E402  (tools/package.py)
-    pkg = _with_properties(package.load())
+    pkg = package.load()
     from shapespace.bridge import assets  # noqa: E402
     from shapespace.core.result import ShapeSpaceError  # noqa: E402
-    if files:
-        try:
-            with assets.redirected_fd(1, 2):          # Blender's log lines: stderr (stdout is the JSON)
-                assets.load(files[0])
-        except ShapeSpaceError as exc:
-            print(f"shapespace: error: {exc}", file=sys.stderr)
-            return 1
-    return pkg.cli.main(command, inputs=[os.path.abspath(f) for f in files])
+    with _stored_settings(pkg):
+        if files:
+            try:
+                with assets.redirected_fd(1, 2):          # Blender's log lines: stderr (stdout is the JSON)
+                    assets.load(files[0])
+            except ShapeSpaceError as exc:
+                print(f"shapespace: error: {exc}", file=sys.stderr)
+                return 1
+        return pkg.cli.main(command, inputs=[os.path.abspath(f) for f in files])
 
 
 #: Blender options ``blender_form`` accepts (and ignores: the bpy module is always in the background).
@@ -74,7 +76,12 @@ def blender_form(argv) -> int:
     pkg = _installed_extension()
     if pkg is None:
         import package  # noqa: E402  (tools/package.py)
-        pkg = _with_properties(package.load())
+        with _stored_settings(package.load()) as pkg:
+            return _blender_command(pkg, files, args)
+    return _blender_command(pkg, files, args)
+
+
+def _blender_command(pkg, files, args) -> int:
     import importlib  # noqa: E402
     assets = importlib.import_module(f"{pkg.__name__}.bridge.assets")
     ShapeSpaceError = importlib.import_module(f"{pkg.__name__}.core.result").ShapeSpaceError
@@ -88,13 +95,20 @@ def blender_form(argv) -> int:
     return pkg.cli.main(args, inputs=[os.path.abspath(f) for f in files])
 
 
-def _with_properties(pkg):
-    """``pkg`` with its stored settings registered (``Object.shapespace_retarget`` …), as in Blender where the
-    extension is enabled: the commands read what the panels stored on the rig."""
+@contextlib.contextmanager
+def _stored_settings(pkg):
+    """``pkg``'s stored settings registered (``Object.shapespace_retarget`` …) for the command, as in Blender where
+    the extension is enabled (the commands read what the panels stored on the rig), and unregistered after it:
+    Blender 4.2's ``bpy`` module crashes at exit on Python-defined properties still registered."""
     import bpy
-    if not hasattr(bpy.types.Object, "shapespace_retarget"):
+    mine = not hasattr(bpy.types.Object, "shapespace_retarget")
+    if mine:
         pkg.properties.register()
-    return pkg
+    try:
+        yield pkg
+    finally:
+        if mine:
+            pkg.properties.unregister()
 
 
 def _installed_extension():
