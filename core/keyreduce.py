@@ -249,7 +249,9 @@ def chebyshev_fit(A: ArrayLike, y: ArrayLike, stop_above: float = np.inf, max_it
 
 #: Longest stage-1 segment searched by default, in samples.  A shorter search (32) makes stage 1 four times
 #: cheaper but leaves held poses in many keys, and stage 2 absorbing them one by one into ever longer segments
-#: costs far more (2.5× the whole reduction on the 36,000-frame take).
+#: costs far more (2.5× the whole reduction on the 36,000-frame take).  Exactly held poses are one segment at
+#: any length (:func:`_flat_spans`), but nearly held ones (capture noise) are not: 10 curves of the take plus
+#: noise of 1e-4 take 8× longer at span 32 than at 128.
 _MAX_SPAN = 128
 #: Curves × samples processed together by :func:`reduce_keys_bezier_curves` (bounds its memory for long takes).
 _BLOCK_SAMPLES = 1 << 18
@@ -468,19 +470,39 @@ def _window_fails(V: np.ndarray, M: np.ndarray, c: np.ndarray, i: np.ndarray, d:
     return (worst > tol, worst) if with_err else worst > tol
 
 
-def _fewest_keys(ok: np.ndarray) -> list:
-    """Shortest path from sample 0 to the last over the valid segments ``ok[i, d]`` (f, D + 1) (breadth-first:
-    every segment costs one key); ties: the earliest previous key."""
+def _flat_spans(v: np.ndarray, m: np.ndarray, span: int) -> tuple:
+    """Held poses longer than ``span`` samples: the runs i … j of samples of one value whose slopes
+    (:func:`curve_slopes`) are all exactly zero, where the Hermite from i to j is that value (exact, so valid
+    at any tolerance), as starts and ends ``(i (r,), j (r,))`` with j − i > ``span``.  Stage 1 takes them as
+    segments beyond its search, so a held pose costs two keys instead of one per ``span`` samples (which
+    stage 2 would absorb one by one at a cost growing with the pose's length)."""
+    link = np.r_[False, (m[:-1] == 0) & (m[1:] == 0) & (v[:-1] == v[1:]), False].astype(np.int8)
+    edge = np.diff(link)
+    i, j = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)
+    long = j - i > span
+    return i[long], j[long]
+
+
+def _fewest_keys(ok: np.ndarray, extra: tuple | None = None) -> list:
+    """Shortest path from sample 0 to the last over the valid segments ``ok[i, d]`` (f, D + 1) and the
+    ``extra`` ones (starts, ends: longer than D) (breadth-first: every segment costs one key); ties: the
+    earliest previous key."""
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
     n, span = ok.shape[0], ok.shape[1] - 1
     i, d = np.nonzero(ok)                                             # sorted by start: CSR order
     graph = csr_matrix((np.ones(i.size), i + d, np.r_[0, np.cumsum(ok.sum(axis=1))]), shape=(n, n))
+    if extra is not None and extra[0].size:
+        graph = graph + csr_matrix((np.ones(extra[0].size), extra), shape=(n, n))
     dist = dijkstra(graph, directed=True, indices=0, unweighted=True)
     prev, start = np.full(n, -1), np.arange(n)                       # each sample's earliest previous key
     for d in range(1, span + 1):                                      # longer spans overwrite: earlier starts
         hit = ok[:n - d, d] & (dist[:n - d] == dist[d:] - 1)
         prev[d:][hit] = start[:n - d][hit]
+    if extra is not None and extra[0].size:                           # longer than any span: earliest starts
+        ei, ej = extra
+        hit = dist[ei] == dist[ej] - 1
+        prev[ej[hit]] = ei[hit]
     prev = prev.tolist()
     keys = [n - 1]
     while keys[-1] > 0:
@@ -577,7 +599,9 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
     idx, block = [], max(1, _BLOCK_SAMPLES // n)                     # stage 1 in blocks of curves (memory)
     first = 0.4 if refine else 1.0
     for lo in range(0, V.shape[0], block):
-        idx += [_fewest_keys(ok) for ok in _valid_segments(t, V[lo:lo + block], M[lo:lo + block], tol, max_span)]
+        span = min(max_span, n - 1)
+        idx += [_fewest_keys(ok, _flat_spans(V[lo + k], M[lo + k], span))
+                for k, ok in enumerate(_valid_segments(t, V[lo:lo + block], M[lo:lo + block], tol, max_span))]
         notify(progress, first * min(lo + block, V.shape[0]) / V.shape[0])
     kv = [V[k, i].tolist() for k, i in enumerate(idx)]
     km = [M[k, i].tolist() for k, i in enumerate(idx)]

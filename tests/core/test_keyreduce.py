@@ -142,6 +142,24 @@ def test_reduce_keys_bezier_stage_one_is_the_optimal_interpolating_subset():
     assert idx.size == best
 
 
+def test_reduce_keys_bezier_held_pose_costs_two_keys_at_any_length():
+    # a pose held for 3,000 frames (exactly equal samples, so zero three-point slopes inside): stage 1 spans it
+    # with one segment from its second to its second-to-last sample, beyond the searched span; the curve
+    # through the keys (SciPy's CubicHermiteSpline) is within the tolerance everywhere
+    from scipy.interpolate import CubicHermiteSpline
+    t = np.arange(3400.0)
+    v = np.where(t < 200, np.sin(t / 30.0) * 0.3, 0.3 * np.sin(200 / 30.0))
+    v[3200:] += np.sin((t[3200:] - 3200) / 25.0) * 0.2
+    idx, kv, km = reduce_keys_bezier(t, v, 0.01, refine=False)
+    np.testing.assert_array_equal(kv, v[idx])
+    held = (idx > 200) & (idx < 3200)
+    assert idx[held].tolist() == [201, 3199]
+    for refine in (False, True):
+        idx, kv, km = reduce_keys_bezier(t, v, 0.01, refine=refine)
+        assert np.abs(CubicHermiteSpline(t[idx], kv, km)(t) - v).max() <= 0.01
+        assert np.sum((idx > 200) & (idx < 3200)) <= 2
+
+
 def test_reduce_keys_bezier_beats_linear_on_smooth_curves():
     t, v = _smooth_noisy_curve(7, noise=0.0)
     lin = reduce_keys(t, v, 0.005).size
