@@ -23,7 +23,9 @@ Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one up
   not increase; otherwise ``λ`` grows.  When a step is refused or *stalls* (actual decrease below a quarter
   of the predicted one) on a Broyden-updated Jacobian, the Jacobian is recomputed at the current controls
   before anything else — or, with ``defer_refresh``, the solve stops there (an interactive move keeps its
-  verified step and leaves the refresh to an idle moment or the release).
+  verified step and leaves the refresh to an idle moment or the release).  A deferring solve on a Broyden-updated
+  Jacobian therefore never grows ``λ`` (any refused step stops it): its trial step is the bounded Gauss–Newton
+  step its ``xtol`` test has just computed (one bounded solve per verified step, not two).
 
 Stopping: ``OK`` when every pin is within ``pin_tol`` of its target, or when, on a freshly computed Jacobian,
 the bounded Gauss–Newton step predicts a decrease below ``ftol`` × f (first-order stationarity on the box, up
@@ -315,8 +317,9 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         (a step on it is refused, stalls or predicts no decrease), it stops instead — ``NOT_CONVERGED`` with
         ``diagnostics["jacobian_stale"]`` True, the value the last verified controls — and leaves the refresh to
         the caller (a drag's next idle moment or its release, :mod:`bridge.rig.drag`).  A mouse move then costs
-        its verified step(s) and never ``n`` evaluations.  Without ``first_jacobian`` the first Jacobian is
-        still computed.
+        its verified step(s) and never ``n`` evaluations; with ``xtol`` > 0 each of those steps is the bounded
+        Gauss–Newton step the ``xtol`` test computed (module doc).  Without ``first_jacobian`` the first Jacobian
+        is still computed.
     first_active : (ndarray (n,) bool, ndarray (n,) bool), optional
         Channels a previous solve's last step left on their lower / upper bounds (its ``diagnostics["active"]``):
         a warm start for the bounded steps (only their speed depends on it).
