@@ -117,6 +117,7 @@ class RigDrag:
         self.jacobian_cache = None
         self.result = None
         self._last = None
+        self._bounds = self._scale = None
 
     # -- lifecycle -----------------------------------------------------------------------------------------
     def begin(self, pins) -> np.ndarray:
@@ -138,6 +139,8 @@ class RigDrag:
             ev.restore()
             raise
         self.ev, self.jacobian_cache, self.result, self.targets = ev, None, None, None
+        self._bounds = ev.controls.solve_bounds(ev.c0)      # fixed for the drag: read once, not per move
+        self._scale = ev.controls.scale
         return self.points.copy()
 
     def _evaluate_with(self, ev, c) -> np.ndarray:
@@ -198,10 +201,10 @@ class RigDrag:
     def _solve(self, t, xtol, max_iter, defer) -> RigSolveResult:
         """One verified solve toward ``t`` from the last controls and Jacobian; its controls live on the rig."""
         ev = self.ev
-        lo, hi = ev.controls.solve_bounds(ev.c0)
+        lo, hi = self._bounds
         tol = PIN_TOL_REL * ev.diagonal if self.pin_tol is None else self.pin_tol
         try:
-            res = solve_controls(self._evaluate, self.controls_now, t, lo=lo, hi=hi, scale=ev.controls.scale,
+            res = solve_controls(self._evaluate, self.controls_now, t, lo=lo, hi=hi, scale=self._scale,
                                  jacobian=self._jacobian, steps=ev.steps, reference=self.start, mu=self.mu,
                                  pin_tol=tol, xtol=xtol, max_iter=max_iter, first_jacobian=self.jacobian_cache,
                                  first_points=self.points, defer_refresh=defer,
@@ -219,7 +222,7 @@ class RigDrag:
     def changed(self) -> list:
         """Indices of the channels the drag changed (surface motion above 1e-7 of the diagonal)."""
         ev = self._open()
-        moved = np.abs(self.controls_now - self.start) * ev.controls.scale
+        moved = np.abs(self.controls_now - self.start) * self._scale
         return [int(i) for i in np.flatnonzero(moved > CHANGED_REL_TOL * ev.diagonal)]
 
     def _key_curves(self, changed) -> list:

@@ -23,7 +23,9 @@ Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one up
   not increase; otherwise ``λ`` grows.  When a step is refused or *stalls* (actual decrease below a quarter
   of the predicted one) on a Broyden-updated Jacobian, the Jacobian is recomputed at the current controls
   before anything else — or, with ``defer_refresh``, the solve stops there (an interactive move keeps its
-  verified step and leaves the refresh to an idle moment or the release).
+  verified step and leaves the refresh to an idle moment or the release).  A deferring solve on a Broyden-updated
+  Jacobian therefore never grows ``λ`` (any refused step stops it): its trial step is the bounded Gauss–Newton
+  step its ``xtol`` test has just computed (one bounded solve per verified step, not two).
 
 Stopping: ``OK`` when every pin is within ``pin_tol`` of its target, or when, on a freshly computed Jacobian,
 the bounded Gauss–Newton step predicts a decrease below ``ftol`` × f (first-order stationarity on the box, up
@@ -163,35 +165,42 @@ def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
     lower = fixed | ((lo >= 0) & (g < 0)) | (False if lower is None else lower & np.isfinite(lo))
     upper = ~lower & (((hi <= 0) & (g > 0)) | (False if upper is None else upper & np.isfinite(hi)))
     x = np.where(lower, np.minimum(lo, hi), np.where(upper, hi, 0.0))
+    tol = 1e-12 * (np.abs(g).max() + 1e-300)
     for _ in range(10 * n + 20 if max_iter is None else max_iter):
-        free = ~(lower | upper)
+        held = lower | upper
+        f = np.flatnonzero(~held)
         target = x.copy()
-        f = np.flatnonzero(free)
-        if f.size:
+        if f.size:                                            # only the free entries: no division by zero
             try:
-                factor = cho_factor(H[np.ix_(f, f)], check_finite=False)
+                factor = cho_factor(H[f[:, None], f], check_finite=False)
             except np.linalg.LinAlgError:
                 return None
-            rhs = g[f] - H[np.ix_(f, np.flatnonzero(~free))] @ x[~free]
-            target[f] = cho_solve(factor, rhs, check_finite=False)
-        p = target - x
-        with np.errstate(divide="ignore", invalid="ignore"):
-            room = np.where(p < 0, (lo - x) / p, np.where(p > 0, (hi - x) / p, np.inf))
-        room[~free] = np.inf
-        k = int(np.argmin(room))
-        if room[k] < 1.0:                                    # a bound blocks the way: go there and hold it
-            x = x + max(room[k], 0.0) * p
-            x[k] = lo[k] if p[k] < 0 else hi[k]
-            lower[k], upper[k] = p[k] < 0, p[k] > 0
-            continue
+            h = np.flatnonzero(held)
+            target[f] = cho_solve(factor, g[f] - H[f[:, None], h] @ x[h] if h.size else g[f], check_finite=False)
+            p = target[f] - x[f]
+            down, up = p < 0, p > 0
+            room = np.full(f.size, np.inf)
+            room[down] = (lo[f[down]] - x[f[down]]) / p[down]
+            room[up] = (hi[f[up]] - x[f[up]]) / p[up]
+            j = int(np.argmin(room))
+            if room[j] < 1.0:                                 # a bound blocks the way: go there and hold it
+                k = f[j]
+                x = x + max(room[j], 0.0) * (target - x)
+                x[k] = lo[k] if p[j] < 0 else hi[k]
+                lower[k], upper[k] = p[j] < 0, p[j] > 0
+                continue
         x = target
         mult = g - H @ x                                      # −∇: > 0 pushes up, < 0 pushes down
         push = np.where(lower & ~fixed, mult, 0.0) - np.where(upper, mult, 0.0)
         k = int(np.argmax(push))
-        if push[k] <= 1e-12 * (np.abs(g).max() + 1e-300):
+        if push[k] <= tol:
             return np.clip(x, lo, hi)
         lower[k] = upper[k] = False
     return None
+
+
+#: The damping of the step the stopping tests take for the (bounded, regularised) Gauss–Newton step.
+_GN_LAMBDA = 1e-9
 
 
 def _step(J, e, reg_w, c, ref, lam, D2, lo, hi, held=None):
@@ -308,8 +317,9 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         (a step on it is refused, stalls or predicts no decrease), it stops instead — ``NOT_CONVERGED`` with
         ``diagnostics["jacobian_stale"]`` True, the value the last verified controls — and leaves the refresh to
         the caller (a drag's next idle moment or its release, :mod:`bridge.rig.drag`).  A mouse move then costs
-        its verified step(s) and never ``n`` evaluations.  Without ``first_jacobian`` the first Jacobian is
-        still computed.
+        its verified step(s) and never ``n`` evaluations; with ``xtol`` > 0 each of those steps is the bounded
+        Gauss–Newton step the ``xtol`` test computed (module doc).  Without ``first_jacobian`` the first Jacobian
+        is still computed.
     first_active : (ndarray (n,) bool, ndarray (n,) bool), optional
         Channels a previous solve's last step left on their lower / upper bounds (its ``diagnostics["active"]``):
         a warm start for the bounded steps (only their speed depends on it).
@@ -362,6 +372,7 @@ class _LevenbergMarquardt:
         self.lam, self.it = 1e-3, 0
         self.defer, self.stale = False, False
         self.held = None
+        self.d_next = None
 
     # ---------------------------------------------------------------- the rig
     def points(self, x):
@@ -428,9 +439,12 @@ class _LevenbergMarquardt:
             return "every pin within tolerance"
         J, e, c = self.J, self.e, self.c
         self.D2 = np.maximum(np.einsum("ij,ij->j", J, J) + self.reg_w, 1e-12 * np.max(self.s * self.s))
+        self.d_next = None
         if not (self.fresh or xtol > 0):
             return None
-        d_gn = self.step(1e-9)
+        d_gn = self.step(_GN_LAMBDA)
+        if self.defer and not self.fresh:
+            self.d_next = d_gn              # a deferring run's trial step on a Broyden-updated Jacobian (trial())
         if self.fresh and self.f - _model(J, e, self.reg_w, c, self.ref, d_gn) <= ftol * self.f + 1e-300:
             return "stationary on the bounds"
         if xtol > 0:
@@ -442,7 +456,8 @@ class _LevenbergMarquardt:
     def trial(self):
         """One trial step (verified by evaluating the rig); ``(status, message)`` when the run must stop."""
         stalled = (Status.NOT_CONVERGED, "stalled: no step decreases the objective although the model predicts one")
-        d = self.step(self.lam)
+        d = self.step(self.lam) if self.d_next is None else self.d_next
+        self.d_next = None
         was_fresh = self.fresh
         pred = self.f - _model(self.J, self.e, self.reg_w, self.c, self.ref, d)
         if not np.any(d) or pred <= 0.0:

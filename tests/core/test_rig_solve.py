@@ -325,3 +325,29 @@ def test_the_primal_active_set_box_qp_matches_scipys_bounded_least_squares(seed)
     lo[0] = hi[0] = 0.0
     held = box_qp_primal(H, g, lo, hi)
     assert held[0] == 0.0 and np.all(held >= lo) and np.all(held <= hi)
+
+
+def test_a_deferring_move_takes_the_gauss_newton_step_its_stopping_test_computed():
+    """A deferring solve on a cached Jacobian stops at the first refused step, so its λ never grows: its one
+    verified step (a mouse move) is the bounded Gauss–Newton step the ``xtol`` test computed.  On a linear rig
+    with its exact Jacobian that step lands on the bounded least-squares optimum (SciPy's) in one evaluation."""
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(18, 7)) * np.array([1.0, 1e-2, 3.0, 0.5, 1e-3, 2.0, 1.0])      # ill-conditioned columns
+    b = rng.normal(size=18)
+    t = rng.normal(size=(6, 3)) * 2.0
+    lo, hi = -np.full(7, 0.4), np.full(7, 0.4)
+    calls = []
+
+    def ev(c):
+        calls.append(c.copy())
+        return (A @ c + b).reshape(6, 3)
+
+    p0 = ev(np.zeros(7))
+    calls.clear()
+    res = solve_controls(ev, np.zeros(7), t, lo=lo, hi=hi, first_jacobian=A, first_points=p0, mu=0.0,
+                         defer_refresh=True, max_iter=1, xtol=1e-12)
+    best = lsq_linear(A, t.reshape(-1) - b, bounds=(lo, hi), method="bvls", tol=1e-14)
+    assert res.evaluations == len(calls) == 1 and res.jacobians == 0
+    assert np.any(np.isclose(np.abs(best.x), 0.4))                      # some bounds active
+    np.testing.assert_allclose(res.x, best.x, atol=1e-7)
+    assert res.objective <= 2 * best.cost * (1 + 1e-9)
