@@ -91,6 +91,11 @@ ARKit key of the head a control) and ``rigify`` (its bench control set above):
   names the three landmarks (by their key) with the largest error.  ``rig_cross_landmark_mm_<rig>_<route>``,
   ``rig_cross_landmark_ratio_<rig>_<route>`` and ``rig_cross_s_<rig>_<route>`` for each route (``perframe``,
   ``spacetime``, ``cloning``); ``rig_cross_landmark_mm_shapekey_<rig>`` the reference.
+  ``rig_cross_linear_ratio_<rig>`` is what the control set can express at all: the same ratio for the best bounded
+  linear fit of the rig at rest (its Jacobian over every vertex; per frame the bounded least-squares fit of the
+  controls to the same targets at the same vertex sample as the retarget, ``scipy.optimize.lsq_linear``) — a
+  retarget near it is limited by the rig's controls, not by its solve; ``rig_cross_linear_sample_mm_<rig>`` that
+  fit's RMS distance to the targets at the sample and ``rig_cross_sample_mm_<rig>_<route>`` the route's (played).
 """
 from __future__ import annotations
 
@@ -423,6 +428,30 @@ def _cross_truth(source, rig, names, W) -> tuple:
     return lm_t, motion, keys
 
 
+def _rms(d) -> float:
+    return float(np.sqrt(np.mean(np.sum(d ** 2, axis=-1))))
+
+
+def _linear_bound(rig, names, W) -> tuple:
+    """The control set's best bounded linear fit to a capture's targets (``rig_cross_linear_ratio_<rig>``, module
+    doc): ``(the retarget's vertex sample (p,), fitted displacement of every vertex from rest (F, V, 3))``."""
+    from scipy.optimize import lsq_linear
+
+    from shapespace.bridge import rig as brig
+    from shapespace.bridge.rig.capture import sample_vertices
+    mesh = rig.mesh
+    n_v = len(mesh.data.vertices)
+    idx = sample_vertices(mesh, names)
+    with brig.RigEvaluator(mesh, rig.controls, np.arange(n_v)) as ev:
+        lo, hi = ev.controls.solve_bounds(ev.c0)
+        J = ev.jacobian(ev.c0)
+        rest = ev.evaluate(ev.c0)
+    d = brig.shape_key_targets(mesh, names, W, idx) - rest[idx]
+    Js = J.reshape(n_v, 3, -1)[idx].reshape(-1, J.shape[1])
+    C = np.stack([lsq_linear(Js, df.reshape(-1), bounds=(lo - ev.c0, hi - ev.c0)).x for df in d])
+    return idx, np.einsum("ij,fj->fi", J, C).reshape(len(W), n_v, 3)
+
+
 def _measure_cross(name: str, build, csv: str, source) -> dict:
     """``rig_cross_landmark_ratio_<rig>`` (module doc): landmark error in mm at a 30 cm head of the Live Link Face
     take retargeted onto the rig, over the same error of the take retargeted onto the head's shape keys, both
@@ -455,6 +484,10 @@ def _measure_cross(name: str, build, csv: str, source) -> dict:
     for kb in mesh.data.shape_keys.key_blocks[1:]:
         kb.value = 0.0
     ref = out[f"rig_cross_landmark_mm_shapekey_{name}"]
+    idx, fit = _linear_bound(rig, names, W)
+    out[f"rig_cross_linear_ratio_{name}"] = err(fit[:, lm] + rest) / ref
+    targets = brig.shape_key_targets(mesh, names, W, idx)
+    out[f"rig_cross_linear_sample_mm_{name}"] = _rms(fit[:, idx] + rig.world_points()[idx] - targets) * mm
     for route in CROSS_ROUTES:
         print(f"bench rig: {name} cross-rig, {route}", file=sys.stderr)
         t0 = time.perf_counter()
@@ -470,6 +503,7 @@ def _measure_cross(name: str, build, csv: str, source) -> dict:
         out[f"rig_cross_rig_vs_shapekey_mm_{name}_{route}"] = float(
             np.sqrt(np.mean(np.sum((played - shapekey) ** 2, axis=-1)))) * mm
         out[f"rig_cross_status_{name}_{route}"] = rep.status.name.lower()
+        out[f"rig_cross_sample_mm_{name}_{route}"] = _rms(_played(rig, frames, idx) - targets) * mm
         brig.restore_previous(rep, rig.controls)
     out[f"rig_cross_landmark_ratio_{name}"] = out[f"rig_cross_landmark_ratio_{name}_perframe"]
     out[f"rig_cross_rig_vs_shapekey_mm_{name}"] = out[f"rig_cross_rig_vs_shapekey_mm_{name}_perframe"]
