@@ -42,7 +42,8 @@ than half: from the lip line round the chin), else with the skull; where there a
 parts, the rows decide instead (their heights along the face's up fall into a lower row, with the jaw, and
 an upper one, with the skull; open sheets of teeth lying on the mouth's skin join the split and stay with
 the skull in the upper row).  A target part is ``source`` only where the source's matched part is the same
-part: the same kind for the same reason, at a similar extent.  Each kind carries a confidence and a reason;
+part: the same kind for the same reason, at a similar extent (a mouth cavity: the source's cavity, open or
+closed, see ``_same_part``).  Each kind carries a confidence and a reason;
 the user corrects it (:meth:`PartPlan.with_kinds`).
 """
 from __future__ import annotations
@@ -250,13 +251,28 @@ def _same_part(plan, p, source_plan, q):
     """Whether target part ``p`` and the source part ``q`` the registration matched it to are the same part:
     the same kind for the same reason (a mouth cavity touching the lips is not a row of teeth lying behind
     them, though both follow the skin) and extents (relative to each head's diagonal) within a factor 2 (a
-    tongue is not a tooth)."""
-    if source_plan is None or source_plan.kinds.get(q) != plan.kinds[p]:
+    tongue is not a tooth).  A mouth cavity is the source's mouth cavity whatever kind the source's was
+    proposed: an open bag touching the lips, or a closed bag of the cavity's size (Face Cap models its mouth
+    interior closed, so it is proposed rigid) — not a sheet of teeth lying on the skin (Ready Player Me's):
+    the source's own cavity motion, carried by deformation transfer, has the lower half going with the jaw
+    and the back staying, which the binding to the lips and the chin's rigid motion miss (ICT FaceKit's cavity
+    from Face Cap: ``jawOpen`` error 0.27 of its authored motion, 0.44 bound)."""
+    if source_plan is None:
+        return False
+    a, b = plan.extents.get(p, 0.0), source_plan.extents.get(q, 0.0)
+    similar = a > 0 and b > 0 and 0.5 <= a / b <= 2.0
+    if _is_cavity(plan, p):
+        return similar and (_is_cavity(source_plan, q) or source_plan.kinds.get(q) in ("jaw", "skull"))
+    if source_plan.kinds.get(q) != plan.kinds[p]:
         return False
     if plan.kinds[p] == "follow" and source_plan.reasons.get(q) != plan.reasons[p]:
         return False
-    a, b = plan.extents.get(p, 0.0), source_plan.extents.get(q, 0.0)
-    return a > 0 and b > 0 and 0.5 <= a / b <= 2.0
+    return similar
+
+
+def _is_cavity(plan, p):
+    """Whether part ``p`` is a mouth cavity: an open part touching the skin (not lying on it)."""
+    return plan.kinds.get(p) == "follow" and plan.reasons.get(p) == "touches the skin"
 
 
 def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: np.ndarray, names: Sequence[str],

@@ -133,3 +133,32 @@ def test_a_sheet_of_upper_teeth_behind_the_lips_stays_with_the_skull(head):
     s = int(lab[len(skin[0])])                                   # the sheet follows skin and eye
     assert "lies behind the upper lip" in plan.reasons[s] and plan.kinds[s] == "skull"
     assert all(plan.kinds[_part_of(V, lab, (x, -0.63, 0.7))] == "jaw" for x in (-0.12, 0.12))
+
+
+def _cavity_head():
+    """Skin (radius 1) and a mouth cavity: the back of a sphere of radius 0.25 whose open rim reaches the lips
+    (an open bag touching the skin, on the mirror plane)."""
+    skin = _sphere(20, 32, nose=True)
+    V, T = _sphere(8, 12, r=0.25, centre=(0.0, -0.45, 0.72))
+    T = T[np.all(V[T][:, :, 2] < 0.85, axis=1)]
+    used, inv = np.unique(T, return_inverse=True)
+    V, T = _assemble(skin, (V[used], inv.reshape(-1, 3)))
+    lab, _ = parts.triangle_parts(len(V), T)
+    return V, T, lab, _part_of(V, lab, (0.0, -0.45, 0.47))
+
+
+@pytest.mark.parametrize("kind, reason, extent, same", [
+    ("jaw", "inside, in the lower row (moves with the jaw)", 0.16, True),      # Face Cap: a closed bag
+    ("follow", "touches the skin", 0.2, True),                                  # an open bag like the target's
+    ("follow", "lies on the skin", 0.16, False),                                # a sheet of teeth (Ready Player Me)
+    ("jaw", "inside, in the lower row (moves with the jaw)", 0.04, False)])     # a tongue: too small
+def test_a_mouth_cavity_takes_the_source_cavitys_motion_open_or_closed(kind, reason, extent, same):
+    V, T, lab, cav = _cavity_head()
+    plan = parts.propose_parts(V, T, lab)
+    assert plan.kinds[cav] == "follow" and plan.reasons[cav] == "touches the skin"
+    ext = plan.extents[cav]
+    assert 0.1 < ext < 0.3
+    source = parts.PartPlan(np.zeros(1, int), {0: "skin", 5: kind}, {0: 1.0, 5: 1.0}, {0: "", 5: reason},
+                            extents={5: extent})
+    out = parts.propose_parts(V, T, lab, {cav: 5}, None, source, [5])
+    assert (out.kinds[cav] == "source") == same
