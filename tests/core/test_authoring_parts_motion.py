@@ -162,3 +162,30 @@ def test_a_mouth_cavity_takes_the_source_cavitys_motion_open_or_closed(kind, rea
                             extents={5: extent})
     out = parts.propose_parts(V, T, lab, {cav: 5}, None, source, [5])
     assert (out.kinds[cav] == "source") == same
+
+
+def test_a_mouth_cavity_holding_the_teeth_opens_its_floor_with_the_jaw_and_keeps_its_roof():
+    """A mouth bag (open at the lips, holding lower teeth near its floor and upper teeth near its roof) in a
+    ``jawOpen`` that turns the chin 15°: the floor beside the lower teeth goes with the jaw's rotation, the roof
+    beside the upper teeth stays (the skin nearest both is the moving chin's)."""
+    skin = _sphere(20, 32, nose=True)
+    B, BT = _sphere(10, 16, r=0.32, centre=(0.0, -0.35, 0.68))
+    BT = BT[np.all(np.linalg.norm(B[BT], axis=2) < 1.05, axis=1)]            # cut open where it meets the skin
+    used, inv = np.unique(BT, return_inverse=True)
+    lower = _sphere(4, 8, r=0.1, centre=(0.0, -0.55, 0.6), scale=(1.0, 0.4, 0.6))
+    upper = _sphere(4, 8, r=0.1, centre=(0.0, -0.15, 0.6), scale=(1.0, 0.4, 0.6))
+    V, T = _assemble(skin, (B[used], inv.reshape(-1, 3)), lower, upper)
+    lab, _ = parts.triangle_parts(len(V), T)
+    rot = Rotation.from_euler("x", 15, degrees=True).as_matrix()
+    pivot = np.array([0.0, 0.0, -0.3])
+    turned = (V - pivot) @ rot.T + pivot - V
+    jaw = np.where(((lab == 0) & (V[:, 1] < -0.3) & (V[:, 2] > 0.0))[:, None], turned, 0.0)
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    cav = _part_of(V, lab, (0.0, -0.35, 0.36))
+    assert plan.kinds[cav] == "follow" and plan.reasons[cav] == "touches the skin"
+    out, _ = parts.move_parts(plan, V, T, jaw[None].copy(), ["jawOpen"])
+    bag = np.flatnonzero(lab == cav)
+    floor = bag[np.argmin(np.linalg.norm(V[bag] - (0.0, -0.65, 0.6), axis=1))]
+    roof = bag[np.argmin(np.linalg.norm(V[bag] - (0.0, -0.05, 0.6), axis=1))]
+    assert np.linalg.norm(out[0, floor] - turned[floor]) < 0.2 * np.linalg.norm(turned[floor])
+    assert np.linalg.norm(out[0, roof]) < 0.2 * np.linalg.norm(turned[roof])
