@@ -7,7 +7,8 @@ too (a part matched by the registration to a source part other than the source's
 moved here, as an artist would rig it:
 
 ``follow``
-    lashes, brows, eyelines, the mouth cavity: each vertex is bound to its closest point ``p`` on the skin
+    lashes, brows, eyelines, the mouth cavity, sheets of upper teeth lying behind the lips (by the skin's skull
+    share only, :data:`UPPER_SHEET`): each vertex is bound to its closest point ``p`` on the skin
     (triangle, barycentric coordinates, offset ``x − p``), like a surface binding: its displacement is the
     skin's at ``p`` plus the offset turned by the skin triangle's rotation (polar factor of its deformation
     gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with ``r`` 1 % of
@@ -41,11 +42,11 @@ the lips — is rigid: with the jaw if most of it lies in the jaw's sector (seen
 motion fitted to the transferred ``jawOpen``, the angles where the front midline moves with the jaw by more
 than half: from the lip line round the chin), else with the skull; where there are at least four rigid
 parts, the rows decide instead (their heights along the face's up fall into a lower row, with the jaw, and
-an upper one, with the skull; open sheets of teeth lying on the mouth's skin join the split and stay with
-the skull in the upper row).  A target part is ``source`` only where the source's matched part is the same
-part: the same kind for the same reason, at a similar extent (a mouth cavity: the source's cavity, open or
-closed, see ``_same_part``).  Each kind carries a confidence and a reason;
-the user corrects it (:meth:`PartPlan.with_kinds`).
+an upper one, with the skull; open sheets of teeth lying on the mouth's skin join the split and in the
+upper row follow the lips only by the skin's skull share, ``1 − jaw``).  A target part is ``source`` only
+where the source's matched part is the same part: the same kind for the same reason, at a similar extent (a
+mouth cavity: the source's cavity, open or closed, see ``_same_part``).  Each kind carries a confidence and a
+reason; the user corrects it (:meth:`PartPlan.with_kinds`).
 """
 from __future__ import annotations
 
@@ -63,8 +64,8 @@ from ..surface import TriangleSurface
 from .mesh import bbox_diagonal, inv3, symmetry_plane, triangle_parts
 from .transfer import frames
 
-__all__ = ["KINDS", "UNSURE", "EYE_LOOK_DEGREES", "PartPlan", "propose_parts", "plan_for_transfer", "move_parts",
-           "jaw_membership",
+__all__ = ["KINDS", "UNSURE", "UPPER_SHEET", "EYE_LOOK_DEGREES", "PartPlan", "propose_parts", "plan_for_transfer",
+           "move_parts", "jaw_membership",
            "fit_rigid", "sphere_fit"]
 
 KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
@@ -76,6 +77,7 @@ FOLLOW_MEDIAN = 0.012         # × diagonal: a part whose median distance to the
 TOUCH = 0.003                 # × diagonal: a part closer than this somewhere touches the skin (cavity)
 EYE_RESIDUAL = 0.06           # relative RMS of a sphere fit below which a part is an eyeball
 UNSURE = 0.6                  # a proposed kind below this confidence is marked unsure
+UPPER_SHEET = "lies behind the upper lip, in the upper row (follows the lips where they do not move with the jaw)"
 
 
 @dataclass
@@ -342,9 +344,10 @@ def _teeth_rows(V, lab, plan, diag, sheets=()):
     that minimises the spread within the groups, Otsu's), the lower with the jaw, the upper with the skull.
     Used where both rows have at least two parts and the groups lie at least 1 % of the diagonal apart
     (the sector alone misjudges rows on a hinge estimated from the skin: Face Cap's lower teeth).  ``sheets``
-    (:func:`_mouth_sheets`) join the split: in the upper row they stay with the skull (the lips in front of
-    them move with every mouth shape, the upper teeth do not), in the lower row they keep following the skin
-    (lower lip and teeth both move with the jaw)."""
+    (:func:`_mouth_sheets`) join the split: in the upper row they follow the skin only by its skull share
+    (:data:`UPPER_SHEET`: the upper lip's lip shapes, not the lower lip's ``jawOpen``; Ready Player Me's
+    artist moves them so), in the lower row they keep following the skin (lower lip and teeth both move with
+    the jaw)."""
     rigid = [p for p, k in plan.kinds.items() if k in ("jaw", "skull")] + list(sheets)
     if len(rigid) < 4:
         return
@@ -367,7 +370,7 @@ def _teeth_rows(V, lab, plan, diag, sheets=()):
         if p in sheets:
             if kind == "jaw":
                 continue
-            why = "lies behind the upper lip, in the upper row (stays with the skull)"
+            kind, why = "follow", UPPER_SHEET
         plan.kinds[p], plan.confidence[p], plan.reasons[p] = kind, sure, why
 
 
@@ -471,8 +474,9 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
     jaw_motion = _jaw_motions(V, lab, deltas, jaw, canon)                   # (k, 3, 3), (k, 3)
     follow = np.flatnonzero(np.isin(lab, [p for p, k in plan.kinds.items() if k == "follow"]))
     if follow.size:
+        upper = np.isin(lab[follow], [p for p, r in plan.reasons.items() if r == UPPER_SHEET])
         deltas[:, follow] = _follow(V, _Skin(V, TT, lab), follow, deltas, jaw, jaw_motion,
-                                    _cavity_shares(V, plan, follow))
+                                    _cavity_shares(V, plan, follow), upper)
     frame = plan.frame if face_forward is None else None
     for p, kind in plan.kinds.items():
         idx = np.flatnonzero(lab == p)
@@ -547,9 +551,12 @@ def _holds(P, Q):
         return False
 
 
-def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None):
+def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None, upper=None):
     """Surface binding of vertices ``idx`` to the skin, fading into their jaw share of the jaw motion (the
-    skin's under them, or ``shares`` (m,) where not NaN: :func:`_cavity_shares`)."""
+    skin's under them, or ``shares`` (m,) where not NaN: :func:`_cavity_shares`).  ``upper`` (m,) bool: upper
+    teeth sheets, bound to the skin by its skull share ``1 − jaw`` and never carried by the jaw (Ready Player
+    Me's artist moves them with the upper lip in the lip shapes — ``mouthFunnel``, ``mouthPucker`` — not with
+    the lower lip's ``jawOpen`` and ``mouthClose``)."""
     tri, bary, point, dist = skin.closest(V[idx])
     ST = skin.tris
     diag = max(bbox_diagonal(V), 1e-300)
@@ -557,6 +564,10 @@ def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None):
     share = np.sum(bary * jaw[ST[tri]], axis=1)
     if shares is not None:
         share = np.where(np.isnan(shares), share, shares)
+    keep = np.ones(idx.size)
+    if upper is not None:
+        keep = np.where(upper, 1.0 - share, 1.0)
+        share = np.where(upper, 0.0, share)
     used = ST[tri]                                                      # (m, 3) skin vertices
     uniq, inv = np.unique(tri, return_inverse=True)
     F0inv = _inverse_frames(frames(V, ST[uniq]))
@@ -568,7 +579,7 @@ def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None):
         rot = _rotations(F0inv, frames(V + d, ST[uniq]))[inv]           # (m, 3, 3)
         bound = np.einsum("mj,mjc->mc", bary, d[used]) + np.einsum("mij,mj->mi", rot, off) - off
         rigid = (V[idx] @ R[s].T + t[s] - V[idx]) * share[:, None]
-        out[s] = w[:, None] * bound + (1.0 - w[:, None]) * rigid
+        out[s] = (w * keep)[:, None] * bound + (1.0 - w[:, None]) * rigid
     return out
 
 

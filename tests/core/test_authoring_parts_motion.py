@@ -109,9 +109,10 @@ def test_a_source_part_is_the_same_part_only_at_a_similar_extent(head):
     assert parts.propose_parts(V, T, lab, {lower: lower}, jaw, src_big, [lower]).kinds[lower] == "jaw"
 
 
-def test_a_sheet_of_upper_teeth_behind_the_lips_stays_with_the_skull(head):
+def test_a_sheet_of_upper_teeth_behind_the_lips_follows_the_upper_lip_not_the_jaw(head):
     """Teeth modelled as open sheets just behind the lips (Ready Player Me's) lie on the skin like a lash: the
-    upper row stays with the skull (the lips in front of it move in every mouth shape), not bound to the lips."""
+    upper row is not carried by the jaw (in ``jawOpen`` it moves far less than the skin in front of it) and
+    goes with the upper lip in a lip shape (Ready Player Me's artist moves it in ``mouthFunnel``)."""
     V0, T0, _, _, _, _ = head
     skin_eye = int(np.flatnonzero(parts.triangle_parts(len(V0), T0)[0] >= 2)[0])
     skin = (V0[:skin_eye], T0[np.all(T0 < skin_eye, axis=1)])
@@ -131,8 +132,16 @@ def test_a_sheet_of_upper_teeth_behind_the_lips_stays_with_the_skull(head):
     jaw[chin] = (V[chin] - pivot) @ rot.T + pivot - V[chin]
     plan = parts.propose_parts(V, T, lab, None, jaw)
     s = int(lab[len(skin[0])])                                   # the sheet follows skin and eye
-    assert "lies behind the upper lip" in plan.reasons[s] and plan.kinds[s] == "skull"
+    assert "lies behind the upper lip" in plan.reasons[s] and plan.kinds[s] == "follow"
     assert all(plan.kinds[_part_of(V, lab, (x, -0.63, 0.7))] == "jaw" for x in (-0.12, 0.12))
+    lip = np.zeros_like(V)
+    upper_lip = (lab == 0) & (V[:, 1] > -0.3) & (V[:, 2] > 0.5)
+    lip[upper_lip] = [0.0, 0.0, 0.05]                                  # the upper lip pushed forward
+    out, _ = parts.move_parts(plan, V, T, np.stack([jaw, lip]), ["jawOpen", "mouthFunnel"])
+    sheet = np.flatnonzero(lab == s)
+    top = sheet[np.argmax(V[sheet, 1])]                                 # the sheet's vertex on the upper lip
+    assert out[1, top, 2] > 0.9 * 0.05 and np.abs(out[1, top, :2]).max() < 0.1 * 0.05
+    assert np.linalg.norm(out[0, sheet], axis=1).max() < 0.1 * np.linalg.norm(jaw[lab == 0], axis=1).max()
 
 
 def _cavity_head():
