@@ -73,6 +73,7 @@ KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
 # artists of ICT FaceKit and Ready Player Me authored on their eyeballs, rounded
 EYE_LOOK_DEGREES = {"Up": 20.0, "Down": 25.0, "In": 25.0, "Out": 30.0}
 FOLLOW_RADIUS = 0.01          # × diagonal: binding falloff (2 % carried lip motion deep into the cavity)
+CAVITY_RADIUS = 0.006         # × diagonal: the mouth cavity's binding falloff (the lips' motion stays at the lips)
 FOLLOW_MEDIAN = 0.012         # × diagonal: a part whose median distance to the skin is below this follows it
 TOUCH = 0.003                 # × diagonal: a part closer than this somewhere touches the skin (cavity)
 EYE_RESIDUAL = 0.06           # relative RMS of a sphere fit below which a part is an eyeball
@@ -475,8 +476,10 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
     follow = np.flatnonzero(np.isin(lab, [p for p, k in plan.kinds.items() if k == "follow"]))
     if follow.size:
         upper = np.isin(lab[follow], [p for p, r in plan.reasons.items() if r == UPPER_SHEET])
+        radius = np.where(np.isin(lab[follow], [p for p in plan.kinds if _is_cavity(plan, p)]), CAVITY_RADIUS,
+                          FOLLOW_RADIUS)
         deltas[:, follow] = _follow(V, _Skin(V, TT, lab), follow, deltas, jaw, jaw_motion,
-                                    _cavity_shares(V, plan, follow), upper)
+                                    _cavity_shares(V, plan, follow), upper, radius)
     frame = plan.frame if face_forward is None else None
     for p, kind in plan.kinds.items():
         idx = np.flatnonzero(lab == p)
@@ -553,16 +556,17 @@ def _holds(P, Q):
         return False
 
 
-def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None, upper=None):
+def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None, upper=None, radius=FOLLOW_RADIUS):
     """Surface binding of vertices ``idx`` to the skin, fading into their jaw share of the jaw motion (the
     skin's under them, or ``shares`` (m,) where not NaN: :func:`_cavity_shares`).  ``upper`` (m,) bool: upper
     teeth sheets, bound to the skin by its skull share ``1 − jaw`` and never carried by the jaw (Ready Player
     Me's artist moves them with the upper lip in the lip shapes — ``mouthFunnel``, ``mouthPucker`` — not with
-    the lower lip's ``jawOpen`` and ``mouthClose``)."""
+    the lower lip's ``jawOpen`` and ``mouthClose``).  ``radius``: the binding's falloff, × the diagonal (scalar
+    or (m,))."""
     tri, bary, point, dist = skin.closest(V[idx])
     ST = skin.tris
     diag = max(bbox_diagonal(V), 1e-300)
-    w = np.exp(-(dist / (FOLLOW_RADIUS * diag)) ** 2)
+    w = np.exp(-(dist / (radius * diag)) ** 2)
     share = np.sum(bary * jaw[ST[tri]], axis=1)
     if shares is not None:
         share = np.where(np.isnan(shares), share, shares)

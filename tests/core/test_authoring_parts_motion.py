@@ -198,3 +198,20 @@ def test_a_mouth_cavity_holding_the_teeth_opens_its_floor_with_the_jaw_and_keeps
     roof = bag[np.argmin(np.linalg.norm(V[bag] - (0.0, -0.05, 0.6), axis=1))]
     assert np.linalg.norm(out[0, floor] - turned[floor]) < 0.2 * np.linalg.norm(turned[floor])
     assert np.linalg.norm(out[0, roof]) < 0.2 * np.linalg.norm(turned[roof])
+
+
+def test_a_lip_shape_moves_the_cavity_at_the_lips_only():
+    """A lip shape (the skin pushed forward, no jaw) moves the mouth cavity where it touches the lips and not a
+    centimetre inside (ICT FaceKit's artist: the lips' motion stays at the lips): a cavity vertex 1 % of the
+    head's diagonal from the skin moves by less than a tenth of the lips' motion."""
+    V, T, lab, cav = _cavity_head()
+    plan = parts.propose_parts(V, T, lab)
+    lip = np.where(((lab == 0) & (V[:, 2] > 0.5))[:, None], [0.0, 0.0, 0.05], 0.0)
+    out, _ = parts.move_parts(plan, V, T, lip[None].copy(), ["mouthFunnel"])
+    bag = np.flatnonzero(lab == cav)
+    _, _, _, dist = parts._Skin(V, T, lab).closest(V[bag])
+    diag = parts.bbox_diagonal(V)
+    touching, inside = dist < parts.TOUCH * diag, dist > 0.01 * diag
+    assert touching.any() and inside.any()
+    assert np.linalg.norm(out[0, bag[touching]], axis=1).min() > 0.7 * 0.05
+    assert np.linalg.norm(out[0, bag[inside]], axis=1).max() < 0.1 * 0.05
