@@ -7,12 +7,14 @@ too (a part matched by the registration to a source part other than the source's
 moved here, as an artist would rig it:
 
 ``follow``
-    lashes, brows, eyelines, the mouth cavity: each vertex is bound to its closest point ``p`` on the skin
+    lashes, brows, eyelines, the mouth cavity, sheets of upper teeth lying behind the lips (by the skin's skull
+    share only, :data:`UPPER_SHEET`): each vertex is bound to its closest point ``p`` on the skin
     (triangle, barycentric coordinates, offset ``x − p``), like a surface binding: its displacement is the
     skin's at ``p`` plus the offset turned by the skin triangle's rotation (polar factor of its deformation
     gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with ``r`` 1 % of
     the head's diagonal, towards the jaw/skull motion of that vertex (the back of a mouth cavity is carried
-    by the jaw, not by the lip it hangs from).
+    by the jaw, not by the lip it hangs from); in a mouth cavity that holds the teeth, the jaw share is by
+    the nearest row of teeth (floor with the jaw, roof with the skull, see ``_cavity_shares``).
 ``jaw``
     lower teeth, lower gums, tongue: the rigid motion of the jaw, fitted per shape (weighted Procrustes,
     Umeyama) to the transferred motion of the chin — the skin that the transferred ``jawOpen`` moves most —
@@ -40,10 +42,11 @@ the lips — is rigid: with the jaw if most of it lies in the jaw's sector (seen
 motion fitted to the transferred ``jawOpen``, the angles where the front midline moves with the jaw by more
 than half: from the lip line round the chin), else with the skull; where there are at least four rigid
 parts, the rows decide instead (their heights along the face's up fall into a lower row, with the jaw, and
-an upper one, with the skull; open sheets of teeth lying on the mouth's skin join the split and stay with
-the skull in the upper row).  A target part is ``source`` only where the source's matched part is the same
-part: the same kind for the same reason, at a similar extent.  Each kind carries a confidence and a reason;
-the user corrects it (:meth:`PartPlan.with_kinds`).
+an upper one, with the skull; open sheets of teeth lying on the mouth's skin join the split and in the
+upper row follow the lips only by the skin's skull share, ``1 − jaw``).  A target part is ``source`` only
+where the source's matched part is the same part: the same kind for the same reason, at a similar extent (a
+mouth cavity: the source's cavity, open or closed, see ``_same_part``).  Each kind carries a confidence and a
+reason; the user corrects it (:meth:`PartPlan.with_kinds`).
 """
 from __future__ import annotations
 
@@ -52,7 +55,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial import ConvexHull, QhullError, cKDTree
+from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
 from ..errors import ErrorCode
 from ..names import canonical_name
@@ -61,8 +64,8 @@ from ..surface import TriangleSurface
 from .mesh import bbox_diagonal, inv3, symmetry_plane, triangle_parts
 from .transfer import frames
 
-__all__ = ["KINDS", "UNSURE", "EYE_LOOK_DEGREES", "PartPlan", "propose_parts", "plan_for_transfer", "move_parts",
-           "jaw_membership",
+__all__ = ["KINDS", "UNSURE", "UPPER_SHEET", "EYE_LOOK_DEGREES", "PartPlan", "propose_parts", "plan_for_transfer",
+           "move_parts", "jaw_membership",
            "fit_rigid", "sphere_fit"]
 
 KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
@@ -70,10 +73,12 @@ KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
 # artists of ICT FaceKit and Ready Player Me authored on their eyeballs, rounded
 EYE_LOOK_DEGREES = {"Up": 20.0, "Down": 25.0, "In": 25.0, "Out": 30.0}
 FOLLOW_RADIUS = 0.01          # × diagonal: binding falloff (2 % carried lip motion deep into the cavity)
+CAVITY_RADIUS = 0.006         # × diagonal: the mouth cavity's binding falloff (the lips' motion stays at the lips)
 FOLLOW_MEDIAN = 0.012         # × diagonal: a part whose median distance to the skin is below this follows it
 TOUCH = 0.003                 # × diagonal: a part closer than this somewhere touches the skin (cavity)
 EYE_RESIDUAL = 0.06           # relative RMS of a sphere fit below which a part is an eyeball
 UNSURE = 0.6                  # a proposed kind below this confidence is marked unsure
+UPPER_SHEET = "lies behind the upper lip, in the upper row (follows the lips where they do not move with the jaw)"
 
 
 @dataclass
@@ -250,13 +255,28 @@ def _same_part(plan, p, source_plan, q):
     """Whether target part ``p`` and the source part ``q`` the registration matched it to are the same part:
     the same kind for the same reason (a mouth cavity touching the lips is not a row of teeth lying behind
     them, though both follow the skin) and extents (relative to each head's diagonal) within a factor 2 (a
-    tongue is not a tooth)."""
-    if source_plan is None or source_plan.kinds.get(q) != plan.kinds[p]:
+    tongue is not a tooth).  A mouth cavity is the source's mouth cavity whatever kind the source's was
+    proposed: an open bag touching the lips, or a closed bag of the cavity's size (Face Cap models its mouth
+    interior closed, so it is proposed rigid) — not a sheet of teeth lying on the skin (Ready Player Me's):
+    the source's own cavity motion, carried by deformation transfer, has the lower half going with the jaw
+    and the back staying, which the binding to the lips and the chin's rigid motion miss (ICT FaceKit's cavity
+    from Face Cap: ``jawOpen`` error 0.27 of its authored motion, 0.44 bound)."""
+    if source_plan is None:
+        return False
+    a, b = plan.extents.get(p, 0.0), source_plan.extents.get(q, 0.0)
+    similar = a > 0 and b > 0 and 0.5 <= a / b <= 2.0
+    if _is_cavity(plan, p):
+        return similar and (_is_cavity(source_plan, q) or source_plan.kinds.get(q) in ("jaw", "skull"))
+    if source_plan.kinds.get(q) != plan.kinds[p]:
         return False
     if plan.kinds[p] == "follow" and source_plan.reasons.get(q) != plan.reasons[p]:
         return False
-    a, b = plan.extents.get(p, 0.0), source_plan.extents.get(q, 0.0)
-    return a > 0 and b > 0 and 0.5 <= a / b <= 2.0
+    return similar
+
+
+def _is_cavity(plan, p):
+    """Whether part ``p`` is a mouth cavity: an open part touching the skin (not lying on it)."""
+    return plan.kinds.get(p) == "follow" and plan.reasons.get(p) == "touches the skin"
 
 
 def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: np.ndarray, names: Sequence[str],
@@ -325,9 +345,10 @@ def _teeth_rows(V, lab, plan, diag, sheets=()):
     that minimises the spread within the groups, Otsu's), the lower with the jaw, the upper with the skull.
     Used where both rows have at least two parts and the groups lie at least 1 % of the diagonal apart
     (the sector alone misjudges rows on a hinge estimated from the skin: Face Cap's lower teeth).  ``sheets``
-    (:func:`_mouth_sheets`) join the split: in the upper row they stay with the skull (the lips in front of
-    them move with every mouth shape, the upper teeth do not), in the lower row they keep following the skin
-    (lower lip and teeth both move with the jaw)."""
+    (:func:`_mouth_sheets`) join the split: in the upper row they follow the skin only by its skull share
+    (:data:`UPPER_SHEET`: the upper lip's lip shapes, not the lower lip's ``jawOpen``; Ready Player Me's
+    artist moves them so), in the lower row they keep following the skin (lower lip and teeth both move with
+    the jaw)."""
     rigid = [p for p, k in plan.kinds.items() if k in ("jaw", "skull")] + list(sheets)
     if len(rigid) < 4:
         return
@@ -350,7 +371,7 @@ def _teeth_rows(V, lab, plan, diag, sheets=()):
         if p in sheets:
             if kind == "jaw":
                 continue
-            why = "lies behind the upper lip, in the upper row (stays with the skull)"
+            kind, why = "follow", UPPER_SHEET
         plan.kinds[p], plan.confidence[p], plan.reasons[p] = kind, sure, why
 
 
@@ -454,7 +475,11 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
     jaw_motion = _jaw_motions(V, lab, deltas, jaw, canon)                   # (k, 3, 3), (k, 3)
     follow = np.flatnonzero(np.isin(lab, [p for p, k in plan.kinds.items() if k == "follow"]))
     if follow.size:
-        deltas[:, follow] = _follow(V, _Skin(V, TT, lab), follow, deltas, jaw, jaw_motion)
+        upper = np.isin(lab[follow], [p for p, r in plan.reasons.items() if r == UPPER_SHEET])
+        radius = np.where(np.isin(lab[follow], [p for p in plan.kinds if _is_cavity(plan, p)]), CAVITY_RADIUS,
+                          FOLLOW_RADIUS)
+        deltas[:, follow] = _follow(V, _Skin(V, TT, lab), follow, deltas, jaw, jaw_motion,
+                                    _cavity_shares(V, plan, follow), upper, radius)
     frame = plan.frame if face_forward is None else None
     for p, kind in plan.kinds.items():
         idx = np.flatnonzero(lab == p)
@@ -496,13 +521,59 @@ def _jaw_motions(V, lab, deltas, jaw, canon=()):
     return R, t
 
 
-def _follow(V, skin, idx, deltas, jaw, jaw_motion):
-    """Surface binding of vertices ``idx`` to the skin, fading into their jaw share of the jaw motion."""
+def _cavity_shares(V, plan, idx):
+    """The jaw share (m,) of the mouth cavity's vertices among ``idx`` (NaN elsewhere): between the rows of
+    teeth, ``d_skull⁴ / (d_jaw⁴ + d_skull⁴)`` with ``d`` the distance to the nearest solid part of each row —
+    the floor of the mouth goes with the jaw, the roof stays with the skull, the throat between them half way
+    (ICT FaceKit's authored cavity is a blend of the jaw's rigid motion: 0.4 % error with the best share per
+    vertex; the fourth power, a narrow blend, takes the cavity's ``jaw*`` error from FBHead and Ready Player
+    Me to 0.39 and 0.26 of its authored motion, 0.48 and 0.39 with the first).  Only where both rows have
+    solid parts (``inside``: not a sheet of teeth on the lips) and for a cavity that holds them (at least half
+    their vertices inside its convex hull: Ready Player Me's is a strip of the mouth's floor holding a quarter
+    of them, carried by the skin it touches)."""
+    lab = plan.labels
+    out = np.full(idx.size, np.nan)
+    rows = [np.flatnonzero(np.isin(lab, [p for p, k in plan.kinds.items()
+                                         if k == kind and plan.reasons.get(p, "").startswith("inside")]))
+            for kind in ("jaw", "skull")]
+    if rows[0].size == 0 or rows[1].size == 0:
+        return out
+    teeth = V[np.concatenate(rows)]
+    on = np.isin(lab[idx], [p for p in plan.kinds if _is_cavity(plan, p) and _holds(V[lab == p], teeth)])
+    if not on.any():
+        return out
+    dj, _ = cKDTree(V[rows[0]]).query(V[idx[on]])
+    dk, _ = cKDTree(V[rows[1]]).query(V[idx[on]])
+    out[on] = dk ** 4 / np.maximum(dj ** 4 + dk ** 4, 1e-300)
+    return out
+
+
+def _holds(P, Q):
+    """Whether at least half the points ``Q`` (m, 3) lie inside the convex hull of ``P`` (n, 3)."""
+    try:
+        return bool(np.mean(Delaunay(P).find_simplex(Q) >= 0) >= 0.5)
+    except (QhullError, ValueError):
+        return False
+
+
+def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None, upper=None, radius=FOLLOW_RADIUS):
+    """Surface binding of vertices ``idx`` to the skin, fading into their jaw share of the jaw motion (the
+    skin's under them, or ``shares`` (m,) where not NaN: :func:`_cavity_shares`).  ``upper`` (m,) bool: upper
+    teeth sheets, bound to the skin by its skull share ``1 − jaw`` and never carried by the jaw (Ready Player
+    Me's artist moves them with the upper lip in the lip shapes — ``mouthFunnel``, ``mouthPucker`` — not with
+    the lower lip's ``jawOpen`` and ``mouthClose``).  ``radius``: the binding's falloff, × the diagonal (scalar
+    or (m,))."""
     tri, bary, point, dist = skin.closest(V[idx])
     ST = skin.tris
     diag = max(bbox_diagonal(V), 1e-300)
-    w = np.exp(-(dist / (FOLLOW_RADIUS * diag)) ** 2)
+    w = np.exp(-(dist / (radius * diag)) ** 2)
     share = np.sum(bary * jaw[ST[tri]], axis=1)
+    if shares is not None:
+        share = np.where(np.isnan(shares), share, shares)
+    keep = np.ones(idx.size)
+    if upper is not None:
+        keep = np.where(upper, 1.0 - share, 1.0)
+        share = np.where(upper, 0.0, share)
     used = ST[tri]                                                      # (m, 3) skin vertices
     uniq, inv = np.unique(tri, return_inverse=True)
     F0inv = _inverse_frames(frames(V, ST[uniq]))
@@ -514,7 +585,7 @@ def _follow(V, skin, idx, deltas, jaw, jaw_motion):
         rot = _rotations(F0inv, frames(V + d, ST[uniq]))[inv]           # (m, 3, 3)
         bound = np.einsum("mj,mjc->mc", bary, d[used]) + np.einsum("mij,mj->mi", rot, off) - off
         rigid = (V[idx] @ R[s].T + t[s] - V[idx]) * share[:, None]
-        out[s] = w[:, None] * bound + (1.0 - w[:, None]) * rigid
+        out[s] = (w * keep)[:, None] * bound + (1.0 - w[:, None]) * rigid
     return out
 
 

@@ -109,9 +109,10 @@ def test_a_source_part_is_the_same_part_only_at_a_similar_extent(head):
     assert parts.propose_parts(V, T, lab, {lower: lower}, jaw, src_big, [lower]).kinds[lower] == "jaw"
 
 
-def test_a_sheet_of_upper_teeth_behind_the_lips_stays_with_the_skull(head):
+def test_a_sheet_of_upper_teeth_behind_the_lips_follows_the_upper_lip_not_the_jaw(head):
     """Teeth modelled as open sheets just behind the lips (Ready Player Me's) lie on the skin like a lash: the
-    upper row stays with the skull (the lips in front of it move in every mouth shape), not bound to the lips."""
+    upper row is not carried by the jaw (in ``jawOpen`` it moves far less than the skin in front of it) and
+    goes with the upper lip in a lip shape (Ready Player Me's artist moves it in ``mouthFunnel``)."""
     V0, T0, _, _, _, _ = head
     skin_eye = int(np.flatnonzero(parts.triangle_parts(len(V0), T0)[0] >= 2)[0])
     skin = (V0[:skin_eye], T0[np.all(T0 < skin_eye, axis=1)])
@@ -131,5 +132,86 @@ def test_a_sheet_of_upper_teeth_behind_the_lips_stays_with_the_skull(head):
     jaw[chin] = (V[chin] - pivot) @ rot.T + pivot - V[chin]
     plan = parts.propose_parts(V, T, lab, None, jaw)
     s = int(lab[len(skin[0])])                                   # the sheet follows skin and eye
-    assert "lies behind the upper lip" in plan.reasons[s] and plan.kinds[s] == "skull"
+    assert "lies behind the upper lip" in plan.reasons[s] and plan.kinds[s] == "follow"
     assert all(plan.kinds[_part_of(V, lab, (x, -0.63, 0.7))] == "jaw" for x in (-0.12, 0.12))
+    lip = np.zeros_like(V)
+    upper_lip = (lab == 0) & (V[:, 1] > -0.3) & (V[:, 2] > 0.5)
+    lip[upper_lip] = [0.0, 0.0, 0.05]                                  # the upper lip pushed forward
+    out, _ = parts.move_parts(plan, V, T, np.stack([jaw, lip]), ["jawOpen", "mouthFunnel"])
+    sheet = np.flatnonzero(lab == s)
+    top = sheet[np.argmax(V[sheet, 1])]                                 # the sheet's vertex on the upper lip
+    assert out[1, top, 2] > 0.9 * 0.05 and np.abs(out[1, top, :2]).max() < 0.1 * 0.05
+    assert np.linalg.norm(out[0, sheet], axis=1).max() < 0.1 * np.linalg.norm(jaw[lab == 0], axis=1).max()
+
+
+def _cavity_head():
+    """Skin (radius 1) and a mouth cavity: the back of a sphere of radius 0.25 whose open rim reaches the lips
+    (an open bag touching the skin, on the mirror plane)."""
+    skin = _sphere(20, 32, nose=True)
+    V, T = _sphere(8, 12, r=0.25, centre=(0.0, -0.45, 0.72))
+    T = T[np.all(V[T][:, :, 2] < 0.85, axis=1)]
+    used, inv = np.unique(T, return_inverse=True)
+    V, T = _assemble(skin, (V[used], inv.reshape(-1, 3)))
+    lab, _ = parts.triangle_parts(len(V), T)
+    return V, T, lab, _part_of(V, lab, (0.0, -0.45, 0.47))
+
+
+@pytest.mark.parametrize("kind, reason, extent, same", [
+    ("jaw", "inside, in the lower row (moves with the jaw)", 0.16, True),      # Face Cap: a closed bag
+    ("follow", "touches the skin", 0.2, True),                                  # an open bag like the target's
+    ("follow", "lies on the skin", 0.16, False),                                # a sheet of teeth (Ready Player Me)
+    ("jaw", "inside, in the lower row (moves with the jaw)", 0.04, False)])     # a tongue: too small
+def test_a_mouth_cavity_takes_the_source_cavitys_motion_open_or_closed(kind, reason, extent, same):
+    V, T, lab, cav = _cavity_head()
+    plan = parts.propose_parts(V, T, lab)
+    assert plan.kinds[cav] == "follow" and plan.reasons[cav] == "touches the skin"
+    ext = plan.extents[cav]
+    assert 0.1 < ext < 0.3
+    source = parts.PartPlan(np.zeros(1, int), {0: "skin", 5: kind}, {0: 1.0, 5: 1.0}, {0: "", 5: reason},
+                            extents={5: extent})
+    out = parts.propose_parts(V, T, lab, {cav: 5}, None, source, [5])
+    assert (out.kinds[cav] == "source") == same
+
+
+def test_a_mouth_cavity_holding_the_teeth_opens_its_floor_with_the_jaw_and_keeps_its_roof():
+    """A mouth bag (open at the lips, holding lower teeth near its floor and upper teeth near its roof) in a
+    ``jawOpen`` that turns the chin 15°: the floor beside the lower teeth goes with the jaw's rotation, the roof
+    beside the upper teeth stays (the skin nearest both is the moving chin's)."""
+    skin = _sphere(20, 32, nose=True)
+    B, BT = _sphere(10, 16, r=0.32, centre=(0.0, -0.35, 0.68))
+    BT = BT[np.all(np.linalg.norm(B[BT], axis=2) < 1.05, axis=1)]            # cut open where it meets the skin
+    used, inv = np.unique(BT, return_inverse=True)
+    lower = _sphere(4, 8, r=0.1, centre=(0.0, -0.55, 0.6), scale=(1.0, 0.4, 0.6))
+    upper = _sphere(4, 8, r=0.1, centre=(0.0, -0.15, 0.6), scale=(1.0, 0.4, 0.6))
+    V, T = _assemble(skin, (B[used], inv.reshape(-1, 3)), lower, upper)
+    lab, _ = parts.triangle_parts(len(V), T)
+    rot = Rotation.from_euler("x", 15, degrees=True).as_matrix()
+    pivot = np.array([0.0, 0.0, -0.3])
+    turned = (V - pivot) @ rot.T + pivot - V
+    jaw = np.where(((lab == 0) & (V[:, 1] < -0.3) & (V[:, 2] > 0.0))[:, None], turned, 0.0)
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    cav = _part_of(V, lab, (0.0, -0.35, 0.36))
+    assert plan.kinds[cav] == "follow" and plan.reasons[cav] == "touches the skin"
+    out, _ = parts.move_parts(plan, V, T, jaw[None].copy(), ["jawOpen"])
+    bag = np.flatnonzero(lab == cav)
+    floor = bag[np.argmin(np.linalg.norm(V[bag] - (0.0, -0.65, 0.6), axis=1))]
+    roof = bag[np.argmin(np.linalg.norm(V[bag] - (0.0, -0.05, 0.6), axis=1))]
+    assert np.linalg.norm(out[0, floor] - turned[floor]) < 0.2 * np.linalg.norm(turned[floor])
+    assert np.linalg.norm(out[0, roof]) < 0.2 * np.linalg.norm(turned[roof])
+
+
+def test_a_lip_shape_moves_the_cavity_at_the_lips_only():
+    """A lip shape (the skin pushed forward, no jaw) moves the mouth cavity where it touches the lips and not a
+    centimetre inside (ICT FaceKit's artist: the lips' motion stays at the lips): a cavity vertex 1 % of the
+    head's diagonal from the skin moves by less than a tenth of the lips' motion."""
+    V, T, lab, cav = _cavity_head()
+    plan = parts.propose_parts(V, T, lab)
+    lip = np.where(((lab == 0) & (V[:, 2] > 0.5))[:, None], [0.0, 0.0, 0.05], 0.0)
+    out, _ = parts.move_parts(plan, V, T, lip[None].copy(), ["mouthFunnel"])
+    bag = np.flatnonzero(lab == cav)
+    _, _, _, dist = parts._Skin(V, T, lab).closest(V[bag])
+    diag = parts.bbox_diagonal(V)
+    touching, inside = dist < parts.TOUCH * diag, dist > 0.01 * diag
+    assert touching.any() and inside.any()
+    assert np.linalg.norm(out[0, bag[touching]], axis=1).min() > 0.7 * 0.05
+    assert np.linalg.norm(out[0, bag[inside]], axis=1).max() < 0.1 * 0.05
