@@ -89,6 +89,27 @@ def candidates(face, arm) -> tuple:
     return [ch for ch in chans if not ch.locked and ch.lo < ch.hi], locked, held
 
 
+def probe_candidates(face, arm) -> tuple:
+    """:func:`candidates` and their :class:`ControlSet`: ``(channels, locked, held, controls)``; refused, naming the
+    face, when there is nothing to probe."""
+    chans, locked, held = candidates(face, arm)
+    if not chans:
+        raise ShapeSpaceError(f"{face.name!r} has no channels to probe (no visible bones, shape keys or driven "
+                              "properties)", ErrorCode.NO_CHANNELS)
+    return chans, locked, held, ControlSet(tuple(chans))
+
+
+def checked_rest(face, ev) -> np.ndarray:
+    """The evaluator's rest evaluation (:meth:`RigEvaluator.check_rig`), refused naming the first vertex that is not
+    finite."""
+    rest = ev.check_rig()
+    bad = np.flatnonzero(~np.isfinite(rest).all(1))
+    if bad.size:
+        raise ShapeSpaceError(f"{face.name!r}: evaluated vertex {int(bad[0])} is not finite (NaN or infinite "
+                              "coordinates, shape keys or drivers)", ErrorCode.NON_FINITE)
+    return rest
+
+
 def propose(face, arm=None, progress=None) -> tuple:
     """Probe the candidates of ``face`` (and the armature ``arm``) through Blender's evaluation (``progress``:
     :mod:`core.progress`, per channel probed).
@@ -100,17 +121,9 @@ def propose(face, arm=None, progress=None) -> tuple:
     """
     if face is None or face.type != "MESH":
         raise ShapeSpaceError(f"{getattr(face, 'name', face)!r} is not a mesh object", ErrorCode.NOT_MESH)
-    chans, locked, held = candidates(face, arm)
-    if not chans:
-        raise ShapeSpaceError(f"{face.name!r} has no channels to probe (no visible bones, shape keys or driven "
-                              "properties)", ErrorCode.NO_CHANNELS)
-    controls = ControlSet(tuple(chans))
+    chans, locked, held, controls = probe_candidates(face, arm)
     with RigEvaluator(face, controls, [0], check=False) as ev:
-        rest = ev.check_rig()
-        bad = np.flatnonzero(~np.isfinite(rest).all(1))
-        if bad.size:
-            raise ShapeSpaceError(f"{face.name!r}: evaluated vertex {int(bad[0])} is not finite (NaN or infinite "
-                                  "coordinates, shape keys or drivers)", ErrorCode.NON_FINITE)
+        rest = checked_rest(face, ev)
         lo, hi = controls.solve_bounds(ev.c0)
         amounts, _ = ev.probe(rest, lo, hi, measure=deformation, progress=progress, either_side=True)
         report = rank_channels(controls.names, amounts, ev.diagonal, locked=locked, held=held)

@@ -38,7 +38,7 @@ from . import stored
 from .capture import capture_weights, sample_vertices
 from .channels import bind
 from .evaluate import RigEvaluator, check_editable
-from .proposal import candidates
+from .proposal import checked_rest, probe_candidates
 from .take import TakeOutcome, compute_take, rest_controls, shape_key_targets, write_take
 
 __all__ = ["PROBE_CHUNK", "RETARGET_RUNS", "RUN_FRAMES_PER_CHANNEL", "SteppedJob", "finish_proposal",
@@ -148,17 +148,9 @@ def proposal_steps(face, arm=None, chunk: int = PROBE_CHUNK):
     """Generator: :func:`bridge.rig.proposal.propose` a ``chunk`` of channels per step (yields the fraction probed);
     returns ``(ProposalReport, proposed channels)``.  Nothing is written; the rig is left exactly as it was."""
     _check_proposal(face, arm)
-    chans, locked, held = candidates(face, arm)
-    if not chans:
-        raise ShapeSpaceError(f"{face.name!r} has no channels to probe (no visible bones, shape keys or driven "
-                              "properties)", ErrorCode.NO_CHANNELS)
-    controls = ControlSet(tuple(chans))
+    chans, locked, held, controls = probe_candidates(face, arm)
     with RigEvaluator(face, controls, [0], check=False) as ev:
-        rest = ev.check_rig()
-        bad = np.flatnonzero(~np.isfinite(rest).all(1))
-        if bad.size:
-            raise ShapeSpaceError(f"{face.name!r}: evaluated vertex {int(bad[0])} is not finite (NaN or infinite "
-                                  "coordinates, shape keys or drivers)", ErrorCode.NON_FINITE)
+        rest = checked_rest(face, ev)
         lo, hi = controls.solve_bounds(ev.c0)
         amounts = np.zeros(len(chans))
         yield 0.0

@@ -11,10 +11,10 @@ updates whatever the capture does:
 
 - the frame starts from the previous frame's controls, their verified evaluation and the previous Jacobian
   (a stream is smooth: the previous frame is a good start and its Jacobian still holds);
-- each trial step is the bounded Levenberg–Marquardt step on the carried Jacobian (the dense primal–dual active
-  set, :func:`core.boxqp.active_set_dense`, SciPy's bounded least squares as fallback), verified by one rig
-  evaluation and accepted only when the objective does not increase; every evaluation corrects the Jacobian by
-  Broyden's rank-one update (:func:`core.rig.solve.broyden_update`);
+- each trial step is the bounded Levenberg–Marquardt step on the carried Jacobian (the drag's step,
+  :func:`core.rig.solve.bounded_step`: a primal active set, SciPy's bounded least squares as fallback), verified
+  by one rig evaluation and accepted only when the objective does not increase; every evaluation corrects the
+  Jacobian by Broyden's rank-one update (:func:`core.rig.solve.broyden_update`);
 - when a frame has converged short of every pin (the Gauss–Newton step moves no pin by more than ``xtol``, or
   no step predicts a decrease), the next frame starts by refreshing the Jacobian's columns at these controls by
   forward differences, in turn: one, or all the budget but one evaluation when the Jacobian shows it is stale (a
@@ -34,13 +34,11 @@ from typing import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import lsq_linear
 
 from ..blas_threads import single_threaded
-from ..boxqp import active_set_dense
 from ..errors import ErrorCode
 from ..result import Result, ShapeSpaceError, Status
-from .solve import broyden_update
+from .solve import bounded_step, broyden_update
 
 __all__ = ["LiveRigFrame", "LiveRigSolver", "ridge_unit"]
 
@@ -84,31 +82,6 @@ def ridge_unit(J: np.ndarray, scale: ArrayLike) -> float:
     (3p, n) and natural scales ``s`` (n,), so ``μ = reg · unit`` weighs the ridge like a take's."""
     s = np.asarray(scale, dtype=np.float64)
     return float(np.einsum("ij,ij->", J, J)) / J.shape[1] / float(np.mean(s * s))
-
-
-def _bounded_step(J, e, reg_w, c, ref, lam, D2, lo, hi):
-    """argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c (the unconstrained minimiser
-    when it lies in the box, else the dense active set, else SciPy's bounded least squares)."""
-    H = J.T @ J + np.diag(reg_w + lam * D2)
-    g = -(J.T @ e) - reg_w * (c - ref)
-    dlo, dhi = lo - c, hi - c
-    try:
-        d = np.linalg.solve(H, g)
-        if np.all((d >= dlo) & (d <= dhi)):
-            return d
-        d, _ = active_set_dense(H, g, dlo, dhi, np.clip(np.zeros_like(c), dlo, dhi),
-                                np.zeros(c.size, bool), np.zeros(c.size, bool))
-    except np.linalg.LinAlgError:
-        d = None
-    if d is None:
-        a = np.sqrt(reg_w + lam * D2)
-        A = np.vstack([J, np.diag(a)])
-        b = np.concatenate([-e, -reg_w * (c - ref) / np.where(a > 0, a, 1.0)])
-        free = dhi > dlo
-        d = np.zeros_like(c)
-        if free.any():
-            d[free] = lsq_linear(A[:, free], b, bounds=(dlo[free], dhi[free]), method="bvls").x
-    return np.clip(d, dlo, dhi)
 
 
 class LiveRigSolver:
@@ -183,10 +156,10 @@ class LiveRigSolver:
             return "every pin within tolerance", None
         J, c = self.J, self.c
         D2 = np.maximum(np.einsum("ij,ij->j", J, J) + self.reg_w, 1e-12 * np.max(self.s * self.s))
-        d_gn = _bounded_step(J, e, self.reg_w, c, self.ref, 1e-9, D2, self.lo, self.hi)
+        d_gn = bounded_step(J, e, self.reg_w, c, self.ref, 1e-9, D2, self.lo, self.hi)
         if self.xtol > 0 and np.max(np.linalg.norm((J @ d_gn).reshape(-1, 3), axis=1)) <= self.xtol:
             return "the Gauss–Newton step moves no pin by more than xtol", None
-        d = d_gn if self.lam <= 1e-9 else _bounded_step(J, e, self.reg_w, c, self.ref, self.lam, D2, self.lo,
+        d = d_gn if self.lam <= 1e-9 else bounded_step(J, e, self.reg_w, c, self.ref, self.lam, D2, self.lo,
                                                          self.hi)
         r = e + J @ d
         pred = f - float(r @ r + np.sum(self.reg_w * (c + d - self.ref) ** 2))

@@ -50,7 +50,8 @@ from scipy.optimize import lsq_linear
 from ..errors import ErrorCode
 from ..result import Result, ShapeSpaceError, Status
 
-__all__ = ["RigSolveResult", "box_qp_primal", "broyden_update", "finite_difference_jacobian", "solve_controls"]
+__all__ = ["RigSolveResult", "bounded_step", "box_qp_primal", "broyden_update", "finite_difference_jacobian",
+           "solve_controls"]
 
 
 @dataclass(kw_only=True)
@@ -203,7 +204,7 @@ def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
 _GN_LAMBDA = 1e-9
 
 
-def _step(J, e, reg_w, c, ref, lam, D2, lo, hi, held=None):
+def bounded_step(J, e, reg_w, c, ref, lam, D2, lo, hi, held=None):
     """The bounded LM step: argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c
     (``held``: (at lo, at hi) (n,) bool of a previous step's end point, a warm start)."""
     H = J.T @ J + np.diag(reg_w + lam * D2)
@@ -428,7 +429,7 @@ class _LevenbergMarquardt:
     def step(self, lam):
         """The bounded LM step for ``lam`` from the current controls, warm-started from the last step's active
         sets (which it updates)."""
-        d = _step(self.J, self.e, self.reg_w, self.c, self.ref, lam, self.D2, self.lo, self.hi, self.held)
+        d = bounded_step(self.J, self.e, self.reg_w, self.c, self.ref, lam, self.D2, self.lo, self.hi, self.held)
         x = self.c + d
         self.held = (x <= self.lo) & (self.hi > self.lo), x >= self.hi
         return d
