@@ -204,7 +204,8 @@ def box_qp_primal(H: np.ndarray, g: np.ndarray, lo: np.ndarray, hi: np.ndarray, 
 _GN_LAMBDA = 1e-9
 
 
-def bounded_step(J, e, reg_w, c, ref, lam, D2, lo, hi, held=None):
+def bounded_step(J: np.ndarray, e: np.ndarray, reg_w: np.ndarray, c: np.ndarray, ref: np.ndarray, lam: float,
+                 D2: np.ndarray, lo: np.ndarray, hi: np.ndarray, held: tuple | None = None) -> np.ndarray:
     """The bounded LM step: argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c
     (``held``: (at lo, at hi) (n,) bool of a previous step's end point, a warm start)."""
     H = J.T @ J + np.diag(reg_w + lam * D2)
