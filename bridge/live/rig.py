@@ -21,12 +21,12 @@ from ...core.headpose import BoneSpec, bone_values
 from ...core.live import (
     FACECAP_52,
     LLF_BLENDSHAPES,
+    CalibratedInput,
     CopySolver,
     GeometricSolver,
     LearnedSolver,
     Neutral,
     OneEuroFilter,
-    calibrate,
 )
 from ...core.names import match_channels
 from ...core.result import ShapeSpaceError
@@ -53,7 +53,7 @@ BoneTarget = BoneSpec
 
 
 @dataclass
-class Pipeline:
+class Pipeline(CalibratedInput):
     """What one frame goes through: calibrate → filter → solve → write.
 
     Attributes
@@ -85,17 +85,6 @@ class Pipeline:
     smoothing: OneEuroFilter | None = None
     neutral: Neutral | None = None
 
-    def process(self, vector: np.ndarray, time: float) -> np.ndarray:
-        """A raw frame vector (n + 9,) calibrated and smoothed."""
-        v = calibrate(vector, self.neutral)
-        return self.smoothing(v, time) if self.smoothing is not None else v
-
-    def calibrate_to(self, raw: np.ndarray) -> None:
-        """Make ``raw`` (an uncalibrated frame vector) the rest frame; the smoothing starts afresh."""
-        self.neutral = Neutral.from_vector(raw, self.n_source)
-        if self.smoothing is not None:
-            self.smoothing.reset()
-
     def solve(self, vector: np.ndarray) -> tuple:
         """Sliders (n_target,) and ``{bone: values in its rotation mode}`` for a processed vector."""
         n = self.n_source
@@ -113,13 +102,7 @@ class Pipeline:
         with RIGS.own_update(obj):          # ShapeSpace's own writes: no checksum at the next drag on this rig
             shapekeys.write_slider_values(obj, self.slider_names, sliders)
             if bones:
-                arm = bpy.data.objects.get(self.armature)
-                if arm is None or arm.type != "ARMATURE":
-                    return f"the armature {self.armature!r} was deleted"
-                for b in self.bones:
-                    pb = arm.pose.bones.get(b.name)
-                    if pb is not None:
-                        setattr(pb, b.channel[0], bones[b.name])
+                return retarget.write_pose_bones(self.armature, self.bones, bones)
         return ""
 
 

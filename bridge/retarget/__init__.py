@@ -48,6 +48,7 @@ from .sources import (
                       read_capture_source,
                       read_source,
                       suggest_key_poses,
+                      write_pose_bones,
 )
 
 __all__ = ["METHODS", "KEY_SHAPES", "read_source", "read_capture_source", "is_capture_file",
@@ -58,6 +59,7 @@ __all__ = ["METHODS", "KEY_SHAPES", "read_source", "read_capture_source", "is_ca
            "stored_mapping", "set_mapping", "remove_mapping", "landmark_pairs", "mesh_sequence",
            "dense_source_positions", "add_landmark", "landmarks_from_shapes", "selected_vertex",
            # names other modules and the tests use
-           "CAPTURE_EXTENSIONS", "KEY_POSE_MARKER", "HeadEyeBones", "bone_specs", "NONLINEAR_MESSAGE",
+           "CAPTURE_EXTENSIONS", "KEY_POSE_MARKER", "HeadEyeBones", "bone_specs",
+           "write_pose_bones", "NONLINEAR_MESSAGE",
            "MAPPING_PROP", "MAPPING_SCHEMA", "MAX_MAPPING_VALUE", "LAST_PROP", "LAST_SCHEMA", "REPORT_KEYS",
            "LANDMARK_PREFIX", "STABLE_GROUP"]

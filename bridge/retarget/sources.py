@@ -27,7 +27,8 @@ from ...core.retarget import (
 )
 from .. import actions
 
-__all__ = ["KEY_POSE_MARKER", "CAPTURE_EXTENSIONS", "is_capture_file", "read_source", "read_capture_source",
+__all__ = ["write_pose_bones",
+           "KEY_POSE_MARKER", "CAPTURE_EXTENSIONS", "is_capture_file", "read_source", "read_capture_source",
            "bone_specs", "HeadEyeBones", "read_head_eye_bones", "suggest_key_poses", "read_learned"]
 
 KEY_POSE_MARKER = "key pose"
@@ -122,6 +123,19 @@ def bone_specs(arm, head: str = "", neck: str = "", eye_left: str = "", eye_righ
         rest = np.array(bone.matrix_local.to_3x3().normalized(), dtype=np.float64)
         bones.append(BoneSpec(name, part, s, rest, pb.rotation_mode))
     return bones
+
+
+def write_pose_bones(armature: str, bones: list, values: dict) -> str:
+    """Set each of ``bones`` (:class:`core.headpose.BoneSpec`) on armature object ``armature`` to ``values[name]``
+    in its rotation mode (the live session's per-frame write); '' or why nothing could be written."""
+    arm = bpy.data.objects.get(armature)
+    if arm is None or arm.type != "ARMATURE":
+        return f"the armature {armature!r} was deleted"
+    for b in bones:
+        pb = arm.pose.bones.get(b.name)
+        if pb is not None:
+            setattr(pb, b.channel[0], values[b.name])
+    return ""
 
 
 @dataclass

@@ -39,12 +39,12 @@ import numpy as np
 from ...core.blas_threads import single_threaded
 from ...core.errors import ErrorCode
 from ...core.headpose import bone_values
-from ...core.live import FACECAP_52, LLF_BLENDSHAPES, Neutral, OneEuroFilter, calibrate
+from ...core.live import FACECAP_52, LLF_BLENDSHAPES, CalibratedInput, OneEuroFilter
 from ...core.result import ShapeSpaceError
 from ...core.retarget import split_mapping
 from ...core.rig import ChannelKind, LiveRigSolver, quaternion_from_rotation_vector, ridge_unit
 from .. import actions
-from ..retarget import bone_specs
+from ..retarget import bone_specs, write_pose_bones
 from ..retarget.mapping import resolve_mapping
 from . import stored
 from .capture import sample_vertices
@@ -125,7 +125,7 @@ class _Targets:
         return self.base + (w @ self.deltas).reshape(self.base.shape)
 
 
-class RigLivePipeline:
+class RigLivePipeline(CalibratedInput):
     """What one live frame goes through onto a rig's controls (module doc).
 
     Unlike the slider pipeline it keeps the open evaluator (its channel bindings) between frames: every frame
@@ -151,16 +151,6 @@ class RigLivePipeline:
     @property
     def budget(self) -> int:
         return self.solver.budget
-
-    def process(self, vector: np.ndarray, t: float) -> np.ndarray:
-        """A raw frame vector (n + 9,) calibrated and smoothed (as :class:`bridge.live.rig.Pipeline`)."""
-        v = calibrate(vector, self.neutral)
-        return self.smoothing(v, t) if self.smoothing is not None else v
-
-    def calibrate_to(self, raw: np.ndarray) -> None:
-        self.neutral = Neutral.from_vector(raw, self.n_source)
-        if self.smoothing is not None:
-            self.smoothing.reset()
 
     def _alive(self) -> str:
         for name, pointer in self.owners.items():
@@ -197,13 +187,7 @@ class RigLivePipeline:
         if self.last is None or not np.array_equal(controls, self.last.value):
             _write(self.ev.bindings, controls)
         if bones:
-            arm = bpy.data.objects.get(self.armature)
-            if arm is None or arm.type != "ARMATURE":
-                return f"the armature {self.armature!r} was deleted"
-            for b in self.bones:
-                pb = arm.pose.bones.get(b.name)
-                if pb is not None:
-                    setattr(pb, b.channel[0], bones[b.name])
+            return write_pose_bones(self.armature, self.bones, bones)
         return ""
 
     @property

@@ -12,6 +12,7 @@ Pure numpy/scipy and the standard library: the bridge runs the sockets, threads 
 """
 from .calibration import (
                           FACE_TO_ARMATURE,
+                          CalibratedInput,
                           Neutral,
                           bone_local,
                           calibrate,
@@ -59,7 +60,8 @@ __all__ = [
     "encode_llf", "decode_llf", "encode_ifacialmocap", "decode_ifacialmocap", "FaceCapAssembler",
     "quaternion_to_yaw_pitch_roll", "osc_bundle_messages", "check_osc_message",
     # filtering and calibration
-    "OneEuroFilter", "Neutral", "calibrate", "euler_matrix", "matrix_euler", "matrix_quaternion", "rotation_power",
+    "OneEuroFilter", "CalibratedInput", "Neutral",
+    "calibrate", "euler_matrix", "matrix_euler", "matrix_quaternion", "rotation_power",
     "face_to_armature", "bone_local", "FACE_TO_ARMATURE",
     # solvers and takes
     "CopySolver", "LearnedSolver", "GeometricSolver", "dense_box_qp", "SceneResampler",

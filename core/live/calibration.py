@@ -35,7 +35,8 @@ from ..result import ShapeSpaceError
 from ..validate import array
 from .frames import implausible_channel
 
-__all__ = ["Neutral", "calibrate", "euler_matrix", "matrix_euler", "matrix_quaternion", "rotation_power",
+__all__ = ["CalibratedInput", "Neutral",
+           "calibrate", "euler_matrix", "matrix_euler", "matrix_quaternion", "rotation_power",
            "face_to_armature", "bone_local", "FACE_TO_ARMATURE"]
 
 #: Largest rest weight a channel is calibrated from (a channel at rest ≥ this keeps its range).
@@ -85,3 +86,24 @@ def calibrate(vector: ArrayLike, neutral: Neutral | None) -> np.ndarray:
         sl = slice(n + 3 * k, n + 3 * k + 3)
         v[sl] = matrix_euler(R0.T @ euler_matrix(v[sl]))
     return v
+
+
+class CalibratedInput:
+    """What every live pipeline does to a raw frame before solving: calibrate it against the actor's rest frame,
+    then smooth it.  A mixin: the pipeline carries ``n_source`` (weights per frame), ``neutral``
+    (:class:`Neutral` or None) and ``smoothing`` (a :class:`core.live.OneEuroFilter` or None)."""
+
+    n_source: int
+    neutral: Neutral | None
+    smoothing: object
+
+    def process(self, vector: np.ndarray, time: float) -> np.ndarray:
+        """A raw frame vector (n + 9,) calibrated and smoothed."""
+        v = calibrate(vector, self.neutral)
+        return self.smoothing(v, time) if self.smoothing is not None else v
+
+    def calibrate_to(self, raw: np.ndarray) -> None:
+        """Make ``raw`` (an uncalibrated frame vector) the rest frame; the smoothing starts afresh."""
+        self.neutral = Neutral.from_vector(raw, self.n_source)
+        if self.smoothing is not None:
+            self.smoothing.reset()
