@@ -22,7 +22,7 @@ from .result import Issue, Result, ShapeSpaceError
 
 __all__ = [
     "SkinWeights", "ArmatureDeform", "SkinningRig", "bone_change_matrices",
-    "linear_blend_skinning", "dual_quaternion_skinning", "deform", "diagnose_weights",
+    "linear_blend_skinning", "normalised_weights", "dual_quaternion_skinning", "deform", "diagnose_weights",
     "matrix_to_quaternion", "matrix_to_dual_quaternion",
 ]
 
@@ -145,6 +145,32 @@ def bone_change_matrices(deformer: ArmatureDeform, pose: ArrayLike, mesh_world: 
     chan = pose @ np.linalg.inv(deformer.rest)
     to_arm = np.linalg.inv(deformer.armature_world) @ _as_mats(mesh_world, "mesh_world")
     return np.linalg.inv(to_arm) @ chan @ to_arm
+
+
+def normalised_weights(weights: SkinWeights, vertex_mask: ArrayLike | None = None) -> tuple:
+    """Each vertex's bone weights divided by their total, as Blender's linear blend skinning weighs them.
+
+    Parameters
+    ----------
+    weights : SkinWeights
+    vertex_mask : ndarray, shape (p,), optional
+        Modifier vertex-group mask.
+
+    Returns
+    -------
+    weights : ndarray, shape (p, k)
+        Normalised, times the mask; zero rows where the total is under :data:`MIN_CONTRIB` (Blender leaves those
+        vertices where they are).
+    bone_index : ndarray of int, shape (p, k)
+        The bone of each weight (empty slots point at bone 0 with weight 0).
+    """
+    w = weights.effective()
+    idx = np.where(weights.bone_index >= 0, weights.bone_index, 0)
+    contrib = w.sum(axis=1)
+    scale = np.where(contrib > MIN_CONTRIB, 1.0 / np.where(contrib > MIN_CONTRIB, contrib, 1.0), 0.0)
+    if vertex_mask is not None:
+        scale = scale * np.asarray(vertex_mask, dtype=np.float64)
+    return w * scale[:, None], idx
 
 
 def linear_blend_skinning(coords: ArrayLike, weights: SkinWeights, mats: ArrayLike,

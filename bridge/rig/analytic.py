@@ -31,7 +31,7 @@ import bpy
 import numpy as np
 
 from ...core.rig import ChannelKind, rotation_vector_from_quaternion
-from ...core.skinning import MIN_CONTRIB, SkinWeights, bone_change_matrices
+from ...core.skinning import SkinWeights, bone_change_matrices, normalised_weights
 from ..meshes import world_matrix
 from ..skin import armature_modifiers, check_skinning, pose_matrices, read_skinning
 
@@ -81,6 +81,8 @@ def analytic_refusal(mesh_obj, ids) -> str:
     return ""
 
 
+
+
 class ShapeKeyColumns:
     """Computes the analytic columns ``columns`` (k,) of an evaluator's control set at its current evaluation.
 
@@ -116,13 +118,8 @@ class ShapeKeyColumns:
             arm_eval = arm.evaluated_get(dg)
             d.armature_world = world_matrix(arm_eval)
             L = bone_change_matrices(d, pose_matrices(arm_eval), mesh_world)[:, :3, :3]
-            w = d.weights.effective()
-            idx = np.where(d.weights.bone_index >= 0, d.weights.bone_index, 0)
-            contrib = w.sum(axis=1)
-            scale = np.where(contrib > MIN_CONTRIB, 1.0 / np.where(contrib > MIN_CONTRIB, contrib, 1.0), 0.0)
-            if d.vertex_mask is not None:
-                scale = scale * d.vertex_mask
-            step = np.eye(3) + np.einsum("pk,pkij->pij", w * scale[:, None], L[idx] - np.eye(3))
+            wn, idx = normalised_weights(d.weights, d.vertex_mask)
+            step = np.eye(3) + np.einsum("pk,pkij->pij", wn, L[idx] - np.eye(3))
             A = step @ A
         return A
 
@@ -370,13 +367,7 @@ class BoneColumns:
         d.armature_world = world_matrix(arm_eval)
         pose = pose_matrices(arm_eval)
         C = bone_change_matrices(d, pose, mesh_world)
-        w = d.weights.effective()
-        idx = np.where(d.weights.bone_index >= 0, d.weights.bone_index, 0)
-        contrib = w.sum(axis=1)
-        scale = np.where(contrib > MIN_CONTRIB, 1.0 / np.where(contrib > MIN_CONTRIB, contrib, 1.0), 0.0)
-        if d.vertex_mask is not None:
-            scale = scale * d.vertex_mask
-        wn = w * scale[:, None]
+        wn, idx = normalised_weights(d.weights, d.vertex_mask)
         Cv = C[idx]                                                        # (p, k, 4, 4)
         A = np.eye(3) + np.einsum("pk,pkij->pij", wn, Cv[:, :, :3, :3] - np.eye(3))
         t = np.einsum("pk,pki->pi", wn, Cv[:, :, :3, 3])

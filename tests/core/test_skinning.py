@@ -13,6 +13,7 @@ from core.skinning import (
     dual_quaternion_skinning,
     linear_blend_skinning,
     matrix_to_quaternion,
+    normalised_weights,
 )
 
 ATOL = 1e-10
@@ -438,3 +439,21 @@ def test_errors():
     assert exc.value.code == "vertex_count"
     with pytest.raises(ShapeSpaceError):
         deform(np.zeros((3, 3)), rig, [np.eye(3)[None]])
+
+
+def test_normalised_weights_blend_as_linear_blend_skinning(rng):
+    """Σ_k w̃_pk (M_k v_p − v_p) with the normalised, masked weights is linear blend skinning's displacement; rows
+    below the contribution floor, and masked rows, do not move."""
+    p = 12
+    idx = rng.integers(-1, 4, size=(p, 3))
+    w = rng.uniform(0.0, 1.0, size=(p, 3))
+    w[0] = 0.0                                               # a vertex no bone holds
+    sw = SkinWeights(idx, w)
+    mats = np.stack([random_affine(rng) for _ in range(4)])
+    co = rng.normal(size=(p, 3))
+    mask = rng.uniform(0.0, 1.0, size=p)
+    wn, bone = normalised_weights(sw, mask)
+    moved = np.einsum("pkij,pj->pki", mats[bone][..., :3, :3], co) + mats[bone][..., :3, 3]
+    ours = co + np.einsum("pk,pki->pi", wn, moved - co[:, None, :])
+    np.testing.assert_allclose(ours, linear_blend_skinning(co, sw, mats, mask), atol=ATOL)
+    np.testing.assert_array_equal(wn[0], 0.0)
