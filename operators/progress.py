@@ -43,6 +43,10 @@ def status_text(context, text) -> None:
         workspace.status_text_set(text)
 
 
+#: Seconds of main-thread work per timer tick of a :class:`SteppedJobModal` (the UI stays responsive between).
+STEP_BUDGET = 0.05
+
+
 class JobModal:
     """Mixin for an operator that computes in a :class:`core.jobs.BackgroundJob` and writes on the main thread.
 
@@ -104,6 +108,25 @@ class JobModal:
             self._timer = None
             wm.progress_end()
             status_text(context, None)
+
+
+class SteppedJobModal(JobModal):
+    """Mixin for an operator whose job drives Blender's depsgraph and so runs on the main thread: a
+    :class:`bridge.rig.steps.SteppedJob`, stepped for :data:`STEP_BUDGET` seconds per modal timer tick (progress and
+    Esc from :class:`JobModal`), or run in one go with window-manager progress (:meth:`run_here`: scripts, redo, no
+    window)."""
+
+    def run_here(self, context, job):
+        """Step ``job`` to its end here, with window-manager progress; returns the job."""
+        with window_progress(context) as progress:
+            while not job.step():
+                progress(job.fraction)
+        return job
+
+    def modal(self, context, event):
+        if event.type == "TIMER" and not self._job.done:
+            self._job.step(STEP_BUDGET)
+        return JobModal.modal(self, context, event)
 
 
 class ThreeStepJob(JobModal):

@@ -2,9 +2,9 @@
 stored on the face (bones, custom properties, sliders), keyed on their datablocks' actions with key reduction.
 
 The solve evaluates the rig through Blender's depsgraph (main thread only): from the UI the job is a
-:class:`bridge.rig.steps.SteppedJob` stepped by :class:`operators.progress.JobModal`'s timer (progress, Esc cancels,
-nothing written, the rig put back); scripts, redo and ``EXEC_DEFAULT`` run the same steps in one go.
-Per frame only: space-time onto rig controls is not available.
+:class:`bridge.rig.steps.SteppedJob` stepped by :class:`operators.progress.SteppedJobModal`'s timer (progress, Esc
+cancels, nothing written, the rig put back); scripts, redo and ``EXEC_DEFAULT`` run the same steps in one go.
+Per frame only here: the space-time and cloning routes are on the command line (``retarget --controls … --method``).
 """
 import os
 
@@ -12,14 +12,11 @@ import bpy
 
 from ...bridge.rig import steps, stored
 from ..polls import active_rig
-from ..progress import JobModal, window_progress
+from ..progress import SteppedJobModal
 from ..reporting import FAILED, attempt
 
-#: Seconds of solving per timer tick at least (one run of frames per tick).
-STEP_BUDGET = 0.05
 
-
-class SHAPESPACE_OT_retarget_controls(JobModal, bpy.types.Operator):
+class SHAPESPACE_OT_retarget_controls(SteppedJobModal, bpy.types.Operator):
     """Retarget a capture recording or a shape-key action onto the rig controls stored on the active face, per frame,
 into new actions on the armature (or other owners) with key reduction (Esc cancels; nothing is written then)"""
 
@@ -74,10 +71,7 @@ into new actions on the armature (or other owners) with key reduction (Esc cance
         plan = self._read(context)
         if plan is FAILED:
             return {"CANCELLED"}
-        job = self._start(context, plan)
-        with window_progress(context) as progress:
-            while not job.step():
-                progress(job.fraction)
+        job = self.run_here(context, self._start(context, plan))
         return self._done(attempt(self, steps.finish_retarget, job, plan[0], plan[2], self.key_tolerance))
 
     def invoke(self, context, event):
@@ -89,11 +83,6 @@ into new actions on the armature (or other owners) with key reduction (Esc cance
         self._plan = plan
         label = f"Retargeting {os.path.basename(str(plan[2]))} onto the rig controls of {plan[0].name} (per frame)"
         return self.start_job(context, self._start(context, plan), label)
-
-    def modal(self, context, event):
-        if event.type == "TIMER" and not self._job.done:
-            self._job.step(STEP_BUDGET)
-        return JobModal.modal(self, context, event)
 
     def job_finished(self, context, job):
         ob, _controls, source = self._plan

@@ -1,22 +1,19 @@
 """Propose Controls: probe what moves the face, a few channels per modal timer tick (Esc cancels, nothing written).
 
 Probing evaluates the rig through Blender's depsgraph, which only the main thread may drive: the job is a
-:class:`bridge.rig.steps.SteppedJob` stepped from the modal timer of :class:`operators.progress.JobModal` (progress
-on the cursor and in the status bar, Esc cancels and the rig is put back exactly).  Scripts, redo and
+:class:`bridge.rig.steps.SteppedJob` stepped from the modal timer of :class:`operators.progress.SteppedJobModal`
+(progress on the cursor and in the status bar, Esc cancels and the rig is put back exactly).  Scripts, redo and
 ``EXEC_DEFAULT`` run the same steps in one go with window-manager progress.
 """
 import bpy
 
 from ...bridge.rig import steps, stored
 from ..polls import control_face
-from ..progress import JobModal, window_progress
+from ..progress import SteppedJobModal
 from ..reporting import FAILED, attempt
 
-#: Seconds of probing per timer tick (the UI stays responsive in between).
-STEP_BUDGET = 0.05
 
-
-class SHAPESPACE_OT_propose_controls(JobModal, bpy.types.Operator):
+class SHAPESPACE_OT_propose_controls(SteppedJobModal, bpy.types.Operator):
     """Find the channels that move the face (bone rotation and location axes, shape-key sliders, custom properties
 drivers read), probing each through Blender's evaluation, and add them to the face's control set (Esc cancels;
 nothing is written then)"""
@@ -46,10 +43,7 @@ nothing is written then)"""
 
     def execute(self, context):
         face, arm = self._targets(context)
-        job = steps.start_proposal(face, arm)
-        with window_progress(context) as progress:
-            while not job.step():
-                progress(job.fraction)
+        job = self.run_here(context, steps.start_proposal(face, arm))
         return self._done(face, attempt(self, steps.finish_proposal, job, face, arm))
 
     def invoke(self, context, event):
@@ -58,11 +52,6 @@ nothing is written then)"""
         self._face, self._arm = self._targets(context)
         return self.start_job(context, steps.start_proposal(self._face, self._arm),
                               f"Proposing the controls of {self._face.name}")
-
-    def modal(self, context, event):
-        if event.type == "TIMER" and not self._job.done:
-            self._job.step(STEP_BUDGET)
-        return JobModal.modal(self, context, event)
 
     def job_finished(self, context, job):
         return self._done(self._face, attempt(self, steps.finish_proposal, job, self._face, self._arm))
