@@ -66,7 +66,7 @@ def _draw_onto_controls(layout, ob, st):
         return
     layout.prop(st, "csv_path" if st.source_kind == "CSV" else "action", text="")
     col = layout.column(align=True)
-    col.label(text="Method: per frame (space-time onto rig controls is not available yet)")
+    col.label(text="Method: per frame (space-time and cloning: retarget --controls on the command line)")
     col.prop(st, "rig_key_tolerance")
     op = layout.operator("shapespace.retarget_controls", icon="ACTION")
     op.filepath = bpy.path.abspath(st.csv_path) if st.source_kind == "CSV" else ""
