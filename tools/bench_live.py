@@ -11,6 +11,7 @@ with the viewport's depsgraph evaluation after every applied frame.
 """
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -87,7 +88,7 @@ def per_packet(bpy, name: str, method: str, reps: int) -> dict:
     target = _scene(bpy, name, method)
     pipeline = rig.build_pipeline(bpy.context.scene, bpy.context.scene.shapespace_live, target)
     packets = [d for _, d in live_replay.llf_packets(CSV)]
-    work, cpu, total = [], [], []
+    work, cpu, total, evaluation = [], [], [], []
     layer = bpy.context.view_layer
     for _ in range(reps):
         for data in packets:
@@ -102,10 +103,14 @@ def per_packet(bpy, name: str, method: str, reps: int) -> dict:
             work.append((t1 - t0) * 1e3)
             cpu.append((c1 - c0) * 1e3)
             total.append((t2 - t0) * 1e3)
+            evaluation.append((t2 - t1) * 1e3)
     key = f"{method}_{name}"
     return {f"live_ms_p50_{key}": float(np.percentile(work, 50)), f"live_ms_p99_{key}": float(np.percentile(work, 99)),
             f"live_total_ms_p50_{key}": float(np.percentile(total, 50)),
             f"live_total_ms_p99_{key}": float(np.percentile(total, 99)),
+            # Blender's own part of the total: the depsgraph evaluation of the written sliders and bones
+            f"live_blender_eval_ms_p50_{key}": float(np.percentile(evaluation, 50)),
+            f"live_blender_eval_ms_p99_{key}": float(np.percentile(evaluation, 99)),
             # CPU time of the main thread: the same work without the time the OS gave the core to others
             f"live_cpu_ms_p99_{key}": float(np.percentile(cpu, 99))}
 
@@ -182,7 +187,34 @@ def record_matches_offline(bpy) -> dict:
     return {"live_record_matches_offline_max_abs": worst}
 
 
-def run(quick: bool = False) -> dict:
+def one_core(reps: int) -> dict:
+    """The ICT FaceKit cases again in a child process confined to one CPU (Linux ``sched_setaffinity``).
+
+    On a virtual machine whose idle vCPUs halt (this one: Firecracker, cpuidle ``haltpoll`` with
+    ``guest_halt_poll_ns=0``), Blender's multithreaded depsgraph evaluation waits for the halted vCPU to wake
+    on every update: a 27k-vertex mesh with no active key evaluates in about 9 ms on two vCPUs and 0.8 ms on
+    one.  These keys (``…_one_core``) show the same packets without that wait; the goal keys are the
+    two-vCPU ones above.  Empty where the platform cannot confine a process.
+    """
+    if not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2:
+        return {}
+    cpu = min(os.sched_getaffinity(0))
+    cmd = [sys.executable, os.path.abspath(__file__), "--one-core", str(reps)]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=900, check=True,
+                         preexec_fn=lambda: os.sched_setaffinity(0, {cpu}))
+    return {f"{k}_one_core": v for k, v in json.loads(out.stdout.strip().splitlines()[-1]).items()}
+
+
+def _cases(bpy, names, reps: int) -> dict:
+    metrics = {}
+    for name in names:
+        for method in ("copy", "solve"):
+            metrics.update(per_packet(bpy, name, method, reps))
+    return metrics
+
+
+def _registered(fn):
+    """Run ``fn(bpy)`` with ShapeSpace registered in a throw-away Blender user folder."""
     import bpy
 
     import package
@@ -191,18 +223,29 @@ def run(quick: bool = False) -> dict:
     ss = package.load()
     ss.register()
     try:
-        metrics = {}
-        reps = 2 if quick else 6
-        for name in ("fbhead", "ict"):
-            for method in ("copy", "solve"):
-                metrics.update(per_packet(bpy, name, method, reps))
-        metrics.update(record_matches_offline(bpy))
-        metrics.update(dropped_60s(bpy))
-        goals = [metrics[k] <= 1.0 for k in metrics if k.startswith("live_ms_p50_")]
-        goals += [metrics[k] <= 3.0 for k in metrics if k.startswith("live_ms_p99_")]
-        goals += [metrics[k] <= 16.7 for k in metrics if k.startswith("live_total_ms_p99_")]
-        goals += [metrics["live_dropped_frac_60hz_60s"] == 0.0]
-        metrics["live_goals_met"] = float(sum(goals)) / len(goals)
-        return metrics
+        return fn(bpy)
     finally:
         ss.unregister()
+
+
+def run(quick: bool = False) -> dict:
+    return _registered(lambda bpy: _run(bpy, quick))
+
+
+def _run(bpy, quick: bool) -> dict:
+    reps = 2 if quick else 6
+    metrics = _cases(bpy, ("fbhead", "ict"), reps)
+    metrics.update(record_matches_offline(bpy))
+    metrics.update(dropped_60s(bpy))
+    goals = [metrics[k] <= 1.0 for k in metrics if k.startswith("live_ms_p50_")]
+    goals += [metrics[k] <= 3.0 for k in metrics if k.startswith("live_ms_p99_")]
+    goals += [metrics[k] <= 16.7 for k in metrics if k.startswith("live_total_ms_p99_")]
+    goals += [metrics["live_dropped_frac_60hz_60s"] == 0.0]
+    metrics["live_goals_met"] = float(sum(goals)) / len(goals)
+    metrics.update(one_core(reps))
+    return metrics
+
+
+if __name__ == "__main__" and sys.argv[1:2] == ["--one-core"]:
+    _metrics = _registered(lambda bpy: _cases(bpy, ("ict",), int(sys.argv[2])))
+    print(json.dumps({k: v for k, v in _metrics.items() if k.startswith("live_total_ms_")}))
