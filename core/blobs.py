@@ -138,6 +138,12 @@ LANDMARK_PAIRS = Blob("Object", "shapespace_landmarks", Schema(
 CONTROL_SET = Blob("Object", "shapespace_controls", Schema(
     "control set", 1, fields={"armature": "string", "channels": "list"}))
 
+#: The last retarget onto a face's rig controls (issue #25): what *Discard Result* needs to give every keyed
+#: datablock back its action and every channel its value (:mod:`bridge.rig.last_take`).
+RIG_RETARGET_LAST = Blob("Object", "shapespace_last_rig_retarget", Schema(
+    "last rig retarget", 1, fields={"channels": "list", "actions": "list", "values_before": "list",
+                                    "summary": "string"}))
+
 # ------------------------------------------------------------------ actions (Action)
 #: A live take's metadata (:mod:`bridge.live.recording`).
 LIVE_TAKE = Blob("Action", "shapespace_live_take", Schema(
@@ -168,7 +174,7 @@ EXAMPLE_FINAL_SHAPE = Blob("Example", "final_shape", Schema(
 
 #: Every stored blob, by owner.
 BLOBS = (DRIVEN, RETARGET_MAPPING, RETARGET_LAST, TRANSFER_LAST, REPRESENTATION, FACE_PRIOR, ANALYSIS,
-         MIRROR_MAP, NAMED_LANDMARKS, LANDMARK_PAIRS, CONTROL_SET, LIVE_TAKE,
+         MIRROR_MAP, NAMED_LANDMARKS, LANDMARK_PAIRS, CONTROL_SET, RIG_RETARGET_LAST, LIVE_TAKE,
          EXAMPLE_POSE, EXAMPLE_PSEUDO_POSE, EXAMPLE_TARGET_VALUES, EXAMPLE_FINAL_SHAPE)
 
 

@@ -1,7 +1,7 @@
 import bpy
 
 from ..bridge import retarget
-from ..bridge.rig import stored
+from ..bridge.rig import last_take, stored
 from ..core.result import ShapeSpaceError
 from ..core.retarget.report import format_ranges
 from .base import ShapeKeyPanel
@@ -72,10 +72,16 @@ def _draw_onto_controls(layout, ob, st):
     op.filepath = bpy.path.abspath(st.csv_path) if st.source_kind == "CSV" else ""
     op.action = st.action.name if st.source_kind == "ACTION" and st.action else ""
     op.key_tolerance = st.rig_key_tolerance
-    if st.rig_result:
+    try:
+        result = last_take.summary_of(ob)
+    except ShapeSpaceError as exc:          # damaged stored data: say so, never fail the draw
+        layout.label(text=str(exc), icon="ERROR")
+        return
+    if result:
         box = layout.box()
-        for part in st.rig_result.split("; "):
+        for part in result.split("; "):
             box.label(text=part)
+        box.operator("shapespace.discard_retarget", icon="LOOP_BACK")
 
 
 def _draw_bones(layout, st, op):

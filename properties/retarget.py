@@ -57,5 +57,3 @@ class SHAPESPACE_PG_retarget(bpy.types.PropertyGroup):
         name="Key Tolerance", default=0.0, min=0.0, max=0.01, precision=5, subtype="DISTANCE",
         description="Rig controls: keep the fewest keys whose surface stays within this distance of every frame "
                     "(0: a key on every frame)")
-    rig_result: bpy.props.StringProperty(name="Rig Result",
-                                         description="The last retarget onto this face's rig controls")

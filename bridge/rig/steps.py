@@ -38,6 +38,7 @@ from . import stored
 from .capture import capture_weights, sample_vertices
 from .channels import bind
 from .evaluate import RigEvaluator, check_editable
+from .last_take import remember, summary
 from .proposal import checked_rest, probe_candidates
 from .take import TakeOutcome, compute_take, rest_controls, shape_key_targets, write_take
 
@@ -241,23 +242,12 @@ def start_retarget(mesh_obj, controls: ControlSet, source, *, scene=None, action
 
 def finish_retarget(job: SteppedJob, mesh_obj, source, key_tolerance: float = 0.0):
     """Key a completed retarget (:func:`bridge.rig.take.write_take`, with key reduction in surface units), keep its
-    one-line summary for the Retarget panel (``Object.shapespace_retarget.rig_result``) and return its
+    one-line summary and what *Discard Result* needs on the face (:func:`bridge.rig.last_take.remember`) and return its
     :class:`~core.rig.RigTakeReport`; a cancelled job raises :class:`~core.progress.Cancelled`, writing nothing."""
     outcome, issues, names = job.result()
     report = write_take(outcome, key_tolerance)
     report.issues = list(issues) + report.issues
     report.source = str(getattr(source, "name", source))
     report.mapped_channels = len(names)
-    mesh_obj.shapespace_retarget.rig_result = summary(report)
+    remember(mesh_obj, report)
     return report
-
-
-def summary(report) -> str:
-    """One line for the user: the actions written, frames, surface error, keys kept, frames not converged."""
-    acts = ", ".join(a["action"] for a in report.actions) or "no action (nothing moved)"
-    text = (f"{acts}: {report.frames} frames onto {len(report.channels)} controls ({len(report.keyed_channels)} "
-            f"keyed), surface RMS {report.rms:.3g} (worst frame {report.rms_max:.3g}, scene units), "
-            f"{100 * report.key_fraction:.0f} % of the keys kept")
-    if report.not_converged:
-        text += f"; {len(report.not_converged)} frames not converged"
-    return text

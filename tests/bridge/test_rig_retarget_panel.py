@@ -13,7 +13,7 @@ import rigs
 from blender_support import blend_fingerprint, bpy, draw_panel
 from shapespace.bridge import actions
 from shapespace.bridge import rig as brig
-from shapespace.bridge.rig import steps, stored
+from shapespace.bridge.rig import last_take, steps, stored
 from shapespace.core.progress import Cancelled
 from support import shared
 from test_rig import _assert_same_state, _state
@@ -55,7 +55,7 @@ def test_panel_route_keys_the_take_on_the_armature_as_the_one_shot_route_does(re
     frames = np.unique(np.linspace(first, last, 9).round())
     diag = rigs.diagonal(rig.world_points())
     panel = _surfaces(rig, frames)
-    assert rig.mesh.shapespace_retarget.rig_result.startswith(", ".join(a["action"] for a in rep.actions))
+    assert last_take.summary_of(rig.mesh).startswith(", ".join(a["action"] for a in rep.actions))
     brig.restore_previous(rep, stored.control_set(rig.mesh))                   # back to before, then in one go
     one = brig.retarget_capture_onto_rig(rig.mesh, stored.control_set(rig.mesh), _csv(), action_name="one")
     assert rep.frames == one.frames and rep.keyed_channels == one.keyed_channels
@@ -82,7 +82,7 @@ def test_key_reduction_keeps_the_surface_within_the_tolerance(registered):
         [fc for fc in actions.action_fcurves(actions.active_action(rig.mesh.data.shape_keys))]
     # each keyed curve stays within the tolerance in surface units (write_take): their sum bounds the surface
     assert np.linalg.norm(_surfaces(rig, frames) - dense, axis=-1).max() <= 1.01 * tol * len(keyed)
-    assert "% of the keys kept" in rig.mesh.shapespace_retarget.rig_result
+    assert "% of the keys kept" in last_take.summary_of(rig.mesh)
 
 
 def test_esc_mid_way_leaves_rig_and_file_exactly_as_before(registered):
@@ -96,7 +96,7 @@ def test_esc_mid_way_leaves_rig_and_file_exactly_as_before(registered):
     with pytest.raises(Cancelled):
         steps.finish_retarget(job, rig.mesh, _csv())
     _assert_same_state(before, _state(rig))
-    assert blend_fingerprint() == fingerprint and rig.mesh.shapespace_retarget.rig_result == ""
+    assert blend_fingerprint() == fingerprint and not last_take.has_result(rig.mesh)
     assert bpy.context.scene.frame_current == 4
 
 
@@ -109,6 +109,54 @@ def test_panel_offers_the_route_and_the_operator_names_what_is_missing(registere
     assert ("operator", "shapespace.retarget_controls") in log.log
     assert any("per frame" in t and "space-time" in t for t in log.labels)
     assert ("operator", "shapespace.retarget") not in log.log
+    assert ("operator", "shapespace.discard_retarget") not in log.log          # nothing to discard yet
     stored.clear(rig.mesh)
     with pytest.raises(RuntimeError, match="has no control set"):
         bpy.ops.shapespace.retarget_controls(filepath=_csv())
+
+
+def _played(rig):
+    return (actions.active_action(rig.armature), actions.active_action(rig.mesh.data.shape_keys))
+
+
+def test_discard_result_gives_every_datablock_its_action_and_every_channel_its_value(registered):
+    from shapespace.panels.retarget import SHAPESPACE_PT_retarget
+    rig = _face()
+    first = bpy.data.actions.new("artist bones")
+    actions.assign_action(rig.armature, first)                                 # the armature played an action
+    frames = [1, 40, 90]
+    before_state, before_played = _state(rig), _played(rig)
+    before_surface = _surfaces(rig, frames)
+    assert bpy.ops.shapespace.retarget_controls(filepath=_csv()) == {"FINISHED"}
+    made = [a.name for a in _played(rig) if a is not None]
+    assert _played(rig) != before_played and last_take.has_result(rig.mesh)
+    st = rig.mesh.shapespace_retarget
+    st.target, st.csv_path = "CONTROLS", _csv()
+    assert ("operator", "shapespace.discard_retarget") in draw_panel(SHAPESPACE_PT_retarget, bpy.context).log
+    assert bpy.ops.shapespace.discard_retarget() == {"FINISHED"}
+    assert _played(rig) == before_played and not last_take.has_result(rig.mesh)
+    assert all(name not in bpy.data.actions for name in made)                  # the take's actions are deleted
+    bpy.context.scene.frame_set(1)
+    _assert_same_state(before_state, _state(rig))
+    diag = rigs.diagonal(rig.world_points())
+    assert np.abs(_surfaces(rig, frames) - before_surface).max() <= 1e-6 * diag   # as Blender evaluates it
+    with pytest.raises(RuntimeError, match="Nothing retargeted"):
+        bpy.ops.shapespace.discard_retarget()
+
+
+def test_discard_result_is_refused_by_name_when_the_rig_changed_and_changes_nothing(registered):
+    rig = _face()
+    assert bpy.ops.shapespace.retarget_controls(filepath=_csv()) == {"FINISHED"}
+    take_bones = actions.active_action(rig.armature)
+    other = bpy.data.actions.new("artist's edit")
+    actions.assign_action(rig.armature, other)                                 # the artist moved on
+    fingerprint = blend_fingerprint()
+    with pytest.raises(RuntimeError, match="no longer plays the take's action"):
+        bpy.ops.shapespace.discard_retarget()
+    assert blend_fingerprint() == fingerprint and last_take.has_result(rig.mesh)
+    actions.assign_action(rig.armature, take_bones)
+    stored.set_enabled(rig.mesh, 0, False)                      # a channel disabled since
+    fingerprint = blend_fingerprint()
+    with pytest.raises(RuntimeError, match="control set changed since the retarget"):
+        bpy.ops.shapespace.discard_retarget()
+    assert blend_fingerprint() == fingerprint
