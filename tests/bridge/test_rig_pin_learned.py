@@ -175,3 +175,39 @@ def test_a_prior_that_cannot_train_is_refused_by_name_before_anything_changes(re
         assert "'elsewhere'" in str(exc.value) and repr(ob.name) in str(exc.value)
     _assert_same_state(before[:3] + (before[3], before[4]), _state(rig)[:3] + (before[3], _state(rig)[4]))
     assert len(ob.shapespace.pins) == 0
+
+
+def _nan_key(rig):
+    action = _prior_action(rig, "broken")
+    fc = next(fc for fc in actions.fcurves(action, rig.armature) if "ctl_brow" in fc.data_path)
+    k = fc.keyframe_points[10]
+    k.co.y = k.handle_left.y = k.handle_right.y = float("nan")
+    return action
+
+
+def test_a_non_finite_key_in_the_prior_action_is_refused_by_name(registered):
+    rig = _learned_face(_nan_key)
+    ob = rig.mesh
+    before = _state(rig)
+    with pytest.raises(Exception) as exc:
+        tool.drag_for(ob)
+    assert "'broken'" in str(exc.value) and "'ctl_brow rotation X'" in str(exc.value), str(exc.value)
+    _assert_same_state(before, _state(rig))
+
+
+@pytest.mark.skipif(not actions.LAYERED, reason="one action for two datablocks needs slots (Blender 4.4+)")
+def test_one_slotted_action_keys_the_bones_and_the_shape_keys_of_a_hybrid_face(registered):
+    rig = _face("hybrid")
+    key = rig.mesh.data.shape_keys
+    t = (FRAMES - 1) / 39.0
+    action = actions.new_action(key, "both")
+    actions.write_curve(key, 'key_blocks["mouthSmile_L"].value', FRAMES, 0.5 + 0.4 * np.sin(3 * t))
+    actions.assign_action(rig.armature, action)
+    actions.write_curve(rig.armature, 'pose.bones["jaw"].rotation_euler', FRAMES, 0.2 * np.cos(2 * t), index=0)
+    assert len(action.slots) == 2
+    values, keyed = sample_action(rig.controls, action, FRAMES)
+    names = [ch.name for ch in rig.controls.channels]
+    assert {names[i] for i in np.flatnonzero(keyed)} == {"jaw rotation X", "key mouthSmile_L"}
+    for k in (0, 13, 39):
+        bpy.context.scene.frame_set(int(FRAMES[k]))
+        np.testing.assert_allclose(values[k], brig.read_controls(rig.controls), atol=1e-6)
