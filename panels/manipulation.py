@@ -1,5 +1,6 @@
 import bpy
 
+from ..bridge.rig import tool
 from .base import ShapeSpaceSidebar, shape_key_mesh
 
 
@@ -22,35 +23,43 @@ class SHAPESPACE_PT_direct(ShapeSpaceSidebar, bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        return shape_key_mesh(context)
+        return shape_key_mesh(context) or tool.uses_rig(context.active_object)
 
     def draw(self, context):
         layout = self.layout
         st = context.active_object.shapespace
+        rig = tool.uses_rig(context.active_object)       # dragged through its control set: α, prior, Symmetric
+        keys = shape_key_mesh(context)
         layout.row().prop(st, "mode", expand=True)
         if st.mode == "SLIDERS":
             layout.label(text="Animate with the Shape Keys sliders", icon="INFO")
             return
         col = layout.column(align=True)
         col.prop(st, "alpha")
-        col.prop(st, "mu")
+        if not rig:
+            col.prop(st, "mu")
         if st.mode == "LEARNED":
             box = layout.box()
             box.prop(st, "prior_action")
             row = box.row(align=True)
             row.prop(st, "prior_start")
             row.prop(st, "prior_end")
-            box.prop(st, "prior_form")
-            box.prop(st, "snap")
+            if not rig:
+                box.prop(st, "prior_form")
+                box.prop(st, "snap")
         row = layout.row(align=True)
         row.prop(st, "symmetric", icon="MOD_MIRROR")
-        row.operator("shapespace.mirror_pins", icon="MOD_MIRROR", text="Mirror Pins")
+        if keys:
+            row.operator("shapespace.mirror_pins", icon="MOD_MIRROR", text="Mirror Pins")
         layout.label(text="Pin tool: click and drag on the face", icon="RESTRICT_SELECT_OFF")
         layout.template_list("SHAPESPACE_UL_pins", "", st, "pins", st, "active_pin", rows=3)
         row = layout.row(align=True)
-        row.operator("shapespace.solve_pins", icon="PLAY")
+        if not rig:
+            row.operator("shapespace.solve_pins", icon="PLAY")
         row.operator("shapespace.remove_pin", icon="REMOVE", text="")
         row.operator("shapespace.clear_pins", icon="X", text="")
+        if not keys:
+            return
         row = layout.row(align=True)
         row.operator("shapespace.add_inbetween", icon="IPO_LINEAR")
         row.operator("shapespace.add_combination", icon="AUTOMERGE_OFF")

@@ -31,7 +31,7 @@ from .cache import RIGS, write_sliders
 from .surface import deform_map, evaluated_vertices, finite_point, world_to_local
 
 __all__ = ["PinState", "settings", "stored_pin", "read_pin_state", "read_pins", "check_pins", "pin_index", "add_pin",
-           "remove_pin", "clear_pins", "set_pin_target", "set_active_pin", "pin_target", "undo_drag",
+           "remove_pin", "clear_pins", "store_pin", "set_pin_target", "set_active_pin", "pin_target", "undo_drag",
            "to_shape_space", "deformed_to_shape_space", "deformed_pin_positions", "SPACES", "mirror_links",
            "mirror_partner", "mirror_plane", "mirror_pins", "overlay_points"]
 
@@ -239,19 +239,21 @@ def add_pin(obj, pin: Pin, target=None, stationary: bool = False, model: Blendsh
             else:
                 twin_target = pin_positions(model, [twin], model.values)[0]
             twin_target = finite_point(twin_target, "the mirror pin's position")
-    index = _store(obj, pin, target, stationary)
+    index = store_pin(obj, pin, target, stationary)
     if symmetric:
         if twin is None:
             settings(obj).pins[index].mirror_of = index
         else:
-            other = _store(obj, twin, twin_target, stationary)
+            other = store_pin(obj, twin, twin_target, stationary)
             settings(obj).pins[index].mirror_of = other
             settings(obj).pins[other].mirror_of = index
     settings(obj).active_pin = index
     return index
 
 
-def _store(obj, pin: Pin, target, stationary: bool) -> int:
+def store_pin(obj, pin: Pin, target, stationary: bool) -> int:
+    """Append ``pin`` with ``target`` (3,) as stored (no checks, no mirror link, not made active); returns its
+    index.  The verbs above check first; the Pin tool on a rig face (:mod:`bridge.rig.tool`) stores through it."""
     item = settings(obj).pins.add()
     v = list(pin.vertices) + [pin.vertices[0]] * (3 - len(pin.vertices))
     w = list(pin.weights) + [0.0] * (3 - len(pin.weights))
@@ -401,7 +403,7 @@ def mirror_pins(obj, model: BlendshapeModel | None = None) -> dict:
             st.pins[j].mirror_of, st.pins[other].mirror_of = other, j
             counts["linked"] += 2
         else:
-            new = _store(obj, other, target, bool(state.stationary[j]))
+            new = store_pin(obj, other, target, bool(state.stationary[j]))
             st.pins[j].mirror_of, st.pins[new].mirror_of = new, j
             counts["added"] += 1
     return counts

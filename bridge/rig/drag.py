@@ -29,6 +29,17 @@ and the last Jacobian of the pins.
   components); :meth:`RigDrag.cancel` writes every channel back exactly as it was at mouse-down.  Nothing is
   keyed by a move, a failure or a cancel; a move that fails puts the last accepted controls back.
 
+Two settings of the linear path carry over (thesis ch. 4):
+
+- *Learned* prior: ``prior_samples`` (f, n), the control channels per frame of the prior action
+  (:func:`sample_action`: the F-curves evaluated, not the depsgraph), train a Gaussian on the controls when the
+  drag begins (:func:`core.rig.prior.train_control_prior`, with the natural scales the evaluator measured and the
+  evaluated diagonal) and every solve minimises ``λ (x − μ)ᵀ Σ⁻¹ (x − μ)`` in place of the pull toward the
+  controls at mouse-down (:attr:`RigDrag.prior`).
+- *Symmetric*: ``begin(pins, mirror_map=...)`` also fits the face's current mirror plane in world space from the
+  evaluated positions of the map's vertex pairs (:func:`core.rig.mirror.fit_mirror_plane`; the face may be posed:
+  a turned head, a moved object) — :attr:`RigDrag.plane`, across which the Pin tool reflects a mirror pin's target.
+
 A pure shape-key face keeps the exact linear path of :mod:`bridge.manipulation.drag`.
 """
 from __future__ import annotations
@@ -36,23 +47,85 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from ...core.blendshape import NORMALISED_DIAGONAL
 from ...core.errors import ErrorCode
 from ...core.manipulation import Pin
 from ...core.manipulation.pins import _pin_arrays
 from ...core.result import ShapeSpaceError, Status
-from ...core.rig import ChannelKind, ControlSet, RigSolveResult, solve_controls
-from .. import actions
-from .channels import EULER_MODES
+from ...core.rig import ChannelKind, ControlSet, RigSolveResult, rotation_vector_from_quaternion, solve_controls
+from ...core.rig.mirror import fit_mirror_plane
+from ...core.rig.prior import train_control_prior
+from .. import actions, symmetry
+from .channels import EULER_MODES, bind
 from .evaluate import RigEvaluator
 from .take import CHANGED_REL_TOL, PIN_TOL_REL, _animated
 
-__all__ = ["RigDrag"]
+__all__ = ["RigDrag", "sample_action"]
 
 #: A move stops when the bounded Gauss–Newton step on the current (cached, Broyden-updated) Jacobian would move
 #: no pin by more than this fraction of the evaluated diagonal (a tenth of the recovery goal, 0.03 mm on a 30 cm
 #: head): a small mouse move then costs one or two rig evaluations instead of fresh Jacobians chasing a target the
 #: rig cannot reach exactly; the next move goes on from there.
 DRAG_XTOL_REL = 1e-4
+
+
+def _curve_table(action, idb) -> dict:
+    """``{(data path, index): F-Curve}`` of what ``action`` animates on ``idb`` (its slot on 4.4+; on 4.2 an
+    action meant for another ID type animates nothing here)."""
+    if not actions.LAYERED and getattr(action, "id_root", "") not in ("", idb.id_type):
+        return {}
+    return {(fc.data_path, fc.array_index): fc for fc in actions.fcurves(action, idb)}
+
+
+def _rotation_vectors(values: np.ndarray, attr: str) -> np.ndarray:
+    """Rotation vectors (f, 3) of quaternions or axis–angles (f, 4) sampled from F-curves."""
+    if attr == "rotation_quaternion":
+        return np.array([rotation_vector_from_quaternion(q) for q in values])
+    norm = np.linalg.norm(values[:, 1:], axis=1, keepdims=True)
+    return np.where(norm > 0, values[:, :1] * values[:, 1:] / np.where(norm > 0, norm, 1.0), 0.0)
+
+
+def sample_action(controls: ControlSet, action, frames) -> tuple:
+    """The channels of ``controls`` at ``frames`` (f,) as ``action`` keys them: its F-curves evaluated per frame
+    (not the depsgraph: no driver, constraint or other action takes part), on each channel's datablock (the
+    armature or other object for bones and properties, the mesh's shape-key datablock for sliders).  A channel
+    the action does not key holds its current value; a bone in ``QUATERNION`` / ``AXIS_ANGLE`` mode is sampled on
+    its four components (those not keyed: their current value) and read as its rotation vector.
+
+    Returns
+    -------
+    values : ndarray (f, n)
+    keyed : ndarray (n,) bool
+        The channels the action keys.
+    """
+    frames = np.asarray(frames, dtype=np.float64).reshape(-1)
+    bindings = bind(controls)
+    values = np.empty((frames.size, len(bindings)))
+    keyed = np.zeros(len(bindings), dtype=bool)
+    tables = {}
+    for j, b in enumerate(bindings):
+        ch = b.channel
+        idb, path = _animated(b)
+        table = tables.get(idb.as_pointer())
+        if table is None:
+            table = tables[idb.as_pointer()] = _curve_table(action, idb)
+        if ch.kind == ChannelKind.ROTATION and ch.rotation_mode not in EULER_MODES:
+            curves = [table.get((path, k)) for k in range(4)]
+            if any(fc is not None for fc in curves):
+                raw = np.array(b.raw(), dtype=np.float64)
+                comps = np.column_stack([actions.sample_curve(fc, frames) if fc is not None
+                                         else np.full(frames.size, raw[k]) for k, fc in enumerate(curves)])
+                values[:, j] = _rotation_vectors(comps, b.attr)[:, ch.index]
+                keyed[j] = True
+                continue
+        else:
+            fc = table.get((path, max(ch.index, 0)))
+            if fc is not None:
+                values[:, j] = actions.sample_curve(fc, frames)
+                keyed[j] = True
+                continue
+        values[:, j] = b.get()
+    return values, keyed
 
 
 def _pins(pins, n_vertices: int) -> tuple:
@@ -89,6 +162,10 @@ class RigDrag:
         step stalls (each refresh one evaluation per finite-difference channel inside the move).
     move_steps : int
         Verified steps (rig evaluations) a deferring move makes at most (module doc; ``max_iter`` otherwise).
+    prior_samples : ndarray (f, n), optional
+        The Learned mode's training frames of the controls (:func:`sample_action`); None: Direct mode.
+    prior_alpha : float
+        The Learned prior's weight α (the panel's, as the linear path's Learned mode).
 
     Attributes
     ----------
@@ -102,11 +179,15 @@ class RigDrag:
         The last move's (or :meth:`settle`'s).
     targets : ndarray (p, 3) or None
         The last move's targets.
+    prior : ControlPrior or None
+        The Learned prior, trained when the drag begins.
+    plane : MirrorPlane or None
+        The face's mirror plane at mouse-down (world space) when the drag began with a mirror map.
     """
 
     def __init__(self, mesh_obj, controls: ControlSet, *, mu: float = 1e-6, pin_tol: float | None = None,
                  xtol: float | None = None, max_iter: int = 20, defer_refresh: bool = True,
-                 move_steps: int = 1):
+                 move_steps: int = 1, prior_samples=None, prior_alpha: float = 0.1):
         self.mesh_obj, self.controls = mesh_obj, controls
         self.mu, self.pin_tol, self.xtol, self.max_iter = mu, pin_tol, xtol, max_iter
         self.defer_refresh, self.move_steps = defer_refresh, move_steps
@@ -118,11 +199,16 @@ class RigDrag:
         self.result = None
         self._last = None
         self._bounds = self._scale = None
+        self.prior_samples, self.prior_alpha = prior_samples, prior_alpha
+        self.prior = self.plane = None
 
     # -- lifecycle -----------------------------------------------------------------------------------------
-    def begin(self, pins) -> np.ndarray:
+    def begin(self, pins, mirror_map=None) -> np.ndarray:
         """Open the drag on ``pins`` (vertex indices or :class:`Pin` s); return the pins' world positions (p, 3)
-        as Blender draws them.  Refusals leave the rig exactly as it was."""
+        as Blender draws them.  With ``prior_samples`` the Learned prior is trained now; with ``mirror_map``
+        (:class:`core.symmetry.MirrorMap` of the face) the face's current mirror plane is fitted
+        (:attr:`plane`).  Refusals (the rig's, a prior that does not train, a map without pairs) leave the rig
+        exactly as it was."""
         if self.ev is not None:
             raise ShapeSpaceError("the drag has already begun", ErrorCode.INVALID)
         if self.mesh_obj is None or self.mesh_obj.type != "MESH":
@@ -135,13 +221,23 @@ class RigDrag:
             self.start = ev.c0.copy()
             self.controls_now = self.start.copy()
             self.points = self._evaluate_with(ev, self.start)
+            prior = None if self.prior_samples is None else train_control_prior(
+                self.prior_samples, [ch.name for ch in ev.controls.channels], ev.controls.scale,
+                ev.diagonal / NORMALISED_DIAGONAL, self.prior_alpha)
+            plane = None if mirror_map is None else self._plane(ev, mirror_map)
         except BaseException:
             ev.restore()
             raise
         self.ev, self.jacobian_cache, self.result, self.targets = ev, None, None, None
         self._bounds = ev.controls.solve_bounds(ev.c0)      # fixed for the drag: read once, not per move
         self._scale = ev.controls.scale
+        self.prior, self.plane = prior, plane
         return self.points.copy()
+
+    def _plane(self, ev, mmap):
+        """The face's mirror plane now (world space), from the evaluated positions of ``mmap``'s pairs."""
+        rest = symmetry.rest_positions(self.mesh_obj)
+        return fit_mirror_plane(ev.all_points(None), mmap.mirror, rest[:, mmap.axis] - mmap.offset)
 
     def _evaluate_with(self, ev, c) -> np.ndarray:
         verts = ev.evaluate(c)
@@ -208,7 +304,8 @@ class RigDrag:
                                  jacobian=self._jacobian, steps=ev.steps, reference=self.start, mu=self.mu,
                                  pin_tol=tol, xtol=xtol, max_iter=max_iter, first_jacobian=self.jacobian_cache,
                                  first_points=self.points, defer_refresh=defer,
-                                 first_active=None if self.result is None else self.result.diagnostics["active"])
+                                 first_active=None if self.result is None else self.result.diagnostics["active"],
+                                 prior=self.prior)
             if self._last is None or not np.array_equal(self._last[0], res.x):
                 self._evaluate(res.x)                 # the rig shows the result (its points were verified)
         except BaseException:

@@ -43,7 +43,7 @@ from ..skin import read_skinning
 from .analytic import bone_columns, shape_key_columns
 from .channels import bind
 
-__all__ = ["RigEvaluator", "apply_controls", "check_editable", "read_controls", "solve_pins"]
+__all__ = ["RigEvaluator", "apply_controls", "check_editable", "read_controls", "rig_ids", "solve_pins"]
 
 #: A channel "moves nothing" when no vertex moves more than this fraction of the mesh's bounding-box diagonal
 #: at either end of its probe.
@@ -57,7 +57,7 @@ PROBE = {ChannelKind.ROTATION: 0.1, ChannelKind.LOCATION: 0.01, ChannelKind.SCAL
 FD_REL_STEP = 1e-3
 
 
-def _rig_ids(mesh_obj, bindings) -> list:
+def rig_ids(mesh_obj, bindings) -> list:
     """Every ID whose state the evaluation depends on and whose drivers it runs (deduplicated, in order)."""
     ids = [mesh_obj, mesh_obj.data]
     if mesh_obj.data.shape_keys is not None:
@@ -140,7 +140,7 @@ class RigEvaluator:
         self.mesh_obj = mesh_obj
         self.controls = controls
         self.bindings = bind(controls)
-        self.ids = _rig_ids(mesh_obj, self.bindings)
+        self.ids = rig_ids(mesh_obj, self.bindings)
         check_editable(self.ids)
         n_verts = len(mesh_obj.data.vertices)
         self.indices = np.asarray(indices, dtype=np.int64).reshape(-1)

@@ -13,29 +13,45 @@ The Drag Pins tool (``operators/manipulation/drag_pins.py``) speaks the interfac
 - any other face (a plain shape-key face) keeps the exact linear path, :class:`bridge.manipulation.Drag`.
 
 On a rig face the pins keep their stored targets (shape-key space means nothing for a bone): the pins are held
-where they are drawn at mouse-down.  Direct mode applies (the solve stays near the controls at mouse-down); the
-Learned prior (a shape-key action) and Symmetric drags are the linear path's and are refused by name
-(:func:`rig_pin_problem`, the tool's poll message).
+where they are drawn at mouse-down.  The panel's settings apply as on the linear path:
+
+- *Direct* mode: the solve stays near the controls at mouse-down.
+- *Learned* mode: a Gaussian prior on the control channels trained from the panel's prior action over its frame
+  range (:func:`prior_samples`: the action's F-curves per frame on every channel it keys — bone rotation,
+  location, scale, custom properties, sliders; channels it does not key hold their value at mouse-down), added to
+  the solve as ``λ (x − μ)ᵀ Σ⁻¹ (x − μ)`` in place of the Direct pull (:mod:`core.rig.prior`, weight α as the
+  linear path's Learned mode).  No prior action, an empty frame range, an action that keys none of the face's
+  control channels or moves none of them, fewer than 2 frames or a non-finite value: refused by name at
+  mouse-down.
+- *Symmetric*: a new pin comes with its mirror pin (through the stored mirror map, linked both ways; a centre-line
+  pin is linked to itself), and dragging a pin with a mirror link moves its mirror pin to the reflected target —
+  reflected across the face's *current* mirror plane, fitted at mouse-down from the evaluated world positions of
+  the map's vertex pairs (a turned head reflects across its turned plane; :func:`core.rig.mirror.fit_mirror_plane`)
+  — and a centre-line pin's target is projected onto that plane.  A symmetric drag of a linked pin without a
+  usable mirror map is refused by name before anything changes.  Cancel puts every channel back and removes the
+  pins the drag made (the mirror pin with it); the stored pins are otherwise untouched.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ...core.errors import ErrorCode
+from ...core.manipulation.geometry import mirror_pin
 from ...core.result import ShapeSpaceError, Status
 from ...core.rig.controls import ChannelKind
-from .. import manipulation
-from ..manipulation.pins import _store, pin_index
+from .. import manipulation, symmetry
+from ..manipulation.pins import mirror_partner, pin_index, store_pin
 from ..manipulation.surface import finite_point
 from . import stored
 from .channels import bind
-from .drag import RigDrag
-from .evaluate import _rig_ids, check_editable
+from .drag import RigDrag, sample_action
+from .evaluate import check_editable, rig_ids
 
 #: Verified steps (rig evaluations and, when a step stalls, a Jacobian refresh) per timer tick while the mouse rests.
 REST_STEPS = 3
 
-__all__ = ["RigPinDrag", "add_pin", "drag_for", "finish", "report_text", "rig_pin_problem", "status_line", "uses_rig"]
+__all__ = ["RigPinDrag", "add_pin", "drag_for", "finish", "prior_samples", "report_text", "rig_pin_problem",
+           "status_line", "uses_rig"]
 
 
 def uses_rig(obj) -> bool:
@@ -50,22 +66,49 @@ def uses_rig(obj) -> bool:
 
 
 def rig_pin_problem(obj) -> str:
-    """Why the Pin tool cannot drag the rig face ``obj`` ('' when it can): the mode, the prior, Symmetric, a
-    control set that does not read, channels that are gone, linked data or Edit Mode among the rig's objects."""
+    """Why the Pin tool cannot drag the rig face ``obj`` ('' when it can): the mode, a control set that does not
+    read, channels that are gone, linked data or Edit Mode among the rig's objects.  (The Learned prior and the
+    mirror map are read at mouse-down, where their refusals name them.)"""
     st = manipulation.settings(obj)
     if st.mode == "SLIDERS":
         return "Switch the ShapeSpace mode to Direct or Learned"
-    if st.mode == "LEARNED":
-        return (f"'{obj.name}' is driven by its rig's controls: the Learned prior is for shape-key faces, switch the "
-                "mode to Direct")
-    if st.symmetric:
-        return f"'{obj.name}' is driven by its rig's controls: Symmetric drags are for shape-key faces, turn it off"
     try:
         controls = stored.control_set(obj)
-        check_editable(_rig_ids(obj, bind(controls)))
+        check_editable(rig_ids(obj, bind(controls)))
     except ShapeSpaceError as exc:
         return str(exc)
     return ""
+
+
+def prior_samples(obj, controls) -> np.ndarray:
+    """The Learned mode's training frames (f, n) of ``controls`` on the rig face ``obj``: the panel's prior action
+    sampled on its frame range (:func:`bridge.rig.drag.sample_action`).  Refused by name: no prior action, an empty
+    range or fewer than 2 frames, an action that keys none of the control channels or moves none of them, a
+    non-finite value."""
+    st = manipulation.settings(obj)
+    if st.prior_action is None:
+        raise ShapeSpaceError("learned mode needs a prior action: pick one in the panel", ErrorCode.NO_PRIOR)
+    if st.prior_end < st.prior_start:
+        raise ShapeSpaceError("the prior's frame range is empty (end before start)", ErrorCode.PRIOR_FRAMES)
+    frames = np.arange(st.prior_start, st.prior_end + 1, dtype=np.float64)
+    if frames.size < 2:
+        raise ShapeSpaceError(f"a prior needs at least 2 frames of animation, got {frames.size} (frames "
+                              f"{st.prior_start}–{st.prior_end})", ErrorCode.PRIOR_FRAMES)
+    values, keyed = sample_action(controls, st.prior_action, frames)
+    name = st.prior_action.name
+    if not keyed.any():
+        raise ShapeSpaceError(f"action {name!r} keys none of {obj.name!r}'s control channels "
+                              f"({', '.join(ch.name for ch in controls.channels[:4])}"
+                              f"{', …' if len(controls.channels) > 4 else ''})", ErrorCode.PRIOR_CONSTANT)
+    bad = np.argwhere(~np.isfinite(values))
+    if bad.size:
+        f, j = (int(i) for i in bad[0])
+        raise ShapeSpaceError(f"action {name!r} gives {values[f, j]} for channel {controls.channels[j].name!r} at "
+                              f"frame {int(frames[f])}", ErrorCode.NON_FINITE)
+    if not np.any(np.ptp(values[:, keyed], axis=0) > 0):
+        raise ShapeSpaceError(f"action {name!r} moves none of the control channels over frames "
+                              f"{st.prior_start}–{st.prior_end}", ErrorCode.PRIOR_CONSTANT)
+    return values
 
 
 def drag_for(obj):
@@ -76,8 +119,10 @@ def drag_for(obj):
 
 def add_pin(obj, drag, pin, stationary: bool = False) -> int:
     """Store a new pin for ``drag`` (made by :func:`drag_for`); returns its index.  On a rig face it is stored with
-    its undeformed position as target (never mirrored: Symmetric is refused there); otherwise
-    :func:`bridge.manipulation.add_pin` with the drag's model."""
+    its undeformed position as target; with *Symmetric* on, its mirror pin (through the stored mirror map) is
+    stored right after it, linked both ways (a centre-line pin: linked to itself) — a missing map or an unmapped
+    vertex is refused before anything is stored.  Otherwise :func:`bridge.manipulation.add_pin` with the drag's
+    model."""
     if not isinstance(drag, RigPinDrag):
         return manipulation.add_pin(obj, pin, None, stationary, model=drag.model)
     n = len(obj.data.vertices)
@@ -86,8 +131,19 @@ def add_pin(obj, drag, pin, stationary: bool = False) -> int:
     co = np.empty(3 * n, dtype=np.float32)
     obj.data.vertices.foreach_get("co", co)
     co = co.reshape(n, 3).astype(np.float64)
-    rest = sum(w * co[v] for v, w in zip(pin.vertices, pin.weights))
-    index = _store(obj, pin, finite_point(rest, "the pin's position"), stationary)
+
+    def rest(p):
+        return finite_point(sum(w * co[v] for v, w in zip(p.vertices, p.weights)), "the pin's position")
+
+    symmetric = manipulation.settings(obj).symmetric
+    twin = mirror_pin(pin, symmetry.load_map(obj), "the new pin") if symmetric else None
+    index = store_pin(obj, pin, rest(pin), stationary)
+    pins = manipulation.settings(obj).pins
+    if symmetric and twin is None:
+        pins[index].mirror_of = index
+    elif twin is not None:
+        other = store_pin(obj, twin, rest(twin), stationary)
+        pins[index].mirror_of, pins[other].mirror_of = other, index
     manipulation.settings(obj).active_pin = index
     return index
 
@@ -103,8 +159,11 @@ class RigPinDrag:
         The face's enabled stored channels, read at mouse-down.
     index : int or None
         The dragged pin.
+    mirror : int
+        Its mirror pin in a symmetric drag (the *Symmetric* setting and a stored link; ``index`` itself for a
+        centre-line pin), −1 otherwise.
     created : bool
-        The pin was made by this drag (cancel removes it).
+        The pin was made by this drag (cancel removes it, and its mirror pin with it).
     targets : ndarray (p, 3) or None
         World-space targets of the pins: where Blender drew them at mouse-down, the grabbed one where the mouse is.
     result : RigSolveResult or None
@@ -119,22 +178,27 @@ class RigPinDrag:
             raise ShapeSpaceError(problem, ErrorCode.INVALID)
         manipulation.check_pins(obj)
         self.controls = stored.control_set(obj)
+        st = manipulation.settings(obj)
+        self.samples = prior_samples(obj, self.controls) if st.mode == "LEARNED" else None
+        self.alpha = float(st.alpha)
         self.rig = None
-        self.index, self.created, self.targets, self.result = None, False, None, None
+        self.index, self.mirror, self.created, self.targets, self.result = None, -1, False, None, None
 
     def grab(self, obj, index: int, created: bool = False) -> None:
-        """Drag pin ``index`` (``created``: this drag made it): open the rig (refusals name the culprit; a refused
-        grab of a pin this drag made removes it again) and hold every pin where Blender draws it."""
+        """Drag pin ``index`` (``created``: this drag made it, with its mirror pin in a symmetric drag): open the rig
+        (refusals name the culprit — the rig's, the prior's, the mirror map's; a refused grab of pins this drag made
+        removes them again) and hold every pin where Blender draws it."""
         index = pin_index(obj, index)
         state = manipulation.check_pins(obj)
-        rig = RigDrag(obj, self.controls)
+        mirror = mirror_partner(obj, index) if manipulation.settings(obj).symmetric else -1
+        rig = RigDrag(obj, self.controls, prior_samples=self.samples, prior_alpha=self.alpha)
         try:
-            self.targets = rig.begin(state.pins())
+            self.targets = rig.begin(state.pins(), mirror_map=symmetry.load_map(obj) if mirror >= 0 else None)
         except ShapeSpaceError:
             if created:
-                manipulation.remove_pin(obj, index)
+                _remove_made(obj, index, mirror)
             raise
-        self.rig, self.index, self.created = rig, index, created
+        self.rig, self.index, self.mirror, self.created = rig, index, mirror, created
 
     def move(self, obj, depsgraph, world_point):
         """One mouse move: the grabbed pin follows ``world_point`` (3,), the others stay; the controls found are live
@@ -142,6 +206,10 @@ class RigPinDrag:
         point = finite_point(world_point, "the drag position")
         targets = self.targets.copy()
         targets[self.index] = point
+        if self.mirror == self.index:                         # a centre-line pin stays on the face's plane
+            targets[self.index] = self.rig.plane.project(point)
+        elif self.mirror >= 0:
+            targets[self.mirror] = finite_point(self.rig.plane.reflect(point), f"the mirror of pin {self.index}")
         self.result = self.rig.move(targets)
         return self.result
 
@@ -159,11 +227,12 @@ class RigPinDrag:
         return self.result.status == Status.NOT_CONVERGED and after < before
 
     def cancel(self, obj) -> None:
-        """Put every channel back exactly as it was at mouse-down and remove a pin this drag made (nothing keyed)."""
+        """Put every channel back exactly as it was at mouse-down and remove the pins this drag made (the pin, and
+        its mirror pin in a symmetric drag); nothing keyed."""
         if self.rig is not None and self.rig.ev is not None:
             self.rig.cancel()
         if self.created and self.index is not None and self.index < len(manipulation.settings(obj).pins):
-            manipulation.remove_pin(obj, self.index)
+            _remove_made(obj, self.index, self.mirror)
         self.rig = None
 
     def key(self, obj, frame: int) -> int:
@@ -177,6 +246,13 @@ class RigPinDrag:
         """End the drag keeping the controls, keying nothing."""
         if self.rig is not None and self.rig.ev is not None:
             self.rig.release(autokey=False)
+
+
+def _remove_made(obj, index: int, mirror: int) -> None:
+    """Remove pin ``index`` made by a drag and its mirror pin ``mirror`` (made with it; −1 or ``index``: none)."""
+    made = {index} | ({mirror} if 0 <= mirror < len(manipulation.settings(obj).pins) else set())
+    for i in sorted(made, reverse=True):
+        manipulation.remove_pin(obj, i)
 
 
 def rest(drag, obj) -> bool:

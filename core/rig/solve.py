@@ -10,15 +10,22 @@ their targets, ``r`` (n,) the reference controls the solve is pulled toward (the
 ``s`` (n,) the channels' natural scales (surface displacement per unit, so both terms are squared lengths)
 and ``μ`` a small dimensionless weight.
 
+With a learned prior (``prior``, :class:`~core.rig.prior.ControlPrior`: thesis 4.3 on the controls, the Learned
+mode of a drag) the regulariser is the full quadratic ``λ (c − μ)ᵀ Σ⁻¹ (c − μ)`` (the prior's mean ``μ`` (n,),
+precision ``λ Σ⁻¹`` (n, n)) in place of ``μ Σ_i (s_i (c_i − r_i))²``: every step's Hessian gets ``λ Σ⁻¹`` and its
+gradient ``λ Σ⁻¹ (c − μ)``, the bounded steps and the stopping tests are the same.  Without a prior the
+diagonal regulariser's arithmetic is exactly the one it always was.
+
 Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one update between Jacobians):
 
 - The Jacobian ``J = ∂P/∂c`` (3p, n) comes from the caller (``jacobian``) or by forward finite differences,
   one evaluation per channel, steps pointing into the box.  It is kept between iterations and corrected by
   Broyden's rank-one update ``J += (ΔP − J d) dᵀ / dᵀd`` after every evaluated trial step.
 - Each step solves the bounded linear least-squares problem ``min ‖J d + e‖² + μ‖S(c + d − r)‖² + λ‖D d‖²``
+  (with a prior: ``+ (c + d − μ)ᵀ λΣ⁻¹ (c + d − μ)`` in place of the second term)
   on ``lo − c ≤ d ≤ hi − c`` exactly (a dense primal active set, :func:`box_qp_primal`, warm-started from the
   previous step's active sets, falling back on SciPy's bounded least squares), with Marquardt's scaling
-  ``D² = diag(JᵀJ + μS²)``.
+  ``D² = diag(JᵀJ + μS²)`` (with a prior: ``diag(JᵀJ + λΣ⁻¹)``).
 - A step is accepted only when the rig, evaluated again at the new controls, gives an objective that does
   not increase; otherwise ``λ`` grows.  When a step is refused or *stalls* (actual decrease below a quarter
   of the predicted one) on a Broyden-updated Jacobian, the Jacobian is recomputed at the current controls
@@ -49,6 +56,7 @@ from scipy.optimize import lsq_linear
 
 from ..errors import ErrorCode
 from ..result import Result, ShapeSpaceError, Status
+from .prior import ControlPrior
 
 __all__ = ["RigSolveResult", "bounded_step", "box_qp_primal", "broyden_update", "finite_difference_jacobian",
            "solve_controls"]
@@ -207,7 +215,12 @@ _GN_LAMBDA = 1e-9
 def bounded_step(J: np.ndarray, e: np.ndarray, reg_w: np.ndarray, c: np.ndarray, ref: np.ndarray, lam: float,
                  D2: np.ndarray, lo: np.ndarray, hi: np.ndarray, held: tuple | None = None) -> np.ndarray:
     """The bounded LM step: argmin ‖J d + e‖² + Σ reg_w (c + d − ref)² + λ Σ D2 d² on lo − c ≤ d ≤ hi − c
-    (``held``: (at lo, at hi) (n,) bool of a previous step's end point, a warm start)."""
+    (``held``: (at lo, at hi) (n,) bool of a previous step's end point, a warm start).
+
+    ``reg_w`` (n,) is a diagonal regulariser; (n, n) a full symmetric positive semi-definite one ``W``, the
+    term then ``(c + d − ref)ᵀ W (c + d − ref)`` (a learned prior: ``W = λΣ⁻¹``, ``ref = μ``)."""
+    if reg_w.ndim == 2:
+        return _bounded_step_full(J, e, reg_w, c, ref, lam, D2, lo, hi, held)
     H = J.T @ J + np.diag(reg_w + lam * D2)
     g = -(J.T @ e) - reg_w * (c - ref)
     dlo, dhi = np.minimum(lo - c, 0.0), np.maximum(hi - c, 0.0)
@@ -224,10 +237,37 @@ def bounded_step(J: np.ndarray, e: np.ndarray, reg_w: np.ndarray, c: np.ndarray,
     return np.clip(d, dlo, dhi)
 
 
+def _bounded_step_full(J, e, W, c, ref, lam, D2, lo, hi, held):
+    """:func:`bounded_step` with a full regulariser ``W`` (n, n)."""
+    A2 = W + np.diag(lam * D2)
+    H = J.T @ J + A2
+    g = -(J.T @ e) - W @ (c - ref)
+    dlo, dhi = np.minimum(lo - c, 0.0), np.maximum(hi - c, 0.0)
+    d = box_qp_primal(H, g, dlo, dhi, lower=None if held is None else held[0],
+                      upper=None if held is None else held[1])
+    if d is None:                       # ‖J d + e‖² + ‖Lᵀd + L⁻¹W(c − ref)‖², L Lᵀ = W + λ D2
+        L = np.linalg.cholesky(A2 + 1e-300 * np.eye(c.size))
+        A = np.vstack([J, L.T])
+        b = np.concatenate([-e, -np.linalg.solve(L, W @ (c - ref))])
+        free = dhi > dlo
+        d = np.zeros_like(c)
+        if free.any():
+            d[free] = lsq_linear(A[:, free], b, bounds=(dlo[free], dhi[free]), method="bvls").x
+    return np.clip(d, dlo, dhi)
+
+
+def _reg_value(reg_w, x, ref) -> float:
+    """The regulariser at ``x``: ``Σ reg_w (x − ref)²`` (diagonal) or ``(x − ref)ᵀ W (x − ref)`` (full)."""
+    if reg_w.ndim == 2:
+        dx = x - ref
+        return float(dx @ reg_w @ dx)
+    return float(np.sum(reg_w * (x - ref) ** 2))
+
+
 def _model(J, e, reg_w, c, ref, d):
     """The Gauss–Newton model of f at c + d."""
     r = e + J @ d
-    return float(r @ r + np.sum(reg_w * (c + d - ref) ** 2))
+    return float(r @ r + _reg_value(reg_w, c + d, ref))
 
 
 def _check_inputs(c0, targets, lo, hi, scale, weights, reference):
@@ -273,7 +313,8 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
                    reference: ArrayLike | None = None, mu: float = 1e-6, pin_tol: float = 0.0,
                    ftol: float = 1e-10, max_iter: int = 50, first_jacobian: np.ndarray | None = None,
                    first_points: np.ndarray | None = None, xtol: float = 0.0,
-                   defer_refresh: bool = False, first_active: tuple | None = None) -> RigSolveResult:
+                   defer_refresh: bool = False, first_active: tuple | None = None,
+                   prior: ControlPrior | None = None) -> RigSolveResult:
     """Controls that bring the pins to their targets (bounded, regularised Levenberg–Marquardt; module doc).
 
     Parameters
@@ -325,6 +366,9 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
     first_active : (ndarray (n,) bool, ndarray (n,) bool), optional
         Channels a previous solve's last step left on their lower / upper bounds (its ``diagnostics["active"]``):
         a warm start for the bounded steps (only their speed depends on it).
+    prior : ControlPrior, optional
+        A learned prior on the controls (:func:`core.rig.prior.train_control_prior`): the regulariser becomes
+        ``λ (c − μ)ᵀ Σ⁻¹ (c − μ)`` (module doc) and ``mu`` / ``reference`` are not used.
 
     Returns
     -------
@@ -339,6 +383,8 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
     if h.shape != c.shape or not np.all(np.isfinite(h) & (h > 0)):
         raise ShapeSpaceError(f"steps: expected {c.size} positive numbers", ErrorCode.RANGE)
     run = _LevenbergMarquardt(evaluate, jacobian, t, lo, hi, s, w, ref, mu, h)
+    if prior is not None:
+        run.ref, run.reg_w = _check_prior(prior, c.size)
     run.defer = bool(defer_refresh)
     if first_active is not None:
         run.held = tuple(np.asarray(a, bool).reshape(c.shape) for a in first_active)
@@ -360,6 +406,17 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
             break
         run.lam = max(run.lam, 1e-12)
     return run.result(status, message)
+
+
+def _check_prior(prior: ControlPrior, n: int) -> tuple:
+    """``(μ (n,), λΣ⁻¹ (n, n))`` of a prior for ``n`` controls (refused when it does not match or is not finite)."""
+    mean = np.asarray(prior.mean, dtype=np.float64).reshape(-1)
+    W = np.asarray(prior.precision, dtype=np.float64)
+    if mean.shape != (n,) or W.shape != (n, n):
+        raise ShapeSpaceError(f"prior: trained on {mean.size} channels, the solve has {n}", ErrorCode.SHAPE)
+    if not (np.isfinite(mean).all() and np.isfinite(W).all()):
+        raise ShapeSpaceError("prior: its mean or precision is not finite", ErrorCode.NON_FINITE)
+    return mean, 0.5 * (W + W.T)
 
 
 class _LevenbergMarquardt:
@@ -400,7 +457,7 @@ class _LevenbergMarquardt:
 
     def objective(self, px, x):
         e = (px - self.t).reshape(-1) * self.sw
-        return e, float(e @ e + np.sum(self.reg_w * (x - self.ref) ** 2))
+        return e, float(e @ e + _reg_value(self.reg_w, x, self.ref))
 
     def refresh(self):
         self.J, self.fresh = self.jac(self.c, self.P), True
@@ -440,7 +497,8 @@ class _LevenbergMarquardt:
         if pin_tol > 0 and np.max(np.linalg.norm(self.P - self.t, axis=1)) <= pin_tol:
             return "every pin within tolerance"
         J, e, c = self.J, self.e, self.c
-        self.D2 = np.maximum(np.einsum("ij,ij->j", J, J) + self.reg_w, 1e-12 * np.max(self.s * self.s))
+        reg_diag = self.reg_w if self.reg_w.ndim == 1 else np.diag(self.reg_w)
+        self.D2 = np.maximum(np.einsum("ij,ij->j", J, J) + reg_diag, 1e-12 * np.max(self.s * self.s))
         self.d_next = None
         if not (self.fresh or xtol > 0):
             return None

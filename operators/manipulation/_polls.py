@@ -8,7 +8,7 @@ def pin_face(cls, context):
 
     A face with a stored control set beyond its own sliders (:func:`bridge.rig.tool.uses_rig`) is dragged through
     its rig: refused by name when the set does not read, its channels are gone, a rig object is linked or in Edit
-    Mode, or the mode is not Direct (:func:`bridge.rig.tool.rig_pin_problem`).  Any other face needs shape keys.
+    Mode, or the mode is Sliders (:func:`bridge.rig.tool.rig_pin_problem`).  Any other face needs shape keys.
     """
     ob = active_mesh(cls, context)
     if ob is None:

@@ -76,3 +76,31 @@ def test_correctives_panel_says_when_an_appended_old_pose_space_uses_skin_weight
     assert bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "appended.blend")) == {"FINISHED"}
     assert ob.shapespace_psd.wpsd_distance == "SKIN"                  # stored on save
     assert note not in _draw_all(bpy.context)["SHAPESPACE_PT_correctives"]
+
+
+def test_direct_manipulation_panel_on_a_bone_driven_face_without_shape_keys(registered):
+    """A face driven only by bones (its control set stored) gets the Pin tool's settings: mode, α, the Learned
+    prior's action and range, Symmetric — not the shape-key solve's (μ, PCA form, snapping, Solve Pins)."""
+    from shapespace.bridge import rig as brig
+    from shapespace.bridge.rig import stored
+    bpy.ops.mesh.primitive_uv_sphere_add()
+    face = bpy.context.active_object
+    arm = bpy.data.objects.new("Bones", bpy.data.armatures.new("Bones"))
+    bpy.context.scene.collection.objects.link(arm)
+    bpy.context.view_layer.objects.active = arm
+    bpy.ops.object.mode_set(mode="EDIT")
+    bone = arm.data.edit_bones.new("jaw")
+    bone.head, bone.tail = (0.0, 0.0, 0.0), (0.0, -1.0, 0.0)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    face.modifiers.new("Armature", "ARMATURE").object = arm
+    face.vertex_groups.new(name="jaw").add(list(range(len(face.data.vertices))), 1.0, "REPLACE")
+    stored.add_entries_of(face, arm.name, [brig.bone_channel(arm, "jaw", "rotation", 0)])
+    bpy.context.view_layer.objects.active = face
+    assert face.data.shape_keys is None
+    face.shapespace.mode = "LEARNED"
+    log = _draw_all(bpy.context)["SHAPESPACE_PT_direct"]
+    props = {name for kind, name in log if kind == "prop"}
+    ops = {name for kind, name in log if kind == "operator"}
+    assert {"mode", "alpha", "prior_action", "prior_start", "prior_end", "symmetric"} <= props
+    assert not props & {"mu", "prior_form", "snap"}
+    assert "shapespace.solve_pins" not in ops and "shapespace.add_inbetween" not in ops

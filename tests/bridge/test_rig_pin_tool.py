@@ -207,11 +207,12 @@ def test_poll_names_what_is_missing(registered):
     rig = _face("hybrid")
     face = rig.mesh
     assert "3D Viewport" in _poll_message()                                    # a rig face is pinnable
-    face.shapespace.mode = "LEARNED"
-    assert "Learned prior is for shape-key faces" in _poll_message()
+    face.shapespace.mode = "LEARNED"                                          # Learned and Symmetric are rig modes too
+    face.shapespace.symmetric = True                                           # (refusals: at mouse-down, by name)
+    assert "3D Viewport" in _poll_message()
+    face.shapespace.mode = "SLIDERS"
+    assert "Switch the ShapeSpace mode to Direct or Learned" in _poll_message()
     face.shapespace.mode = "DIRECT"
-    face.shapespace.symmetric = True
-    assert "Symmetric drags are for shape-key faces" in _poll_message()
     face.shapespace.symmetric = False
     bpy.ops.object.mode_set(mode="EDIT")
     assert f"'{face.name}' is in Edit Mode" in _poll_message()
