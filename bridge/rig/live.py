@@ -163,6 +163,7 @@ class RigLivePipeline(CalibratedInput):
         self.evaluations = deque(maxlen=_TIMINGS)
         self.last = None
         self.shown = np.array(solver.c)        # the controls written on the rig (build_rig_pipeline evaluated them)
+        self.writer = _Writer(ev.bindings)
         self.show_tol = LIVE_SHOW_TOL_REL * ev.diagonal
 
     @property
@@ -202,9 +203,7 @@ class RigLivePipeline(CalibratedInput):
     def _set(self, c) -> None:
         """Write the channels of ``c`` (n,) that differ from what the rig shows (no depsgraph update)."""
         c = np.asarray(c, dtype=np.float64)
-        bindings = self.ev.bindings
-        for i in np.flatnonzero(c != self.shown):
-            bindings[i].set(c[i])
+        self.writer(c, c != self.shown)
         self.shown = c.copy()
 
     def _evaluate(self, c) -> np.ndarray:
@@ -238,6 +237,36 @@ class RigLivePipeline(CalibratedInput):
 
     def take_recorder(self, pipeline, name: str, meta: dict):
         return RigTakeRecorder(pipeline, name, meta)
+
+
+class _Writer:
+    """Writes the changed channels of a control vector: a bone's location, scale or Euler rotation in one
+    assignment of the vector (one RNA update per bone, not one per component), every other channel (a quaternion or
+    axis-angle rotation component, a property, a slider) by its binding."""
+
+    def __init__(self, bindings):
+        groups = {}
+        self.singles = []
+        for i, b in enumerate(bindings):
+            ch = b.channel
+            vector = ch.kind != ChannelKind.ROTATION or ch.rotation_mode in EULER_MODES
+            if b.prop is None and ch.index >= 0 and vector:
+                groups.setdefault((b.target.as_pointer(), b.attr), []).append(i)
+            else:
+                self.singles.append((i, b))
+        self.groups = [(bindings[cols[0]].target, bindings[cols[0]].attr, np.array(cols),
+                        [bindings[i].channel.index for i in cols]) for cols in groups.values()]
+
+    def __call__(self, c: np.ndarray, changed: np.ndarray) -> None:
+        for target, attr, cols, comps in self.groups:
+            if changed[cols].any():
+                vec = list(getattr(target, attr))
+                for k, v in zip(comps, c[cols].tolist()):
+                    vec[k] = v
+                setattr(target, attr, vec)
+        for i, b in self.singles:
+            if changed[i]:
+                b.set(c[i])
 
 
 def _budget(ev: RigEvaluator, c0) -> int:

@@ -140,6 +140,9 @@ def test_a_packet_costs_blender_one_evaluation_on_a_budget_of_one():
     configure(rig.mesh, method="CONTROLS")
     pipe = rig_live.build_rig_pipeline(bpy.context.scene, bpy.context.scene.shapespace_live, rig.mesh, budget=1)
     idx, tol = pipe.ev.indices, rig_live.LIVE_SHOW_TOL_REL * pipe.ev.diagonal
+    bones = rig.armature.pose.bones
+    free_y = {b.name: b.location[1] for b in bones if b.name in {ch.path.split('"')[1] for ch in rig.controls.channels
+                                                                 if ch.path.endswith(".location")}}
     count = [0]
 
     def counted(*_):
@@ -157,6 +160,7 @@ def test_a_packet_costs_blender_one_evaluation_on_a_budget_of_one():
             bpy.context.view_layer.update()
             per.append(count[0])
             last = pipe.last
+            np.testing.assert_allclose(brig.read_controls(rig.controls), pipe.shown, atol=1e-6)   # what it shows
             assert count[0] == last.evaluations + pipe.redisplays - redisplays <= 2
             if last.refreshed and not last.trials:
                 probes += 1
@@ -170,6 +174,7 @@ def test_a_packet_costs_blender_one_evaluation_on_a_budget_of_one():
     finally:
         bpy.app.handlers.depsgraph_update_post.remove(counted)
     assert probes >= 1 and shown_other >= probes
+    assert free_y and all(bones[name].location[1] == y for name, y in free_y.items())    # not a control: kept
     assert per.count(2) == pipe.redisplays < 0.1 * len(packets)
 
 
