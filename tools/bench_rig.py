@@ -69,6 +69,14 @@ Per-frame retarget onto the rig's controls (``bridge/rig/take.py``), for ``hybri
   ``rig_live_reeval_ms_p50_<rig>`` / ``rig_live_reeval_ms_p99_<rig>`` are Blender's own re-evaluation of each
   packet's control change measured in the same loop (the previous controls written and evaluated untimed, then the
   new ones written and the depsgraph updated, timed) — the floor of any frame that moves the rig.
+  The packet's split, timed by Blender's ``depsgraph_update_pre`` / ``_post`` handlers:
+  ``rig_live_blender_eval_ms_p50_<rig>`` / ``_p99_<rig>`` Blender's depsgraph evaluations inside the packet (wall),
+  ``rig_live_own_ms_p50_<rig>`` / ``_p99_<rig>`` the rest (ShapeSpace's decode, targets, step, writes; wall),
+  ``rig_live_own_cpu_ms_p99_<rig>`` the rest in main-thread CPU time, ``rig_live_depsgraph_updates_mean_<rig>`` /
+  ``_max_<rig>`` Blender's evaluations per packet.  ``…_1core_<rig>`` (``rig_live_total_ms_p50/p99``,
+  ``rig_live_blender_eval_ms_p99``, ``rig_live_reeval_ms_p50/p99``): one more pass over the packets with every
+  thread of the process pinned to one core (Linux ``sched_setaffinity``; on a VM whose idle vCPUs are slow to
+  wake, Blender's multithreaded evaluation can cost more on two cores than on one).
 - ``rig_retarget_s_1640_rigify``: wall time of retargeting (solve, key reduction, keying) a 1,640-frame take of
   the Rigify face's own smooth curves.  Goal ≤ 60 s.  With ``--quick`` 160 frames are retargeted and the time
   scaled by 1640/160 (``rig_retarget_frames_measured_rigify`` and ``rig_retarget_s_1640_rigify_note`` say so).
@@ -308,6 +316,81 @@ def _measure_long_take(build, quick: bool) -> dict:
     return out
 
 
+class _EvalClock:
+    """Blender's own depsgraph evaluations, timed by its ``depsgraph_update_pre`` / ``_post`` handlers: their
+    count, wall and main-thread CPU time since :meth:`reset` (what of a packet is Blender's, not ShapeSpace's)."""
+
+    def __init__(self):
+        self.count, self.wall, self.cpu, self._t = 0, 0.0, 0.0, None
+
+    def reset(self):
+        self.count, self.wall, self.cpu = 0, 0.0, 0.0
+
+    def pre(self, *_):
+        self._t = (time.perf_counter(), time.thread_time())
+
+    def post(self, *_):
+        if self._t is not None:
+            self.count += 1
+            self.wall += time.perf_counter() - self._t[0]
+            self.cpu += time.thread_time() - self._t[1]
+            self._t = None
+
+
+def _pin_threads(cpus) -> set:
+    """Pin every thread of this process (Blender's evaluation threads included) to ``cpus``; returns the previous
+    set (Linux; ``set()`` elsewhere, nothing done)."""
+    if not hasattr(os, "sched_setaffinity"):
+        return set()
+    before = os.sched_getaffinity(0)
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(tid), cpus)
+        except OSError:                                   # a thread that just ended
+            pass
+    return before
+
+
+def _live_loop(pipe, rig, packets, reps, clock) -> dict:
+    """Per packet: total (decode → solve → write → ``view_layer.update``), its main-thread CPU, Blender's
+    evaluations in it (count, wall, CPU), and Blender's own re-evaluation of the same control change alone."""
+    import bpy
+
+    from shapespace.bridge import rig as brig
+    from shapespace.core.live import decode_llf
+    bindings = brig.bind(rig.controls)
+
+    def write(c):
+        for b, v in zip(bindings, c):
+            b.set(v)
+
+    layer = bpy.context.view_layer
+    out = {k: [] for k in ("total", "cpu", "evals", "eval_ms", "eval_cpu", "reeval")}
+    for _ in range(reps):
+        for data in packets:
+            before = brig.read_controls(rig.controls)
+            clock.reset()
+            c0, t0 = time.thread_time(), time.perf_counter()
+            frame = decode_llf(data, time.monotonic())
+            why = pipe.write(*pipe.solve(pipe.process(frame.vector(), frame.time)))
+            layer.update()
+            t1, c1 = time.perf_counter(), time.thread_time()
+            assert not why, why
+            out["total"].append((t1 - t0) * 1e3)
+            out["cpu"].append((c1 - c0) * 1e3)
+            out["evals"].append(clock.count)
+            out["eval_ms"].append(clock.wall * 1e3)
+            out["eval_cpu"].append(clock.cpu * 1e3)
+            after = brig.read_controls(rig.controls)          # Blender's own re-evaluation of the same change
+            write(before)
+            layer.update()
+            write(after)
+            t2 = time.perf_counter()
+            layer.update()
+            out["reeval"].append((time.perf_counter() - t2) * 1e3)
+    return {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}
+
+
 def _measure_live(name: str, build, reps: int) -> dict:
     """``rig_live_*_<rig>`` (module doc)."""
     from types import SimpleNamespace
@@ -315,51 +398,59 @@ def _measure_live(name: str, build, reps: int) -> dict:
     import bpy
 
     import live_replay
-    from shapespace.bridge import rig as brig
     from shapespace.bridge.rig import live as rig_live
     from shapespace.bridge.rig import stored
-    from shapespace.core.live import decode_llf
     rig = build()
     stored.add_entries_of(rig.mesh, rig.armature.name, rig.controls.channels)
     settings = SimpleNamespace(source="LLF", armature=None, smoothing=False, mirror=False)
     pipe = rig_live.build_rig_pipeline(bpy.context.scene, settings, rig.mesh)
-    bindings = brig.bind(rig.controls)
-
-    def write(c):
-        for b, v in zip(bindings, c):
-            b.set(v)
-
     packets = [d for _, d in live_replay.llf_packets(LIVE_CSV)]
-    layer = bpy.context.view_layer
-    total, cpu, reeval = [], [], []
+    clock = _EvalClock()
+    handlers = bpy.app.handlers
+    handlers.depsgraph_update_pre.append(clock.pre)
+    handlers.depsgraph_update_post.append(clock.post)
     print(f"bench rig: {name} live, {reps} × {len(packets)} packets", file=sys.stderr)
-    for _ in range(reps):
-        for data in packets:
-            before = brig.read_controls(rig.controls)
-            c0, t0 = time.thread_time(), time.perf_counter()
-            frame = decode_llf(data, time.monotonic())
-            why = pipe.write(*pipe.solve(pipe.process(frame.vector(), frame.time)))
-            layer.update()
-            t1, c1 = time.perf_counter(), time.thread_time()
-            assert not why, why
-            total.append((t1 - t0) * 1e3)
-            cpu.append((c1 - c0) * 1e3)
-            after = brig.read_controls(rig.controls)          # Blender's own re-evaluation of the same change
-            write(before)
-            layer.update()
-            write(after)
-            t2 = time.perf_counter()
-            layer.update()
-            reeval.append((time.perf_counter() - t2) * 1e3)
-    return {f"rig_live_total_ms_p50_{name}": float(np.percentile(total, 50)),
-            f"rig_live_total_ms_p99_{name}": float(np.percentile(total, 99)),
-            f"rig_live_cpu_ms_p99_{name}": float(np.percentile(cpu, 99)),
-            f"rig_live_reeval_ms_p50_{name}": float(np.percentile(reeval, 50)),
-            f"rig_live_reeval_ms_p99_{name}": float(np.percentile(reeval, 99)),
-            f"rig_live_budget_{name}": pipe.budget,
-            f"rig_live_evals_per_frame_{name}": float(np.mean(pipe.evaluations)),
-            f"rig_live_budget_hit_frac_{name}": pipe.budget_hits / max(pipe.frames, 1),
-            f"rig_live_redisplay_frac_{name}": pipe.redisplays / max(pipe.frames, 1)}
+    try:
+        m = _live_loop(pipe, rig, packets, reps, clock)
+        stats = dict(pipe.stats)
+        print(f"bench rig: {name} live, one core, {len(packets)} packets", file=sys.stderr)
+        cpus = _pin_threads({min(os.sched_getaffinity(0))}) if hasattr(os, "sched_getaffinity") else set()
+        try:
+            one = _live_loop(pipe, rig, packets, 1, clock) if cpus else None
+        finally:
+            if cpus:
+                _pin_threads(cpus)
+    finally:
+        handlers.depsgraph_update_pre.remove(clock.pre)
+        handlers.depsgraph_update_post.remove(clock.post)
+
+    def pct(v, q):
+        return float(np.percentile(v, q))
+
+    own = m["total"] - m["eval_ms"]
+    out = {f"rig_live_total_ms_p50_{name}": pct(m["total"], 50),
+           f"rig_live_total_ms_p99_{name}": pct(m["total"], 99),
+           f"rig_live_cpu_ms_p99_{name}": pct(m["cpu"], 99),
+           f"rig_live_blender_eval_ms_p50_{name}": pct(m["eval_ms"], 50),
+           f"rig_live_blender_eval_ms_p99_{name}": pct(m["eval_ms"], 99),
+           f"rig_live_own_ms_p50_{name}": pct(own, 50),
+           f"rig_live_own_ms_p99_{name}": pct(own, 99),
+           f"rig_live_own_cpu_ms_p99_{name}": pct(m["cpu"] - m["eval_cpu"], 99),
+           f"rig_live_depsgraph_updates_mean_{name}": float(np.mean(m["evals"])),
+           f"rig_live_depsgraph_updates_max_{name}": int(np.max(m["evals"])),
+           f"rig_live_reeval_ms_p50_{name}": pct(m["reeval"], 50),
+           f"rig_live_reeval_ms_p99_{name}": pct(m["reeval"], 99),
+           f"rig_live_budget_{name}": pipe.budget,
+           f"rig_live_evals_per_frame_{name}": stats["evaluations_mean"],
+           f"rig_live_budget_hit_frac_{name}": stats["budget_hits"] / max(stats["frames"], 1),
+           f"rig_live_redisplay_frac_{name}": stats["redisplays"] / max(stats["frames"], 1)}
+    if one is not None:
+        out.update({f"rig_live_total_ms_p50_1core_{name}": pct(one["total"], 50),
+                    f"rig_live_total_ms_p99_1core_{name}": pct(one["total"], 99),
+                    f"rig_live_blender_eval_ms_p99_1core_{name}": pct(one["eval_ms"], 99),
+                    f"rig_live_reeval_ms_p50_1core_{name}": pct(one["reeval"], 50),
+                    f"rig_live_reeval_ms_p99_1core_{name}": pct(one["reeval"], 99)})
+    return out
 
 
 LLF_CSV = os.path.join("llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")

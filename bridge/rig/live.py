@@ -14,12 +14,19 @@ session's timer does not know the difference):
   (:func:`bridge.retarget.mapping.resolve_mapping`, gain, offset, slider ranges), the keys' world-space basis and
   deltas at the sample are read once (thesis Eq. 3.1), the Jacobian at the current controls is computed once,
   and the per-frame budget of rig evaluations is fixed from the rig's measured evaluation time
-  (:data:`LIVE_EVAL_MS`, at most :data:`MAX_BUDGET`);
+  (:data:`LIVE_EVAL_MS`, at most :data:`MAX_BUDGET`): a rig whose evaluation costs about a millisecond or more
+  (Rigify's face) gets one verified step per packet;
 - per frame: weights → target points through the face's keys → one budgeted, warm-started bounded step in
-  control space (:class:`core.rig.live.LiveRigSolver`: every trial verified by Blender's evaluation) → the
-  controls written on the rig (the last evaluation usually already shows them) → the viewport's own
-  evaluation draws them.  A frame that runs out of budget is counted (:attr:`RigLivePipeline.budget_hits`,
-  shown by the Live panel) — never silent.
+  control space (:class:`core.rig.live.LiveRigSolver`: every trial verified by Blender's evaluation; each
+  evaluation writes only the channels that changed) → the controls written on the rig → the viewport's own
+  evaluation draws them.  The frame's last evaluation is what the rig shows: when it is the accepted trial the
+  viewport's evaluation has nothing left to do; when it is a Jacobian column refresh (a probe moved by a tenth of
+  the offline finite-difference step, :data:`LIVE_REFRESH_STEP`) or a refused trial, the verified controls are
+  written back — one more evaluation — only when the shown surface is farther from the frame's targets than the
+  verified one by more than :data:`LIVE_SHOW_TOL_REL` of the diagonal (``redisplays`` counts them).  So a
+  packet costs the budget's evaluations and at most one more, and on a one-evaluation budget usually exactly one:
+  the same as a shape-key face's packet (write, then the viewport's evaluation).  A frame that runs out of budget
+  is counted (:attr:`RigLivePipeline.budget_hits`, shown by the Live panel) — never silent.
 
 Recording (:class:`RigTakeRecorder`) keys the control channels (a bone in ``QUATERNION`` / ``AXIS_ANGLE`` mode
 on all four components) and the head / eye bones, one LINEAR key per scene frame, in one new action per
@@ -52,15 +59,16 @@ from .channels import EULER_MODES, Binding
 from .evaluate import RigEvaluator
 from .take import _animated, rest_controls, shape_key_targets
 
-__all__ = ["LIVE_EVAL_MS", "MAX_BUDGET", "METHOD", "RigLivePipeline", "RigTakeRecorder", "build_rig_pipeline",
-           "has_controls"]
+__all__ = ["LIVE_EVAL_MS", "LIVE_REFRESH_STEP", "LIVE_SHOW_TOL_REL", "MAX_BUDGET", "METHOD", "RigLivePipeline",
+           "RigTakeRecorder", "build_rig_pipeline", "has_controls"]
 
 #: The live method that solves onto a stored control set.
 METHOD = "CONTROLS"
-#: Rig evaluations per frame are fixed at Start so that they and the viewport's own evaluation of the written
-#: frame (one more when the last trial was refused) take about this long of a 16.7 ms frame (the rest: decode,
-#: targets, the step's linear algebra, writes).
-LIVE_EVAL_MS = 10.0
+#: Rig evaluations per frame are fixed at Start so that they take about this long at the rig's median evaluation
+#: time (at least one).  Small on purpose: a depsgraph evaluation's tail is several times its median
+#: (multithreaded evaluation waking idle cores; on the benchmark VM Rigify's face: 1.8 ms median, 11 ms p99), so
+#: only a rig that evaluates in well under a millisecond affords several evaluations in a 16.7 ms frame.
+LIVE_EVAL_MS = 1.5
 #: At most this many rig evaluations per frame (at least one).
 MAX_BUDGET = 6
 #: Ridge toward the rest controls (as the offline capture route, :func:`bridge.rig.capture.retarget_capture_onto_rig`).
@@ -70,6 +78,13 @@ REG = 1e-6
 #: on a 30 cm head, as a drag's mouse move, :data:`bridge.rig.drag.DRAG_XTOL_REL`: the next frame goes on from there;
 #: the offline take goes on to 1e-6).
 LIVE_PIN_TOL_REL, LIVE_XTOL_REL = 1e-5, 1e-4
+#: The rig may go on showing a frame's last evaluation (a refused trial or a column-refresh probe) instead of its
+#: verified controls when no pin is farther from the targets than the verified surface's farthest pin plus this
+#: fraction of the diagonal (a tenth of the 1e-3 recovery goal); otherwise the verified controls are written back.
+LIVE_SHOW_TOL_REL = 1e-4
+#: Column refreshes of a live stream step by this fraction of the offline finite-difference steps (the surface
+#: moves by about 1e-4 of the diagonal, within :data:`LIVE_SHOW_TOL_REL`: a probe the rig shows is invisible).
+LIVE_REFRESH_STEP = 0.1
 _SOURCE_NAMES = {"LLF": LLF_BLENDSHAPES, "FACECAP": FACECAP_52, "IFACIALMOCAP": FACECAP_52}
 _TIMINGS = 600
 
@@ -147,6 +162,9 @@ class RigLivePipeline(CalibratedInput):
         self.frames = self.budget_hits = self.redisplays = 0
         self.evaluations = deque(maxlen=_TIMINGS)
         self.last = None
+        self.shown = np.array(solver.c)        # the controls written on the rig (build_rig_pipeline evaluated them)
+        self.writer = _Writer(ev.bindings)
+        self.show_tol = LIVE_SHOW_TOL_REL * ev.diagonal
 
     @property
     def budget(self) -> int:
@@ -168,16 +186,30 @@ class RigLivePipeline(CalibratedInput):
         if why:
             raise ShapeSpaceError(why, ErrorCode.MISSING_TARGET)
         n = self.n_source
+        t = self.targets(vector[:n])
         with single_threaded():              # small dense products: BLAS threads would only spin (core.blas_threads)
-            frame = self.solver.step(self.ev.evaluate, self.targets(vector[:n]))
+            frame = self.solver.step(self._evaluate, t)
         self.frames += 1
         self.budget_hits += int(frame.budget_hit)
         self.evaluations.append(frame.evaluations)
         self.last = frame
         if frame.last_evaluated is not None and not np.array_equal(frame.last_evaluated, frame.value):
-            _write(self.ev.bindings, frame.value)         # the rig shows the accepted controls, not a probe
-            self.redisplays += 1                          # … which the viewport's evaluation then draws
+            shown = np.linalg.norm(frame.last_points - t, axis=1).max()
+            if shown > frame.pin_errors.max() + self.show_tol:
+                self._set(frame.value)                    # the rig shows the accepted controls (module doc)
+                self.redisplays += 1                      # … which the viewport's evaluation then draws
         return frame.value, bone_values(vector[n:n + 9], self.bones, self.mirror)
+
+    def _set(self, c) -> None:
+        """Write the channels of ``c`` (n,) that differ from what the rig shows (no depsgraph update)."""
+        c = np.asarray(c, dtype=np.float64)
+        self.writer(c, c != self.shown)
+        self.shown = c.copy()
+
+    def _evaluate(self, c) -> np.ndarray:
+        """The rig's points at ``c``: the changed channels written, one depsgraph update, the sample read."""
+        self._set(c)
+        return self.ev.evaluate(None)
 
     def write(self, controls: np.ndarray, bones: dict) -> str:
         """Controls onto the rig (unless it shows them already) and the head / eye bones; '' or why not."""
@@ -185,7 +217,7 @@ class RigLivePipeline(CalibratedInput):
         if why:
             return why
         if self.last is None or not np.array_equal(controls, self.last.value):
-            _write(self.ev.bindings, controls)
+            self._set(controls)
         if bones:
             return write_pose_bones(self.armature, self.bones, bones)
         return ""
@@ -207,9 +239,34 @@ class RigLivePipeline(CalibratedInput):
         return RigTakeRecorder(pipeline, name, meta)
 
 
-def _write(bindings, values) -> None:
-    for b, v in zip(bindings, values):
-        b.set(v)
+class _Writer:
+    """Writes the changed channels of a control vector: a bone's location, scale or Euler rotation in one
+    assignment of the vector (one RNA update per bone, not one per component), every other channel (a quaternion or
+    axis-angle rotation component, a property, a slider) by its binding."""
+
+    def __init__(self, bindings):
+        groups = {}
+        self.singles = []
+        for i, b in enumerate(bindings):
+            ch = b.channel
+            vector = ch.kind != ChannelKind.ROTATION or ch.rotation_mode in EULER_MODES
+            if b.prop is None and ch.index >= 0 and vector:
+                groups.setdefault((b.target.as_pointer(), b.attr), []).append(i)
+            else:
+                self.singles.append((i, b))
+        self.groups = [(bindings[cols[0]].target, bindings[cols[0]].attr, np.array(cols),
+                        [bindings[i].channel.index for i in cols]) for cols in groups.values()]
+
+    def __call__(self, c: np.ndarray, changed: np.ndarray) -> None:
+        for target, attr, cols, comps in self.groups:
+            if changed[cols].any():
+                vec = list(getattr(target, attr))
+                for k, v in zip(comps, c[cols].tolist()):
+                    vec[k] = v
+                setattr(target, attr, vec)
+        for i, b in self.singles:
+            if changed[i]:
+                b.set(c[i])
 
 
 def _budget(ev: RigEvaluator, c0) -> int:
@@ -224,7 +281,7 @@ def _budget(ev: RigEvaluator, c0) -> int:
         ev.evaluate(x if k % 2 == 0 else c)
         times.append(time.perf_counter() - t0)
     ms = max(float(np.median(times)) * 1e3, 1e-3)
-    return int(np.clip(LIVE_EVAL_MS // ms - 1, 1, MAX_BUDGET))
+    return int(np.clip(LIVE_EVAL_MS // ms, 1, MAX_BUDGET))
 
 
 def build_rig_pipeline(scene, settings, target, budget: int | None = None) -> RigLivePipeline:
@@ -265,7 +322,7 @@ def build_rig_pipeline(scene, settings, target, budget: int | None = None) -> Ri
         ev.restore()
         raise
     s, d = ev.controls.scale, ev.diagonal
-    solver = LiveRigSolver(c0, P0, J0, lo=lo, hi=hi, scale=s, steps=ev.steps,
+    solver = LiveRigSolver(c0, P0, J0, lo=lo, hi=hi, scale=s, steps=LIVE_REFRESH_STEP * ev.steps,
                            rest=np.clip(rest_controls(controls), lo, hi), mu=REG * ridge_unit(J0, s),
                            pin_tol=LIVE_PIN_TOL_REL * d, xtol=LIVE_XTOL_REL * d, budget=n_budget)
     smoothing = OneEuroFilter(settings.min_cutoff, settings.beta) if settings.smoothing else None

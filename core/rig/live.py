@@ -64,7 +64,10 @@ class LiveRigFrame(Result):
         The budget ran out before the frame converged (``status`` NOT_CONVERGED).
     last_evaluated : ndarray (n,) or None
         The controls of the frame's last rig evaluation (None when none): when they differ from ``value`` the
-        caller writes ``value`` back (the rig otherwise shows a refused trial or a finite-difference probe).
+        rig shows a refused trial or a finite-difference probe, not ``value``.
+    last_points : ndarray (p, 3) or None
+        The rig's evaluation at ``last_evaluated`` (what the rig shows): the caller writes ``value`` back (one
+        more evaluation) only when these are visibly worse than ``points`` for the frame's targets.
     """
 
     points: np.ndarray = None
@@ -75,6 +78,7 @@ class LiveRigFrame(Result):
     refreshed: int = 0
     budget_hit: bool = False
     last_evaluated: np.ndarray = None
+    last_points: np.ndarray = None
 
 
 def ridge_unit(J: np.ndarray, scale: ArrayLike) -> float:
@@ -169,8 +173,9 @@ class LiveRigSolver:
 
     def _refresh(self, evaluate, count: int) -> tuple:
         """Refresh ``count`` Jacobian columns (in turn) by forward differences at the current controls; returns
-        (the controls evaluated last or None, the evaluations made: a held channel's column needs none)."""
-        last, made = None, 0
+        (the controls evaluated last or None, their points or None, the evaluations made: a held channel's
+        column needs none)."""
+        last, last_P, made = None, None, 0
         n = self.c.size
         for _ in range(min(count, n)):
             i = self.cursor
@@ -182,9 +187,9 @@ class LiveRigSolver:
             x = self.c.copy()
             x[i] += step
             Pi = self._checked(evaluate, x)
-            last, made = x, made + 1
+            last, last_P, made = x, Pi, made + 1
             self.J[:, i] = (Pi - self.P).reshape(-1) / (x[i] - self.c[i])
-        return last, made
+        return last, last_P, made
 
     def step(self, evaluate: Callable, targets: ArrayLike) -> LiveRigFrame:
         """One frame (module doc): move the controls toward ``targets`` (p, 3) within the budget.
@@ -217,10 +222,10 @@ class LiveRigSolver:
 
     def _frame(self, evaluate, t) -> LiveRigFrame:
         e, f = self.objective(self.P, self.c, t)
-        used, trials, last, reason, refused = 0, 0, None, "", False
+        used, trials, last, last_P, reason, refused = 0, 0, None, None, "", False
         refreshed = min(self.pending, self.budget - 1) if self.budget > 1 else self.pending
         if refreshed:                        # the columns the last frame asked for, at its controls (still these)
-            last, used = self._refresh(evaluate, refreshed)
+            last, last_P, used = self._refresh(evaluate, refreshed)
         self.pending = 0
         while True:
             reason, trial = self._converged(t, e, f)
@@ -229,7 +234,7 @@ class LiveRigSolver:
             d, pred = trial
             c_new = np.clip(self.c + d, self.lo, self.hi)
             P_new = self._checked(evaluate, c_new)
-            used, trials, last = used + 1, trials + 1, c_new
+            used, trials, last, last_P = used + 1, trials + 1, c_new, P_new
             e_new, f_new = self.objective(P_new, c_new, t)
             self.J = broyden_update(self.J, c_new - self.c, (P_new - self.P).reshape(-1))
             rho = (f - f_new) / pred
@@ -250,4 +255,5 @@ class LiveRigSolver:
         return LiveRigFrame(self.c.copy(), status=Status.NOT_CONVERGED if hit else Status.OK, message=message,
                             iterations=trials, points=self.P.copy(), pin_errors=errs, objective=f,
                             evaluations=used, trials=trials, refreshed=refreshed, budget_hit=hit,
-                            last_evaluated=None if last is None else np.array(last))
+                            last_evaluated=None if last is None else np.array(last),
+                            last_points=None if last_P is None else np.array(last_P))

@@ -60,6 +60,10 @@ def test_stream_made_by_the_rig_is_followed_within_the_budget(name, budget):
         assert ev.calls == frame.evaluations <= budget
         assert frame.budget_hit == (frame.status == Status.NOT_CONVERGED)
         np.testing.assert_allclose(frame.points, rig(frame.value), atol=1e-12)      # verified, not predicted
+        if frame.evaluations:                                       # what the rig shows after the frame
+            np.testing.assert_allclose(frame.last_points, rig(frame.last_evaluated), atol=1e-12)
+        else:
+            assert frame.last_evaluated is None and frame.last_points is None
         assert float(np.sum((frame.points - t) ** 2)) <= before + 1e-9 * (1.0 + before)
         worst.append(np.abs(frame.points - t).max())
     scale = np.abs(rig(_stream(name)[0])).max()
