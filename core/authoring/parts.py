@@ -7,19 +7,23 @@ too (a part matched by the registration to a source part other than the source's
 moved here, as an artist would rig it:
 
 ``follow``
-    lashes, brows, eyelines, the mouth cavity, sheets of upper teeth lying behind the lips (by the skin's skull
-    share only, :data:`UPPER_SHEET`): each vertex is bound to its closest point ``p`` on the skin
-    (triangle, barycentric coordinates, offset ``x − p``), like a surface binding: its displacement is the
-    skin's at ``p`` plus the offset turned by the skin triangle's rotation (polar factor of its deformation
-    gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with ``r`` 1 % of
-    the head's diagonal, towards the jaw/skull motion of that vertex (the back of a mouth cavity is carried
-    by the jaw, not by the lip it hangs from); in a mouth cavity that holds the teeth, the jaw share is by
-    the nearest row of teeth (floor with the jaw, roof with the skull, see ``_cavity_shares``).
+    lashes, brows, eyelines, sheets of teeth lying behind the lips: each vertex is bound to its closest point
+    ``p`` on the skin (triangle, barycentric coordinates, offset ``x − p``), like a surface binding: its
+    displacement is the skin's at ``p`` plus the offset turned by the skin triangle's rotation (polar factor of
+    its deformation gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with
+    ``r`` 1 % of the head's diagonal, towards the jaw/skull motion of that vertex.  A sheet of teeth is bound
+    to its own lip: the upper row (:data:`UPPER_SHEET`, by the skin's skull share only) to the skin that stays
+    with the skull, the lower row (:data:`LOWER_SHEET`) to the skin the jaw moves.  The mouth cavity is not
+    bound to the lips at all, its rim included: it is carried by its jaw share of the jaw's rigid motion (the
+    skin's under it; in a cavity that holds the teeth, by the nearest row of teeth: floor with the jaw, roof
+    with the skull, see ``_cavity_shares``), as every shared head's artist skins it — still in every lip shape
+    (ICT FaceKit, Face Cap, Ready Player Me: 0.00 of the lips' motion), opened by the jaw's shapes.
 ``jaw``
-    lower teeth, lower gums, tongue: the rigid motion of the jaw, fitted per shape (weighted Procrustes,
-    Umeyama) to the transferred motion of the chin — the skin that the transferred ``jawOpen`` moves most —
-    in the ``jaw*`` shapes only where the rig has them (ARKit: ``mouthClose`` closes the lips over a still
-    jaw; a fit to the chin would take the lower lip's motion for the jaw's).
+    lower teeth, lower gums, tongue: the rigid motion of the jaw (the tongue, :data:`TONGUE`, also slides
+    forward in ``tongueOut`` by :data:`TONGUE_OUT` of its depth, see ``_tongues``), fitted per shape
+    (weighted Procrustes, Umeyama) to the transferred motion of the chin — the skin that the transferred
+    ``jawOpen`` moves most — in the ``jaw*`` shapes only where the rig has them (ARKit: ``mouthClose``
+    closes the lips over a still jaw; a fit to the chin would take the lower lip's motion for the jaw's).
 ``skull``
     upper teeth and gums: still.
 ``eye``
@@ -64,21 +68,27 @@ from ..surface import TriangleSurface
 from .mesh import bbox_diagonal, inv3, symmetry_plane, triangle_parts
 from .transfer import frames
 
-__all__ = ["KINDS", "UNSURE", "UPPER_SHEET", "EYE_LOOK_DEGREES", "PartPlan", "propose_parts", "plan_for_transfer",
+__all__ = ["KINDS", "UNSURE", "UPPER_SHEET", "LOWER_SHEET", "TONGUE", "TONGUE_OUT", "EYE_LOOK_DEGREES", "PartPlan",
+           "propose_parts", "plan_for_transfer",
            "move_parts", "jaw_membership",
            "fit_rigid", "sphere_fit"]
 
 KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
-# eyeLook* at weight 1, degrees (ARKit documents the direction only); measured as the mean of the turns the
-# artists of ICT FaceKit and Ready Player Me authored on their eyeballs, rounded
+# eyeLook* at weight 1, degrees (ARKit documents the direction only).  Of the shared heads only Ready Player Me's
+# keys turn the eyeballs (23.5° in every direction; ICT FaceKit's eyeLook* move the lids only); a real ARKit
+# stream (Live Link Face, eye angles against weights, R² ≥ 0.97) turns by Up 25°, Down 35°, In/Out 34°
 EYE_LOOK_DEGREES = {"Up": 20.0, "Down": 25.0, "In": 25.0, "Out": 30.0}
 FOLLOW_RADIUS = 0.01          # × diagonal: binding falloff (2 % carried lip motion deep into the cavity)
-CAVITY_RADIUS = 0.006         # × diagonal: the mouth cavity's binding falloff (the lips' motion stays at the lips)
 FOLLOW_MEDIAN = 0.012         # × diagonal: a part whose median distance to the skin is below this follows it
 TOUCH = 0.003                 # × diagonal: a part closer than this somewhere touches the skin (cavity)
 EYE_RESIDUAL = 0.06           # relative RMS of a sphere fit below which a part is an eyeball
 UNSURE = 0.6                  # a proposed kind below this confidence is marked unsure
 UPPER_SHEET = "lies behind the upper lip, in the upper row (follows the lips where they do not move with the jaw)"
+LOWER_SHEET = "lies behind the lower lip, in the lower row (follows the lips that move with the jaw)"
+TONGUE = "inside, in the lower row, across the mirror plane: the tongue (moves with the jaw, out in tongueOut)"
+# tongueOut at weight 1: the tongue slides forward by this share of its own depth (ARKit documents the extension,
+# not the distance; Ready Player Me's artist: 0.75, the only shared head whose tongue moves)
+TONGUE_OUT = 0.75
 
 
 @dataclass
@@ -241,6 +251,7 @@ def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map
         kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, p in closed)
     _beside_eyes(V, lab, kinds, conf, why, diag)
     _teeth_rows(V, lab, PartPlan(lab, kinds, conf, why, frame), diag, _mouth_sheets(V, skin, lab, kinds, why, jaw))
+    _tongues(V, lab, kinds, why, frame, diag)
     extents = {int(p): float(np.ptp(V[lab == p], axis=0).max()) / diag for p in np.unique(lab[lab >= 0])}
     plan = PartPlan(lab, kinds, conf, why, frame, extents)
     for p in np.unique(lab[lab > 0]):
@@ -301,6 +312,31 @@ def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: n
     tol = 1e-3 * bbox_diagonal(src_verts)
     moving = [int(q) for q in np.unique(s_lab[s_lab > 0]) if motion[s_lab == q].max() > tol]
     return propose_parts(dst_verts, dst_tris, t_lab, part_map, None if j is None else deltas[j], s_plan, moving)
+
+
+def _tongues(V, lab, kinds, why, frame, diag):
+    """Mark the tongue (in place, :data:`TONGUE`): a solid of the lower row lying across the mirror plane (1 %
+    of the diagonal on either side: a tooth lies on one side) that does not hold the teeth (a closed mouth bag,
+    Face Cap's, holds the rows of teeth that lie on either side of the plane inside its hull)."""
+    rigid = [p for p, k in kinds.items() if k in ("jaw", "skull")]
+    side = {p: (V[lab == p] - frame.centre) @ frame.left for p in rigid}
+    across = [p for p in rigid if side[p].min() < -0.01 * diag and side[p].max() > 0.01 * diag]
+    teeth = np.flatnonzero(np.isin(lab, [p for p in rigid if p not in across]))
+    for p in across:
+        if kinds[p] == "jaw" and (teeth.size == 0 or not _holds(V[lab == p], V[teeth])):
+            why[p] = TONGUE
+
+
+def _tongue_out(V, lab, plan, canon):
+    """The ``tongueOut`` translation (3,) of the tongue parts: along the face's forward (perpendicular to the
+    eyes' up, :func:`_face_up`), :data:`TONGUE_OUT` of the tongue's depth; zero without a tongue."""
+    tongue = np.isin(lab, [p for p, r in plan.reasons.items() if r == TONGUE and plan.kinds.get(p) == "jaw"])
+    if "tongueOut" not in canon or not tongue.any() or plan.frame is None:
+        return np.zeros(3)
+    up = _face_up(V, lab, plan)
+    fwd = plan.frame.forward - (plan.frame.forward @ up) * up
+    fwd /= max(np.linalg.norm(fwd), 1e-300)
+    return TONGUE_OUT * float(np.ptp(V[tongue] @ fwd)) * fwd
 
 
 def _beside_eyes(V, lab, kinds, conf, why, diag):
@@ -369,9 +405,7 @@ def _teeth_rows(V, lab, plan, diag, sheets=()):
     for p, hp in zip(rigid, h):
         kind, why = rows[bool(hp < cut)]
         if p in sheets:
-            if kind == "jaw":
-                continue
-            kind, why = "follow", UPPER_SHEET
+            kind, why = "follow", UPPER_SHEET if kind == "skull" else LOWER_SHEET
         plan.kinds[p], plan.confidence[p], plan.reasons[p] = kind, sure, why
 
 
@@ -476,11 +510,13 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
     follow = np.flatnonzero(np.isin(lab, [p for p, k in plan.kinds.items() if k == "follow"]))
     if follow.size:
         upper = np.isin(lab[follow], [p for p, r in plan.reasons.items() if r == UPPER_SHEET])
-        radius = np.where(np.isin(lab[follow], [p for p in plan.kinds if _is_cavity(plan, p)]), CAVITY_RADIUS,
-                          FOLLOW_RADIUS)
+        bound = ~np.isin(lab[follow], [p for p in plan.kinds if _is_cavity(plan, p)])   # the cavity: jaw/skull
+        lower = np.isin(lab[follow], [p for p, r in plan.reasons.items() if r == LOWER_SHEET])
+        side = np.where(upper, 0, np.where(lower, 1, -1))
         deltas[:, follow] = _follow(V, _Skin(V, TT, lab), follow, deltas, jaw, jaw_motion,
-                                    _cavity_shares(V, plan, follow), upper, radius)
+                                    _cavity_shares(V, plan, follow), upper, bound, side)
     frame = plan.frame if face_forward is None else None
+    out_by = _tongue_out(V, lab, plan, canon)
     for p, kind in plan.kinds.items():
         idx = np.flatnonzero(lab == p)
         if kind in ("skin", "source") or idx.size == 0:
@@ -490,6 +526,8 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
         elif kind == "jaw":
             R, t = jaw_motion
             deltas[:, idx] = np.einsum("kij,vj->kvi", R, V[idx]) + t[:, None, :] - V[idx][None]
+            if plan.reasons.get(p) == TONGUE and "tongueOut" in canon:
+                deltas[canon.index("tongueOut"), idx] += out_by
         elif kind == "eye":
             frame = frame or _face_frame(V, lab, jaw, jaw_delta, face_forward)
             centre = _eye_centre(V, lab, plan, p, frame)
@@ -556,17 +594,38 @@ def _holds(P, Q):
         return False
 
 
-def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None, upper=None, radius=FOLLOW_RADIUS):
+def _closest_on_side(V, skin, idx, jaw, side):
+    """:meth:`_Skin.closest` of vertices ``idx``, where ``side`` (m,) is 0 or 1 only on the skin's skull side
+    (triangles moving with the jaw by at most half) or jaw side (more than half): a row of teeth lying
+    behind the lips is bound to its own lip."""
+    tri, bary, point, dist = skin.closest(V[idx])
+    if side is None:
+        return tri, bary, point, dist
+    on_jaw = jaw[skin.tris].mean(axis=1) > 0.5
+    for s in (0, 1):
+        rows = np.flatnonzero(side == s)
+        sub = np.flatnonzero(on_jaw == bool(s))
+        if rows.size == 0 or sub.size == 0:
+            continue
+        t, b, q, d = TriangleSurface(V, skin.tris[sub]).closest(V[idx[rows]])
+        tri[rows], bary[rows], point[rows], dist[rows] = sub[t], b, q, d
+    return tri, bary, point, dist
+
+
+def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None, upper=None, bound=None, side=None):
     """Surface binding of vertices ``idx`` to the skin, fading into their jaw share of the jaw motion (the
     skin's under them, or ``shares`` (m,) where not NaN: :func:`_cavity_shares`).  ``upper`` (m,) bool: upper
     teeth sheets, bound to the skin by its skull share ``1 − jaw`` and never carried by the jaw (Ready Player
     Me's artist moves them with the upper lip in the lip shapes — ``mouthFunnel``, ``mouthPucker`` — not with
-    the lower lip's ``jawOpen`` and ``mouthClose``).  ``radius``: the binding's falloff, × the diagonal (scalar
-    or (m,))."""
-    tri, bary, point, dist = skin.closest(V[idx])
+    the lower lip's ``jawOpen`` and ``mouthClose``).  ``bound`` (m,) bool: bound to the skin at all (False:
+    the mouth cavity, carried by its jaw share alone).  ``side`` (m,): the lip each vertex binds to
+    (:func:`_closest_on_side`)."""
     ST = skin.tris
+    tri, bary, point, dist = _closest_on_side(V, skin, idx, jaw, side)
     diag = max(bbox_diagonal(V), 1e-300)
-    w = np.exp(-(dist / (radius * diag)) ** 2)
+    w = np.exp(-(dist / (FOLLOW_RADIUS * diag)) ** 2)
+    if bound is not None:
+        w = np.where(bound, w, 0.0)
     share = np.sum(bary * jaw[ST[tri]], axis=1)
     if shares is not None:
         share = np.where(np.isnan(shares), share, shares)
