@@ -300,7 +300,9 @@ def register(src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, ds
         ``value``: :class:`Correspondence`; ``iterations`` (all levels); status NOT_CONVERGED when a
         stiffness level reached its iteration cap; ``diagnostics``: ``residual_mm``, ``residual_max_mm``,
         ``coverage`` (fraction of source vertices with an accepted pair), ``seconds``, ``unmatched_parts``,
-        ``level_iterations`` (steps per level), ``levels_capped`` (the α of levels that hit the cap).
+        ``level_iterations`` (steps per level), ``levels_capped`` (the α of levels that hit the cap),
+        ``factorisations``, ``solved_vertices`` (the source vertices in the system: those of the parts that can
+        have a pair or hold a landmark; the others keep the warp).
     """
     return Registration(src_verts, src_tris, dst_verts, dst_tris, landmarks, stiffness=stiffness, inner=inner,
                         iterations=iterations, landmark_weight=landmark_weight, max_distance=max_distance,
@@ -620,7 +622,7 @@ class Registration:
                        "coverage": float((w > 0).mean()), "seconds": time.perf_counter() - self.t0,
                        "last_move": self.move * diag, "unmatched_parts": unmatched,
                        "level_iterations": self.level_iterations, "levels_capped": [a for a, _ in capped],
-                       "factorisations": self.factorisations}
+                       "factorisations": self.factorisations, "solved_vertices": int(self.act.size)}
         msg = (f"registered: residual {residual:.2f} mm RMS over {100 * (w > 0).mean():.0f}% of the source"
                + (f"; {len(unmatched)} target part(s) without a counterpart" if unmatched else ""))
         if status == Status.NOT_CONVERGED:
