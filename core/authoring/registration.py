@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
-from scipy.sparse.linalg import splu
+from scipy.sparse.linalg import SuperLU, splu
 from scipy.spatial import cKDTree
 
 from .. import validate
@@ -437,14 +437,14 @@ class Registration:
         self.lm_A_a = self.lm_A.tocsr()[a][:, a].tocsc()
         self.rhs_a = (self.LtL_Y0[a], self.eps * self.Yn0[a] + self.lm_rhs[a])    # (× α², constant)
 
-    def solve(self, lu, alpha: float) -> np.ndarray:
+    def solve(self, lu: SuperLU, alpha: float) -> np.ndarray:
         """The minimiser of the energy for the current pairs ``w``, ``c`` (``lu``: of the restricted system)."""
         a, w = self.act, self.w
         Y = self.Yn0.copy()
         Y[a] = lu.solve((alpha * alpha) * self.rhs_a[0] + w[a, None] * self.c[a] + self.rhs_a[1])
         return Y
 
-    def factorise(self, alpha: float):
+    def factorise(self, alpha: float) -> SuperLU:
         """LU of the restricted system matrix ``α² LᵀL + diag(w + ε) + β² PᵀP``."""
         self.factorisations += 1
         return _spd_lu((alpha * alpha) * self.LtL_a + sp.diags(self.w[self.act] + self.eps) + self.lm_A_a)
