@@ -593,22 +593,23 @@ class Registration:
         centroids = T[TT].mean(axis=1)
         matched_src_faces = np.flatnonzero(np.isin(s_face_part, [q for q in part_map.values() if q >= 0])
                                            & (s_area > 0))
+        surfaces = {}                 # one query per source surface: the target parts matched to one source part
         for p in sorted(set(part_map) | {-1}):
             q = part_map.get(p, -1)
             if p >= 0 and q < 0:
                 continue
             faces = np.flatnonzero((s_face_part == q) & (s_area > 0)) if p >= 0 else matched_src_faces
-            if faces.size == 0:
+            if faces.size:
+                surfaces.setdefault(faces.tobytes(), (faces, []))[1].append(p)
+        for faces, parts in surfaces.values():
+            vi = np.flatnonzero(np.isin(self.t_part, parts))
+            fi = np.flatnonzero(np.isin(self.t_face_part, [p for p in parts if p >= 0]))
+            if vi.size + fi.size == 0:
                 continue
-            surface = TriangleSurface(registered, ST[faces])
-            vi = np.flatnonzero(self.t_part == p)
-            if vi.size:
-                k, b, _, d = surface.closest(T[vi], candidates=8)
-                tri[vi], bary[vi], dist[vi] = faces[k], b, d
-            fi = np.flatnonzero(self.t_face_part == p) if p >= 0 else np.zeros(0, dtype=int)
-            if fi.size:
-                k, _, _, _ = surface.closest(centroids[fi], candidates=8)
-                face_tri[fi] = faces[k]
+            k, b, _, d = TriangleSurface(registered, ST[faces]).closest(np.vstack([T[vi], centroids[fi]]),
+                                                                        candidates=8)
+            tri[vi], bary[vi], dist[vi] = faces[k[:vi.size]], b[:vi.size], d[:vi.size]
+            face_tri[fi] = faces[k[vi.size:]]
         return tri, bary, dist, face_tri
 
     def result(self, corr: Correspondence, res: np.ndarray) -> Result:
