@@ -147,9 +147,8 @@ def face_normals(verts: np.ndarray, tris: np.ndarray) -> tuple:
 def vertex_normals(verts: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals (n, 3); vertices in no triangle get zero."""
     c = np.cross(verts[tris[:, 1]] - verts[tris[:, 0]], verts[tris[:, 2]] - verts[tris[:, 0]])
-    out = np.zeros_like(verts)
-    for k in range(3):
-        np.add.at(out, tris[:, k], c)
+    idx, cw = tris.T.ravel(), np.tile(c, (3, 1))     # the corners in the order np.add.at would sum them
+    out = np.stack([np.bincount(idx, cw[:, j], minlength=verts.shape[0]) for j in range(3)], axis=1)
     n = np.linalg.norm(out, axis=1)
     return out / np.where(n > 0, n, 1.0)[:, None]
 

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
-from scipy.sparse.linalg import splu
+from scipy.sparse.linalg import SuperLU, splu
 from scipy.spatial import cKDTree
 
 from .. import validate
@@ -300,7 +300,9 @@ def register(src_verts: ArrayLike, src_tris: ArrayLike, dst_verts: ArrayLike, ds
         ``value``: :class:`Correspondence`; ``iterations`` (all levels); status NOT_CONVERGED when a
         stiffness level reached its iteration cap; ``diagnostics``: ``residual_mm``, ``residual_max_mm``,
         ``coverage`` (fraction of source vertices with an accepted pair), ``seconds``, ``unmatched_parts``,
-        ``level_iterations`` (steps per level), ``levels_capped`` (the α of levels that hit the cap).
+        ``level_iterations`` (steps per level), ``levels_capped`` (the α of levels that hit the cap),
+        ``factorisations``, ``solved_vertices`` (the source vertices in the system: those of the parts that can
+        have a pair or hold a landmark; the others keep the warp).
     """
     return Registration(src_verts, src_tris, dst_verts, dst_tris, landmarks, stiffness=stiffness, inner=inner,
                         iterations=iterations, landmark_weight=landmark_weight, max_distance=max_distance,
@@ -382,6 +384,7 @@ class Registration:
                 tree = cKDTree(T[TT[faces]].mean(axis=1) / self.diag)
                 self.groups.append((verts, faces, TriangleSurface(self.Tn, TT[faces], tree)))
         self.warm = [{} for _ in self.groups]          # candidate sets re-used between ICP steps
+        self.frozen = None                             # per group, once a level's pair set is frozen (see pairs)
 
     # ---- step 4: non-rigid ICP
     def system(self) -> None:
@@ -409,6 +412,7 @@ class Registration:
         self.lm_rhs = (self.landmark_weight ** 2) * (self.P.T @ self.lm_dst)
         self.lm_A = (self.landmark_weight ** 2) * PtP
         self.LtL_Y0 = self.LtL @ self.Yn0           # constant part of the right-hand side (× α²)
+        self.restrict(vals != 0, cols)
         self.cap = max(1, int(self.iterations))
         self.w = np.zeros(n)
         self.c = np.zeros((n, 3))
@@ -417,13 +421,53 @@ class Registration:
         self.level_iterations = []
         self.factorisations = 0
 
+    def restrict(self, lm_used: np.ndarray, lm_cols: np.ndarray) -> None:
+        """The vertices the system is solved for (``act``) and its fixed parts restricted to them: the source
+        parts that can have a pair (a group's vertices) or hold a landmark.  The Laplacian has no edge between
+        parts, so every other part's block is ``(α² LᵀL + ε) (Y − Y₀) = 0``: it keeps the warp, ``Y = Y₀``
+        (ICT FaceKit as the source: its eyes, teeth, gums, lashes… — 12.7k of 26.7k vertices onto FBHead)."""
+        live = np.zeros(self.S.shape[0], dtype=bool)
+        for verts, _faces, _surface in self.groups:
+            live[verts] = True
+        live[lm_cols[lm_used]] = True
+        parts = np.unique(self.s_part[live])
+        live |= np.isin(self.s_part, parts[parts >= 0])
+        a = self.act = np.flatnonzero(live)
+        self.LtL_a = self.LtL[a][:, a].tocsc()
+        self.lm_A_a = self.lm_A.tocsr()[a][:, a].tocsc()
+        self.rhs_a = (self.LtL_Y0[a], self.eps * self.Yn0[a] + self.lm_rhs[a])    # (× α², constant)
+
+    def solve(self, lu: SuperLU, alpha: float) -> np.ndarray:
+        """The minimiser of the energy for the current pairs ``w``, ``c`` (``lu``: of the restricted system)."""
+        a, w = self.act, self.w
+        Y = self.Yn0.copy()
+        Y[a] = lu.solve((alpha * alpha) * self.rhs_a[0] + w[a, None] * self.c[a] + self.rhs_a[1])
+        return Y
+
+    def factorise(self, alpha: float) -> SuperLU:
+        """LU of the restricted system matrix ``α² LᵀL + diag(w + ε) + β² PᵀP``."""
+        self.factorisations += 1
+        return _spd_lu((alpha * alpha) * self.LtL_a + sp.diags(self.w[self.act] + self.eps) + self.lm_A_a)
+
+    def freeze(self, mask: np.ndarray) -> None:
+        """Freeze the pair set ``mask`` (n,): from now on :meth:`pairs` (without ``accept``) queries only the
+        accepted source vertices, each group with a candidate state of its own (the others' closest points
+        have weight 0; on ICT FaceKit as the source only 20–50 % of the vertices have a pair)."""
+        self.frozen = [(verts[mask[verts]], faces, surface, {}) for verts, faces, surface in self.groups]
+
     def pairs(self, Y: np.ndarray, accept: bool) -> tuple:
-        """Closest target points ``c`` of every source vertex, and (``accept``) which pairs pass the tests."""
+        """Closest target points ``c`` of every source vertex, and (``accept``) which pairs pass the tests;
+        with the pair set frozen (:meth:`freeze`) and not ``accept``, those of the accepted vertices only (the
+        others' ``c`` is ``Y``)."""
         n = self.S.shape[0]
         ok_all = np.zeros(n, dtype=bool)
         cc = Y.copy()
         vn = vertex_normals(Y, self.ST) if accept else None
-        for (verts, faces, surface), warm in zip(self.groups, self.warm):
+        groups = self.frozen if self.frozen is not None and not accept else \
+            [(verts, faces, surface, warm) for (verts, faces, surface), warm in zip(self.groups, self.warm)]
+        for verts, faces, surface, warm in groups:
+            if verts.size == 0:
+                continue
             tri, bary, pt, dist = surface.closest(Y[verts], candidates=6, warm=warm)
             cc[verts] = pt
             if accept:
@@ -446,6 +490,7 @@ class Registration:
         """One stiffness level ``alpha``: re-estimate the pair set until it is stable (or for ``inner`` steps),
         then freeze it and iterate (Anderson-accelerated) until the move or the energy decrease is below ``tol``."""
         lu, mask, frozen = None, None, False
+        self.frozen = None
         converged = False
         e_prev = np.inf
         hist_G, hist_F = [], []                   # Anderson history: plain iterates G(Y_j), residuals G(Y_j) − Y_j
@@ -459,6 +504,7 @@ class Registration:
                 if mask is not None and (np.array_equal(ok, mask) or k > max(1, inner)):
                     frozen = True                 # the pair set is stable (or re-estimated enough): keep it
                     ok = mask
+                    self.freeze(mask)
                 if mask is None or not np.array_equal(ok, mask):
                     lu = None
                 mask = ok
@@ -480,9 +526,8 @@ class Registration:
             rel_change = (e_prev - e_now) / max(e_now, 1e-300) if (lu is not None and np.isfinite(e_prev)) else np.inf
             e_prev = e_now
             if lu is None:
-                lu = _spd_lu((alpha * alpha) * self.LtL + sp.diags(w + self.eps) + self.lm_A)
-                self.factorisations += 1
-            Y_new = lu.solve((alpha * alpha) * self.LtL_Y0 + w[:, None] * c + self.eps * self.Yn0 + self.lm_rhs)
+                lu = self.factorise(alpha)
+            Y_new = self.solve(lu, alpha)
             self.move = float(np.abs(Y_new - Y).max())
             notify(self.progress, 0.8 * min(1.0, (li + k / self.cap) / len(self.stiffness)))
             tol = self.tol if li == len(self.stiffness) - 1 else self.level_tol
@@ -527,10 +572,11 @@ class Registration:
     def residuals(self) -> np.ndarray:
         """Registered-source → target-surface distances (target units) of the accepted pairs after the last solve."""
         res = []
-        for (verts, _faces, surface), warm in zip(self.groups, self.warm):
-            _, _, _, dist = surface.closest(self.Y[verts], candidates=6, warm=warm)
-            acc = self.w[verts] > 0
-            res.append(dist[acc] * self.diag)
+        for verts, _faces, surface in self.groups:
+            acc = verts[self.w[verts] > 0]
+            if acc.size:
+                _, _, _, dist = surface.closest(self.Y[acc], candidates=6)
+                res.append(dist * self.diag)
         return np.concatenate(res) if res else np.zeros(0)
 
     # ---- step 5: the dense map
@@ -547,22 +593,23 @@ class Registration:
         centroids = T[TT].mean(axis=1)
         matched_src_faces = np.flatnonzero(np.isin(s_face_part, [q for q in part_map.values() if q >= 0])
                                            & (s_area > 0))
+        surfaces = {}                 # one query per source surface: the target parts matched to one source part
         for p in sorted(set(part_map) | {-1}):
             q = part_map.get(p, -1)
             if p >= 0 and q < 0:
                 continue
             faces = np.flatnonzero((s_face_part == q) & (s_area > 0)) if p >= 0 else matched_src_faces
-            if faces.size == 0:
+            if faces.size:
+                surfaces.setdefault(faces.tobytes(), (faces, []))[1].append(p)
+        for faces, parts in surfaces.values():
+            vi = np.flatnonzero(np.isin(self.t_part, parts))
+            fi = np.flatnonzero(np.isin(self.t_face_part, [p for p in parts if p >= 0]))
+            if vi.size + fi.size == 0:
                 continue
-            surface = TriangleSurface(registered, ST[faces])
-            vi = np.flatnonzero(self.t_part == p)
-            if vi.size:
-                k, b, _, d = surface.closest(T[vi], candidates=8)
-                tri[vi], bary[vi], dist[vi] = faces[k], b, d
-            fi = np.flatnonzero(self.t_face_part == p) if p >= 0 else np.zeros(0, dtype=int)
-            if fi.size:
-                k, _, _, _ = surface.closest(centroids[fi], candidates=8)
-                face_tri[fi] = faces[k]
+            k, b, _, d = TriangleSurface(registered, ST[faces]).closest(np.vstack([T[vi], centroids[fi]]),
+                                                                        candidates=8)
+            tri[vi], bary[vi], dist[vi] = faces[k[:vi.size]], b[:vi.size], d[:vi.size]
+            face_tri[fi] = faces[k[vi.size:]]
         return tri, bary, dist, face_tri
 
     def result(self, corr: Correspondence, res: np.ndarray) -> Result:
@@ -576,7 +623,7 @@ class Registration:
                        "coverage": float((w > 0).mean()), "seconds": time.perf_counter() - self.t0,
                        "last_move": self.move * diag, "unmatched_parts": unmatched,
                        "level_iterations": self.level_iterations, "levels_capped": [a for a, _ in capped],
-                       "factorisations": self.factorisations}
+                       "factorisations": self.factorisations, "solved_vertices": int(self.act.size)}
         msg = (f"registered: residual {residual:.2f} mm RMS over {100 * (w > 0).mean():.0f}% of the source"
                + (f"; {len(unmatched)} target part(s) without a counterpart" if unmatched else ""))
         if status == Status.NOT_CONVERGED:

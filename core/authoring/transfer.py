@@ -20,7 +20,9 @@ facecap → ICT 1.61 → 1.01, compared with ``ε = 10⁻⁶``, measured with ex
 Source triangles the registration folded or
 stretched more than ``max_stretch`` give no constraint (their target triangles follow their neighbours).
 The normal matrix ``∇ᵀA∇ + εM`` (the cotangent Laplacian plus a mass term) is factorised
-once with :func:`scipy.sparse.linalg.splu` and re-used for every shape and coordinate.
+once with :func:`scipy.sparse.linalg.splu` and re-used for every shape and coordinate (a chunk of shapes'
+three coordinates in one multi-column solve); the gradients are evaluated only on the source triangles under
+some target triangle, and the projection and area weights are folded into one sparse ``∇ᵀ A P`` built once.
 
 Target parts without a source counterpart (eyes a source does not have) stay still (reported), or are
 refused with ``unmatched_parts="refuse"``.
@@ -86,6 +88,18 @@ def _gradient_operator(V, T):
     return G, area, nrm
 
 
+def _projected_operator(G, weight, nrm, faces):
+    """``∇ᵀ A P`` restricted to the columns of ``faces``: sparse (n, 3·len(faces)), column ``3i + m`` of face
+    ``j = faces[i]`` is ``Σ_r a_j P_j[r, m] ∇_j[r]`` (``P_j = I − n_j n_jᵀ`` the projector onto its plane)."""
+    m = faces.size
+    P = np.eye(3)[None] - nrm[faces, :, None] * nrm[faces, None, :]                     # (m, 3, 3)
+    rows = (3 * faces[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)   # [i, r, m] → 3 j + r
+    cols = (3 * np.arange(m)[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
+    Pb = sp.csr_matrix(((weight[faces, None, None] * P).ravel(), (rows.ravel(), cols.ravel())),
+                       shape=(G.shape[0], 3 * m))
+    return (G.T @ Pb).tocsr()
+
+
 class Transfer:
     """Deformation transfer from one source mesh onto one target mesh, factorised once.
 
@@ -134,25 +148,29 @@ class Transfer:
         self.S, self.ST, self.T, self.TT, self.corr = S, ST, T, TT, corr
         self.n_s, self.n_t = S.shape[0], T.shape[0]
         F = frames(S, ST)
-        self._Finv, ok_s = _safe_inv(F)
+        Finv, ok_s = _safe_inv(F)
         R = frames(corr.registered, ST)
-        self._R = R
-        self._Rinv, ok_r = _safe_inv(R)
-        W = R @ self._Finv                                                    # registration gradient
+        Rinv, ok_r = _safe_inv(R)
+        W = R @ Finv                                                          # registration gradient
         sv = np.linalg.svd(W, compute_uv=False)
         good = (np.linalg.det(W) > 0) & (sv[:, 0] <= max_stretch * np.maximum(sv[:, 2], 1e-300))
         self._ok_src = ok_s & ok_r & good
         self.folded = int((~good).sum())
         G, area, nrm = _gradient_operator(T, TT)
         ft = corr.face_tri
-        self._face_src = np.where(ft >= 0, ft, 0)
-        self._face_ok = (ft >= 0) & self._ok_src[self._face_src] & (area > 0)
-        self._P = np.eye(3)[None] - nrm[:, :, None] * nrm[:, None, :]              # (f_t, 3, 3)
-        self._G = G
+        face_src = np.where(ft >= 0, ft, 0)
+        self._face_ok = (ft >= 0) & self._ok_src[face_src] & (area > 0)
         # folded / over-stretched source triangles give no constraint; unmatched parts are held still (Q = I)
         weight = np.where(self._face_ok | (ft < 0), area, 0.0)
         self._a = np.repeat(weight, 3)
         K = (G.T @ sp.diags(self._a) @ G).tocsc()
+        # only the target triangles with a source gradient have a nonzero right-hand side (Q − I = 0 elsewhere):
+        # H = ∇ᵀ A P over those, so that the right-hand side is H (Q − I) (the projector folded in once)
+        ok = np.flatnonzero(self._face_ok)
+        self._src_used, self._slot = np.unique(face_src[ok], return_inverse=True)
+        self._W, self._Rinv_used = W[self._src_used], Rinv[self._src_used]
+        self._ST_used = ST[self._src_used]
+        self._H = _projected_operator(G, weight, nrm, ok)
         mass = np.zeros(self.n_t)
         for k in range(3):
             np.add.at(mass, TT[:, k], area / 3.0)
@@ -206,30 +224,30 @@ class Transfer:
         """
         D = validate.array(src_deltas, "source deltas", shape=(None, self.n_s, 3))
         k = D.shape[0]
-        out = np.zeros((k, self.n_t, 3))
-        anchors = self.naive(D)
+        out = np.empty((k, self.n_t, 3))
         I3 = np.eye(3)
+        n_ok = self._slot.size
         for c0 in range(0, k, chunk):
             sl = slice(c0, min(k, c0 + chunk))
             kk = sl.stop - sl.start
-            Fd = frames(self.S[None] + D[sl], self.ST)                         # (kk, f_s, 3, 3)
-            Mloc = self._Finv[None] @ Fd                                       # F⁻¹ F'
-            Q = self._R[None] @ Mloc @ self._Rinv[None]                        # registered-space gradient
-            Q[:, ~self._ok_src] = I3
-            Qt = Q[:, self._face_src]                                          # (kk, f_t, 3, 3)
-            Qt[:, ~self._face_ok] = I3
-            Bm = (Qt - I3) @ self._P[None]                                     # (kk, f_t, 3, 3): [c, r]
-            # rows 3j + r, columns 3s + c
-            rhs_g = Bm.transpose(1, 3, 0, 2).reshape(3 * self.TT.shape[0], 3 * kk)
-            rhs = self._G.T @ (self._a[:, None] * rhs_g)
-            rhs += self._M[:, None] * anchors[sl].transpose(1, 0, 2).reshape(self.n_t, 3 * kk)
+            Fd = frames(self.S[None] + D[sl], self._ST_used)                  # (kk, u, 3, 3): used source faces
+            Q = (self._W[None] @ Fd) @ self._Rinv_used[None]                   # R F⁻¹ F' R⁻¹ (registered space)
+            Q -= I3
+            # rows 3j + m (the target triangles with a source gradient), columns 3s + c
+            rhs_g = Q.transpose(1, 3, 0, 2)[self._slot].reshape(3 * n_ok, 3 * kk)
+            rhs = self._H @ rhs_g
+            # the anchor d₀ (:meth:`naive`), built directly in the (n_t, 3·kk) layout of the right-hand side
+            rotated = np.einsum("ij,kvj->vki", self._sR, D[sl]).reshape(self.n_s, 3 * kk)
+            rhs += self._M[:, None] * (self._B @ rotated)
             if self.openings:
                 z = gap_changes(self.openings, self.S, D[sl], self.T)                # (kk, m, 3)
                 rhs += self._wc * (self._C.T @ z.transpose(1, 0, 2).reshape(-1, 3 * kk))
-            x = np.empty_like(rhs)
-            for col in range(rhs.shape[1]):      # SuperLU is several times faster column by column
-                x[:, col] = self._lu.solve(rhs[:, col])
-            out[sl] = x.reshape(self.n_t, kk, 3).transpose(1, 0, 2)
+            # three columns (one shape) per call: ~2× faster than one by one, and as fast as more at once
+            # without letting OpenBLAS thread SuperLU's wider triangular solves (3× the CPU time on a busy machine)
+            x = np.empty((self.n_t, 3 * kk), order="F")
+            for col in range(0, 3 * kk, 3):
+                x[:, col:col + 3] = self._lu.solve(np.asfortranarray(rhs[:, col:col + 3]))
+            out[sl] = x.T.reshape(kk, 3, self.n_t).transpose(0, 2, 1)
         return out
 
 

@@ -451,3 +451,25 @@ def test_stiffer_levels_are_warm_starts_and_the_last_level_converges_as_tight(he
     err_tight = np.linalg.norm(tight.value.registered - _deform(V), axis=1)
     assert np.median(err_fast) <= 1.15 * np.median(err_tight)
     assert np.percentile(err_fast, 95) <= 1.35 * np.percentile(err_tight, 95)
+
+
+def test_source_part_without_counterpart_keeps_its_warp_and_is_not_solved_for(head):
+    """Source = head + a separate 'eyeball' deep inside it that no target part matches: its rows of the ICP system
+    decouple (the Laplacian has no edge between parts), so it keeps the landmark warp, and the system is solved
+    only for the parts that can have a pair or hold a landmark (ICT FaceKit's eyes, teeth, gums are left out)."""
+    V, T, D, lm = head
+    EV, ET = _head(6, 8)
+    EV = 0.1 * EV + [0.35, 0.3, 0.3]
+    SV = np.vstack([V, EV])
+    ST = np.vstack([T, ET + V.shape[0]])
+    R = Rotation.from_euler("xyz", [10, -20, 5], degrees=True).as_matrix()
+    TV = 1.3 * V @ R.T + [0.2, -0.1, 0.4]
+    TV[:, 2] += 0.08 * np.sin(3.0 * TV[:, 1])          # not a warp of the landmarks: the ICP has work to do
+    pairs = landmarks_from_indices(SV, TV, lm, lm)
+    reg = register(SV, ST, TV, T, pairs)
+    assert reg.success, reg.message
+    assert sorted(reg.value.part_map.values()) == [0]          # the eyeball is nobody's counterpart
+    assert reg.diagnostics["solved_vertices"] == V.shape[0]   # the eyeball's rows are not in the factorised system
+    warped, _ = authoring.warp_points(pairs, SV, 1e-3)
+    assert np.abs(reg.value.registered[V.shape[0]:] - warped[V.shape[0]:]).max() < 1e-12
+    assert np.abs(reg.value.registered[:V.shape[0]] - warped[:V.shape[0]]).max() > 1e-4   # the head did move
