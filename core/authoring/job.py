@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..blas_threads import single_threaded
 from ..errors import ErrorCode
 from ..progress import ProgressFn, notify, scaled
 from ..result import Result, ShapeSpaceError, Status
@@ -156,6 +157,11 @@ def compute_transfer(plan: TransferPlan, progress: ProgressFn | None = None) -> 
     ShapeSpaceError
         The registration failed, or a transferred shape is not finite (naming it).
     """
+    with single_threaded():        # sparse factors and many 3×3 blocks: OpenBLAS threads only spin (core.blas_threads)
+        return _compute_transfer(plan, progress)
+
+
+def _compute_transfer(plan: TransferPlan, progress: ProgressFn | None) -> TransferOutcome:
     rig, tgt, names, write = plan.rig, plan.tgt, plan.names, plan.write
     report = TransferReport(source=plan.source, target=plan.target, skipped=[names[n] for n in plan.skipped])
     notify(progress, 0.0)
