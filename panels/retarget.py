@@ -81,7 +81,7 @@ def _draw_onto_controls(layout, ob, st):
         box = layout.box()
         for part in result.split("; "):
             box.label(text=part)
-        box.operator("shapespace.discard_retarget", icon="LOOP_BACK")
+        box.operator("shapespace.discard_retarget", icon="LOOP_BACK").result = "CONTROLS"
 
 
 def _draw_bones(layout, st, op):
@@ -130,7 +130,7 @@ def _draw_result(layout, ob):
                 col.label(text=f"at {format_ranges(rep.clipped_frames, 4)}")
         if rep.keys_kept_frac is not None:
             col.label(text=f"{100 * rep.keys_kept_frac:.1f} % of the keys kept")
-        box.operator("shapespace.discard_retarget", icon="LOOP_BACK")
+        box.operator("shapespace.discard_retarget", icon="LOOP_BACK").result = "SHAPE_KEYS"
 
 
 def _draw_mapping(layout, ob):

@@ -37,7 +37,7 @@ from ...core.rig import ControlSet, RigTakeReport
 from ..retarget.mapping import resolve_mapping
 from ..retarget.sources import read_source
 from .analytic import key_delta
-from .last_take import remember
+from .last_take import remember_or_give_back
 from .take import compute_take, shape_key_targets, write_take
 
 __all__ = ["MIN_SAMPLE", "capture_weights", "sample_vertices", "retarget_capture_onto_rig"]
@@ -141,5 +141,5 @@ def retarget_capture_onto_rig(mesh_obj, controls: ControlSet, source, *, scene=N
     report.issues = issues + report.issues
     report.source = str(getattr(source, "name", source))
     report.mapped_channels = len(names)
-    remember(mesh_obj, report)
+    remember_or_give_back(mesh_obj, report, controls)
     return report

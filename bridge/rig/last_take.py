@@ -18,7 +18,7 @@ from .. import storage
 from . import stored
 from .take import restore_previous
 
-__all__ = ["PROP", "discard", "forget", "has_result", "remember", "summary", "summary_of"]
+__all__ = ["PROP", "discard", "forget", "has_result", "remember", "remember_or_give_back", "summary", "summary_of"]
 
 PROP = blobs.RIG_RETARGET_LAST.prop
 _SCHEMA = blobs.RIG_RETARGET_LAST.schema
@@ -37,13 +37,22 @@ def summary(report: RigTakeReport) -> str:
 
 def remember(face, report: RigTakeReport) -> None:
     """Keep what :func:`discard` needs of ``report`` (a written take) and its :func:`summary` on ``face``; a take that
-    keyed nothing forgets the previous result instead (there is nothing of its own to discard)."""
+    keyed nothing leaves the previous one remembered (it still plays, and can still be discarded)."""
     if not report.actions:
-        forget(face)
         return
     values = [list(v) if isinstance(v, (list, tuple)) else float(v) for v in report.values_before]
     storage.write_id_blob(face, PROP, _SCHEMA, {"channels": list(report.channels), "actions": list(report.actions),
                                                 "values_before": values, "summary": summary(report)})
+
+
+def remember_or_give_back(face, report: RigTakeReport, controls) -> None:
+    """:func:`remember` the take just written with ``controls``; when that fails, give back what the take keyed
+    (:func:`bridge.rig.take.restore_previous`) before the error goes on, so the file is as before."""
+    try:
+        remember(face, report)
+    except BaseException:
+        restore_previous(report, controls)
+        raise
 
 
 def forget(face) -> None:
@@ -67,8 +76,9 @@ def _read(face) -> dict:
 
 
 def discard(face) -> list:
-    """Give back what the last retarget onto ``face``'s rig controls keyed (module doc); returns the names of the
-    actions restored ('' for a datablock that played none)."""
+    """Give back what the last retarget onto ``face``'s rig controls keyed (module doc); returns, per datablock given
+    back, ``(what it plays now: its previous action's name, or its own name when it plays none, previous action
+    name or '')``."""
     if not has_result(face):
         raise ShapeSpaceError(f"{face.name!r} has no retarget onto its rig controls to discard", ErrorCode.NO_RESULT)
     data = _read(face)
@@ -84,4 +94,4 @@ def discard(face) -> list:
                            values_before=list(data["values_before"]))
     restore_previous(report, controls)
     forget(face)
-    return [entry["previous"] for entry in data["actions"]]
+    return [(entry["previous"] or entry["name"], entry["previous"]) for entry in data["actions"]]

@@ -38,7 +38,7 @@ from . import stored
 from .capture import capture_weights, sample_vertices
 from .channels import bind
 from .evaluate import RigEvaluator, check_editable
-from .last_take import remember, summary
+from .last_take import remember_or_give_back, summary
 from .proposal import checked_rest, probe_candidates
 from .take import TakeOutcome, compute_take, rest_controls, shape_key_targets, write_take
 
@@ -249,5 +249,5 @@ def finish_retarget(job: SteppedJob, mesh_obj, source, key_tolerance: float = 0.
     report.issues = list(issues) + report.issues
     report.source = str(getattr(source, "name", source))
     report.mapped_channels = len(names)
-    remember(mesh_obj, report)
+    remember_or_give_back(mesh_obj, report, outcome.controls)
     return report

@@ -347,7 +347,8 @@ def _id_block(entry: dict):
 
 
 def _give_back(idb, entry: dict) -> None:
-    """``idb`` plays what it played before (action, slot, fake-user flag); the new action is deleted."""
+    """``idb`` plays what it played before (action, slot, fake-user flag); the new action is deleted unless something
+    else plays it now."""
     made = bpy.data.actions.get(entry["action"]) if entry["action"] else None
     previous = bpy.data.actions.get(entry["previous"]) if entry["previous"] else None
     ad = idb.animation_data
@@ -361,8 +362,8 @@ def _give_back(idb, entry: dict) -> None:
         idb.animation_data_clear()
     elif ad is not None:
         ad.action = None
-    if made is not None and made is not previous:
-        bpy.data.actions.remove(made)
+    if made is not None and made is not previous and made.users - int(made.use_fake_user) == 0:
+        bpy.data.actions.remove(made)                  # kept when something else plays it now
 
 
 def write_take(outcome: TakeOutcome, key_tolerance: float = 0.0, progress=None) -> RigTakeReport:

@@ -160,3 +160,54 @@ def test_discard_result_is_refused_by_name_when_the_rig_changed_and_changes_noth
     with pytest.raises(RuntimeError, match="control set changed since the retarget"):
         bpy.ops.shapespace.discard_retarget()
     assert blend_fingerprint() == fingerprint
+
+
+def test_each_result_has_its_own_discard_and_auto_is_refused_when_both_are_remembered(registered):
+    from shapespace.bridge import retarget
+    from shapespace.panels.retarget import SHAPESPACE_PT_retarget
+    rig = _face()
+    assert bpy.ops.shapespace.retarget_controls(filepath=_csv()) == {"FINISHED"}
+    bones_take = actions.active_action(rig.armature)
+    assert bpy.ops.shapespace.retarget(filepath=_csv(), method="copy") == {"FINISHED"}   # then onto the shape keys
+    assert last_take.has_result(rig.mesh) and retarget.has_result(rig.mesh)
+    fingerprint = blend_fingerprint()
+    with pytest.raises(RuntimeError, match="choose which"):
+        bpy.ops.shapespace.discard_retarget()                                  # a script must say which
+    assert blend_fingerprint() == fingerprint
+    st = rig.mesh.shapespace_retarget
+    st.csv_path = _csv()
+    buttons = [("SHAPE_KEYS", "SHAPE_KEYS"), ("CONTROLS", "CONTROLS")]
+    for target, result in buttons:                                             # each box's button names its result
+        st.target = target
+        log = draw_panel(SHAPESPACE_PT_retarget, bpy.context)
+        assert ("operator", "shapespace.discard_retarget") in log.log
+    shape_key_take = actions.active_action(rig.mesh.data.shape_keys).name
+    assert bpy.ops.shapespace.discard_retarget(result="SHAPE_KEYS") == {"FINISHED"}
+    assert not retarget.has_result(rig.mesh) and last_take.has_result(rig.mesh)
+    assert shape_key_take not in bpy.data.actions
+    assert actions.active_action(rig.armature) == bones_take                   # the rig take is left alone
+
+
+def test_a_take_whose_result_cannot_be_remembered_is_given_back(registered, monkeypatch):
+    rig = _face()
+    before_played = _played(rig)
+    n_actions = len(bpy.data.actions)
+
+    def broken(*_args, **_kw):
+        raise OSError("disk full")                                             # stands for any failure to store
+    monkeypatch.setattr(last_take, "remember", broken)
+    with pytest.raises(RuntimeError, match="disk full"):
+        bpy.ops.shapespace.retarget_controls(filepath=_csv())
+    assert _played(rig) == before_played and len(bpy.data.actions) == n_actions
+    assert not last_take.has_result(rig.mesh)
+
+
+def test_discard_keeps_a_take_action_something_else_plays_now(registered):
+    rig = _face()
+    assert bpy.ops.shapespace.retarget_controls(filepath=_csv()) == {"FINISHED"}
+    bones_take = actions.active_action(rig.armature)
+    other = bpy.data.objects.new("Other", None)
+    bpy.context.scene.collection.objects.link(other)
+    other.animation_data_create().action = bones_take                          # the artist reuses the take
+    assert bpy.ops.shapespace.discard_retarget() == {"FINISHED"}
+    assert bones_take.name in bpy.data.actions and other.animation_data.action == bones_take
