@@ -197,6 +197,24 @@ def test_an_example_key_s_refinement_is_mirrored_onto_its_other_side_key():
     np.testing.assert_array_equal(r_none.deltas[1], D[1])
 
 
+def test_the_other_side_key_takes_the_change_its_partner_needs_under_the_re_estimated_weights():
+    # smileLeft + jawOpen made with 0.7 but given as 0.5; the transfer is right.  Reproduced with the given
+    # weights smileLeft must absorb 0.2 jawOpen where it moves; smileRight must not take that, mirrored
+    rng = np.random.default_rng(14)
+    V, T = grid()
+    mir = mirror_vertices(V)[0]
+    left = np.clip((V[:, 0] - 0.1) / 0.3, 0.0, 1.0)[:, None]
+    f = smooth_fields(V, 1, rng)[0]
+    D = np.stack([f * left, f[mir] * np.array([-1.0, 1.0, 1.0]) * left[mir], smooth_fields(V, 1, rng)[0]])
+    names = ["mouthSmileLeft", "mouthSmileRight", "jawOpen"]
+    E = (D[0] + 0.7 * D[2])[None]
+    W = np.array([[1.0, 0.0, 0.5]])
+    r = refine_with_examples(V, T, D, E, W, partners=mirror_partners(names))
+    np.testing.assert_allclose(np.einsum("ek,kvi->evi", W, r.deltas), E, atol=1e-9)
+    assert np.linalg.norm(r.deltas[0] - D[0]) > 0.05 * np.linalg.norm(D[0])       # the given weights need it
+    assert np.linalg.norm(r.deltas[1] - D[1]) < 0.02 * np.linalg.norm(D[1])
+
+
 @pytest.mark.parametrize("case, words", [
     ("nan_example", "mouthSmile: non-finite coordinate at vertex 7"),
     ("nan_weight", "jawOpen: non-finite weight on source shape 2"),
