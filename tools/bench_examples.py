@@ -11,6 +11,8 @@ definition of ``bench_transfer_v2``):
   one authored key with weight 1 on the source shape of the same name;
 - ``transfer_rel_energy_plain_heldout_<pair>``: the plain transfer on the same held-out keys;
 - ``transfer_examples_heldout_worse_keys_<pair>``: held-out keys whose error the refinement increased;
+- ``transfer_examples_heldout_not_worse_<pair>`` (and ``_combo_``, ``_approx_``): the refined held-out keys are
+  jointly no further from the authored ones than the plain transfer (issue #22 §5: never worse);
 - ``transfer_rel_energy_examples5_combo_<pair>`` and ``transfer_examples_combo_heldout_worse_keys_<pair>``: the
   same with each example a combination of two of the five keys, ``A_i + 0.5 A_(i+1)`` (cyclic), given with
   those weights — the held-out keys are the same;
@@ -111,6 +113,7 @@ def pair_metrics(src, dst, src_tag, dst_tag):
         plain, refined, worse, ratio = held_out_scores(DT, ref.deltas, TD, TN, SN, held)
         out[f"transfer_rel_energy_examples5{tag}"] = refined
         out[f"transfer_examples{tag}_heldout_worse_keys"] = worse
+        out[f"transfer_examples{tag}_heldout_not_worse"] = bool(refined <= plain)
         if not tag:
             out["transfer_rel_energy_plain_heldout"] = plain
             out["transfer_rel_energy_oracle_gain_heldout"] = oracle_gain(DT, TD, TN, SN, held)
