@@ -52,7 +52,8 @@ class _OperatorProps:
 class RecordingLayout:
     """Stands in for a panel's ``layout`` (panels only draw in a window redraw, which headless ``bpy`` cannot run).
 
-    Records the calls in ``log`` (``("label", text)``, ``("prop", name)``, ``("operator", idname)``,
+    Records the calls in ``log`` (``("label", text)``, ``("prop", name)``, ``("operator", idname)`` followed by
+    ``("operator_props", props)`` — the properties the panel sets on that button —,
     ``("icon", id)``, ``("list", prop)``; :attr:`labels` the label texts) and checks the names a panel gives
     against the real RNA definitions (a renamed property, a typo in an operator name, an operator property
     or enum value that does not exist fail here, not in the artist's sidebar).  ``strict``: a layout call
@@ -101,7 +102,9 @@ class RecordingLayout:
         group, name = idname.split(".")
         assert hasattr(getattr(bpy.ops, group), name), f"no operator {idname}"
         self.log.append(("operator", idname))
-        return _OperatorProps(idname)
+        props = _OperatorProps(idname)
+        self.log.append(("operator_props", props))
+        return props
 
     def template_icon(self, icon_value=0, scale=1.0):
         assert icon_value > 0 or not self.strict, "template_icon needs a real icon id"

@@ -180,7 +180,8 @@ def test_each_result_has_its_own_discard_and_auto_is_refused_when_both_are_remem
     for target, result in buttons:                                             # each box's button names its result
         st.target = target
         log = draw_panel(SHAPESPACE_PT_retarget, bpy.context)
-        assert ("operator", "shapespace.discard_retarget") in log.log
+        discard = [p for kind, p in log.log if kind == "operator_props" and p._idname == "shapespace.discard_retarget"]
+        assert [p.result for p in discard] == [result]
     shape_key_take = actions.active_action(rig.mesh.data.shape_keys).name
     assert bpy.ops.shapespace.discard_retarget(result="SHAPE_KEYS") == {"FINISHED"}
     assert not retarget.has_result(rig.mesh) and last_take.has_result(rig.mesh)
