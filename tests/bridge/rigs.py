@@ -33,6 +33,9 @@ from shapespace.core.authoring.named import load_head_file  # noqa: E402
 from shapespace.core.authoring.registration import similarity  # noqa: E402
 
 FACECAP = os.path.join("facecap", "facecap_decoded.glb")
+#: The head's landmarks files (``tools/landmarks/<head>.json``: 26 named landmarks per shared head).
+LANDMARKS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "tools",
+                         "landmarks")
 HYBRID_KEYS = ("mouthSmile_L", "mouthSmile_R", "browInnerUp", "eyeBlink_L", "mouthFunnel", "cheekPuff")
 
 
@@ -167,6 +170,32 @@ def _face_bones(ob, arm, count: int, moving) -> list:
     return chans
 
 
+#: Named landmarks file (``tools/landmarks/``) of each shared head's mesh.
+HEAD_MARKS = {"Mesh_2": "facecap.json", "ICTFace": "ict.json"}
+
+
+def jaw_hinge(world: np.ndarray, marks: dict) -> np.ndarray:
+    """Where a rigger puts the jaw's hinge (world (3,)): just in front of the ears, at their middle height, on
+    the midline.  Face frame from the named landmarks: side = jaw_angle_R → jaw_angle_L, up = chin → brows (made
+    perpendicular), forward = side × up.  The ears are the vertices between the jaw angles' and the brows' height
+    that stick out sideways (lateral coordinate within 8 % of the largest); the hinge is their front-most point's
+    depth at their mean height."""
+    p = {n: world[v] for n, v in marks.items()}
+    side = p["jaw_angle_L"] - p["jaw_angle_R"]
+    side /= np.linalg.norm(side)
+    up = 0.5 * (p["brow_mid_L"] + p["brow_mid_R"]) - p["chin"]
+    up -= (up @ side) * side
+    up /= np.linalg.norm(up)
+    fwd = np.cross(side, up)
+    mid = 0.5 * (p["jaw_angle_L"] + p["jaw_angle_R"])
+    rel = world - mid
+    h, lat, f = rel @ up, rel @ side, rel @ fwd
+    band = (h > 0.0) & (h < (p["brow_mid_L"] - mid) @ up)
+    ears = band & (np.abs(lat) > 0.92 * np.abs(lat[band]).max())
+    midline = (0.5 * (p["chin"] + p["lip_upper_outer"]) - mid) @ side
+    return mid + up * h[ears].mean() + fwd * f[ears].max() + side * midline
+
+
 def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str = "hybrid",
                face_bones: int = 0) -> Rig:
     """A shared head + a weighted jaw bone + its shape keys ``keys`` (facecap and six keys by default; ``None``:
@@ -177,8 +206,7 @@ def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str
     mag = np.linalg.norm(jaw, axis=1)
     world = Rig(ob, None, None, "").world_points()
     chin = world[np.argmax(mag)]
-    lo, hi = world.min(0), world.max(0)
-    pivot = np.array([0.5 * (lo[0] + hi[0]), chin[1] + 0.55 * (hi[1] - chin[1]), chin[2] + 0.35 * (hi[2] - lo[2])])
+    pivot = jaw_hinge(world, load_head_file(os.path.join(LANDMARKS, HEAD_MARKS[mesh_name]), len(world)))
     arm = _armature("FaceRig", {"jaw": (tuple(pivot), tuple(chin))})
     pb = arm.pose.bones["jaw"]
     pb.rotation_mode = "XYZ"
@@ -265,11 +293,14 @@ def driver_rig(path: str) -> Rig:
     return Rig(ob, arm, brig.control_set(chans), "driver")
 
 
-#: Rigify face controls (generated rig) the Rigify test rig solves for: (bone, kind, axes).
-RIGIFY_CONTROLS = (("jaw_master", "rotation", (0, 2)), ("lips.L", "location", (0, 2)), ("lips.R", "location", (0, 2)),
-                   ("lip.T", "location", (0, 2)), ("lip.B", "location", (0, 2)),
-                   ("brow.T.L.002", "location", (0, 2)), ("brow.T.R.002", "location", (0, 2)),
-                   ("lid.T.L.002", "location", (0, 2)), ("lid.T.R.002", "location", (0, 2)))
+#: Rigify face controls (generated rig) the Rigify test rig solves for: (bone, kind, axes) — the jaw's rotation
+#: (open, sideways) and, as an animator moves them, the lip corners, the upper and lower lip, the middle of each
+#: brow and upper lid and the chin in all three directions (the lips push forward for a pucker or funnel).
+RIGIFY_CONTROLS = (("jaw_master", "rotation", (0, 2)), ("lips.L", "location", (0, 1, 2)),
+                   ("lips.R", "location", (0, 1, 2)), ("lip.T", "location", (0, 1, 2)),
+                   ("lip.B", "location", (0, 1, 2)), ("brow.T.L.002", "location", (0, 1, 2)),
+                   ("brow.T.R.002", "location", (0, 1, 2)), ("lid.T.L.002", "location", (0, 1, 2)),
+                   ("lid.T.R.002", "location", (0, 1, 2)), ("chin", "location", (0, 1, 2)))
 
 
 def _metarig_head_only():
@@ -296,9 +327,6 @@ def _metarig_head_only():
     return meta
 
 
-#: The head's landmarks files (``tools/landmarks/<head>.json``: 26 named landmarks per shared head).
-LANDMARKS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "tools",
-                         "landmarks")
 #: Where the meta-rig's face is seated on the head's named landmarks (``core/authoring/named.py``): meta-rig
 #: point → landmark name(s), their mean when two (the lip bones run along the middle of each lip, between its
 #: outer and inner midline landmarks).  A point is ``(bone, "head" | "tail")``; ``.R`` bones mirror ``.L``.
