@@ -2,7 +2,8 @@
 
 Rigs (built by ``tests/bridge/rigs.py`` from Blender's own parts on shared heads):
 
-- ``hybrid``: facecap's head (2,694 vertices) + a weighted jaw bone + six ARKit shape keys (8 channels);
+- ``hybrid``: facecap's head (2,694 vertices) + a weighted jaw bone hinged in front of the ears (a static head
+  bone holds the rest of the weights) + six ARKit shape keys (8 channels);
 - ``driver``: facecap's head driven by control bones and a custom property through drivers (nonlinear
   expressions, an in-between; 5 channels);
 - ``rigify``: facecap's head with Rigify's own face (the human meta-rig cut to head and face, its face bones seated

@@ -1,10 +1,14 @@
 """Test rigs for issue #25, built from Blender's own parts on a shared real head (facecap's ARKit head).
 
-- :func:`hybrid_rig`: facecap's head (2,694 vertices, 52 ARKit shape keys) + an armature with a jaw bone (Limit
-  Rotation constraint, Y locked) bound by an Armature modifier; the jaw's vertex group is hand-computed from
-  the head's own ``jawOpen`` shape (weight ∝ how far ``jawOpen`` moves the vertex, saturating at 2/3 of its
-  largest motion), so the bone moves the chin and lower lip region.  Controls: jaw rotation X/Z and six shape
-  keys.
+- :func:`hybrid_rig`: facecap's head (2,694 vertices, 52 ARKit shape keys) + an armature with a static head bone
+  and a jaw bone hinged in front of the ears (:func:`jaw_hinge`, from the head's named landmarks; Limit Rotation
+  constraint, Y locked) bound by an Armature modifier; the jaw's vertex group is hand-computed from the head's
+  own ``jawOpen`` shape (weight ∝ how far ``jawOpen`` moves the vertex, saturating at 2/3 of its largest
+  motion) and the head bone's is the rest (1 − jaw: the Armature modifier normalises the weights, so without it
+  every vertex the jaw touches would follow the jaw fully — the upper lip too), so the bone moves the chin and
+  lower lip region, falling off through the lips and cheeks.  Controls: jaw rotation X/Z and six shape keys.
+- :func:`rigify_rig`: the same head with Rigify's face, the human meta-rig seated on the head's named landmarks
+  (:data:`RIGIFY_SEATS`), generated and bound with automatic weights.
 - :func:`driver_rig`: the same head driven by a control armature through drivers: a bone location drives
   ``jawOpen`` linearly and an in-between shape (half open + funnel) through a hat expression; another bone's
   location drives ``mouthSmile_L`` through ``sin`` (nonlinear) and a third ``mouthSmile_R`` through an
@@ -207,16 +211,18 @@ def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str
     world = Rig(ob, None, None, "").world_points()
     chin = world[np.argmax(mag)]
     pivot = jaw_hinge(world, load_head_file(os.path.join(LANDMARKS, HEAD_MARKS[mesh_name]), len(world)))
-    arm = _armature("FaceRig", {"jaw": (tuple(pivot), tuple(chin))})
+    top = pivot + np.array([0.0, 0.0, 0.5 * np.linalg.norm(chin - pivot)])
+    arm = _armature("FaceRig", {"head": (tuple(pivot), tuple(top)), "jaw": (tuple(pivot), tuple(chin))})
     pb = arm.pose.bones["jaw"]
     pb.rotation_mode = "XYZ"
     pb.lock_rotation[1] = True
     _limit_rotation(pb, x=(-0.35, 0.35), z=(-0.15, 0.15))
     group = ob.vertex_groups.new(name="jaw")
     weights = np.clip(1.5 * mag / mag.max(), 0.0, 1.0)
-    for w in np.unique(np.round(weights[weights > 0], 3)):
-        idx = np.flatnonzero(np.isclose(np.round(weights, 3), w))
-        group.add(idx.tolist(), float(w), "REPLACE")
+    for g, wg in ((group, weights), (ob.vertex_groups.new(name="head"), 1.0 - weights)):
+        for w in np.unique(np.round(wg[wg > 0], 3)):
+            idx = np.flatnonzero(np.isclose(np.round(wg, 3), w))
+            g.add(idx.tolist(), float(w), "REPLACE")
     mod = ob.modifiers.new("Armature", "ARMATURE")
     mod.object = arm
     chans = [brig.bone_channel(arm, "jaw", "rotation", 0), brig.bone_channel(arm, "jaw", "rotation", 2)]

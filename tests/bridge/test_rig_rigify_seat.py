@@ -113,3 +113,27 @@ def test_rigify_controls_move_their_own_region_as_blender_evaluates_it(rigify):
     assert lid["lid_upper_L"] > 1.0, lid
     for still in ("lid_lower_L", "lid_upper_R", "brow_mid_L", "chin"):
         assert lid[still] < 0.25 * lid["lid_upper_L"], (still, lid)
+
+
+def test_hybrid_jaw_hinges_in_front_of_the_ears_and_opens_the_mouth():
+    """The hybrid's jaw bone (``rigs.jaw_hinge``) sits where a rigger puts it: at the ears' height, just in front
+    of them (facecap's head is Z-up facing -Y: its ears are the vertices farthest out sideways), on the midline;
+    rotating it (Blender's evaluation) moves the chin and lower lip, barely the upper lip or the jaw angles."""
+    path, rest = _head_rest()
+    rig = rigs.hybrid_rig(path)
+    diag = rigs.diagonal(rest)
+    M = np.array(rig.armature.matrix_world)
+    hinge = M[:3, :3] @ np.array(rig.armature.data.bones["jaw"].head_local) + M[:3, 3]
+    ears = rest[np.abs(rest[:, 0]) > 0.9 * np.abs(rest[:, 0]).max()]
+    assert ears[:, 2].min() < hinge[2] < ears[:, 2].max(), (hinge, ears[:, 2].min(), ears[:, 2].max())
+    assert abs(hinge[1] - ears[:, 1].min()) < 0.05 * diag, (hinge, ears[:, 1].min())
+    assert abs(hinge[0]) < 0.01 * diag
+    marks = _marks(len(rest))
+    c = brig.read_controls(rig.controls)
+    c[0] = 0.3                                              # jaw rotation X
+    brig.apply_controls(rig.controls, c)
+    d = _mm(np.linalg.norm(rig.world_points() - rest, axis=1), diag)
+    moved = {n: d[v] for n, v in marks.items()}
+    assert moved["chin"] > 10.0 and moved["lip_lower_outer"] > 0.5 * moved["chin"], moved
+    for still in ("lip_upper_outer", "jaw_angle_L", "jaw_angle_R", "nose_tip"):
+        assert moved[still] < 0.35 * moved["chin"], (still, moved)
