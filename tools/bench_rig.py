@@ -2,11 +2,13 @@
 
 Rigs (built by ``tests/bridge/rigs.py`` from Blender's own parts on shared heads):
 
-- ``hybrid``: facecap's head (2,694 vertices) + a weighted jaw bone + six ARKit shape keys (8 channels);
+- ``hybrid``: facecap's head (2,694 vertices) + a weighted jaw bone hinged in front of the ears (a static head
+  bone holds the rest of the weights) + six ARKit shape keys (8 channels);
 - ``driver``: facecap's head driven by control bones and a custom property through drivers (nonlinear
   expressions, an in-between; 5 channels);
-- ``rigify``: facecap's head with Rigify's own face (the human meta-rig cut to head and face, fitted to the head,
-  generated, automatic weights; 18 channels: quaternion jaw, lip/brow/lid locations);
+- ``rigify``: facecap's head with Rigify's own face (the human meta-rig cut to head and face, its face bones seated
+  on the head's named landmarks ``tools/landmarks/facecap.json``, generated, automatic weights; 29 channels:
+  quaternion jaw, lip/brow/lid/chin locations in 3D);
 - ``hybrid_ict``: ICT FaceKit's head (26,719 vertices) + a weighted jaw bone + every one of its 57 shape keys
   that moves (59 channels);
 - ``hybrid_ict150``: the same + 30 game-rig face bones with their location channels (149 channels) — the size the

@@ -1,10 +1,14 @@
 """Test rigs for issue #25, built from Blender's own parts on a shared real head (facecap's ARKit head).
 
-- :func:`hybrid_rig`: facecap's head (2,694 vertices, 52 ARKit shape keys) + an armature with a jaw bone (Limit
-  Rotation constraint, Y locked) bound by an Armature modifier; the jaw's vertex group is hand-computed from
-  the head's own ``jawOpen`` shape (weight ∝ how far ``jawOpen`` moves the vertex, saturating at 2/3 of its
-  largest motion), so the bone moves the chin and lower lip region.  Controls: jaw rotation X/Z and six shape
-  keys.
+- :func:`hybrid_rig`: facecap's head (2,694 vertices, 52 ARKit shape keys) + an armature with a static head bone
+  and a jaw bone hinged in front of the ears (:func:`jaw_hinge`, from the head's named landmarks; Limit Rotation
+  constraint, Y locked) bound by an Armature modifier; the jaw's vertex group is hand-computed from the head's
+  own ``jawOpen`` shape (weight ∝ how far ``jawOpen`` moves the vertex, saturating at 2/3 of its largest
+  motion) and the head bone's is the rest (1 − jaw: the Armature modifier normalises the weights, so without it
+  every vertex the jaw touches would follow the jaw fully — the upper lip too), so the bone moves the chin and
+  lower lip region, falling off through the lips and cheeks.  Controls: jaw rotation X/Z and six shape keys.
+- :func:`rigify_rig`: the same head with Rigify's face, the human meta-rig seated on the head's named landmarks
+  (:data:`RIGIFY_SEATS`), generated and bound with automatic weights.
 - :func:`driver_rig`: the same head driven by a control armature through drivers: a bone location drives
   ``jawOpen`` linearly and an in-between shape (half open + funnel) through a hat expression; another bone's
   location drives ``mouthSmile_L`` through ``sin`` (nonlinear) and a third ``mouthSmile_R`` through an
@@ -29,8 +33,13 @@ import package  # tools/package.py
 SS = package.load()
 from shapespace.bridge import assets  # noqa: E402
 from shapespace.bridge import rig as brig  # noqa: E402
+from shapespace.core.authoring.named import load_head_file  # noqa: E402
+from shapespace.core.authoring.registration import similarity  # noqa: E402
 
 FACECAP = os.path.join("facecap", "facecap_decoded.glb")
+#: The head's landmarks files (``tools/landmarks/<head>.json``: 26 named landmarks per shared head).
+LANDMARKS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "tools",
+                         "landmarks")
 HYBRID_KEYS = ("mouthSmile_L", "mouthSmile_R", "browInnerUp", "eyeBlink_L", "mouthFunnel", "cheekPuff")
 
 
@@ -165,6 +174,32 @@ def _face_bones(ob, arm, count: int, moving) -> list:
     return chans
 
 
+#: Named landmarks file (``tools/landmarks/``) of each shared head's mesh.
+HEAD_MARKS = {"Mesh_2": "facecap.json", "ICTFace": "ict.json"}
+
+
+def jaw_hinge(world: np.ndarray, marks: dict) -> np.ndarray:
+    """Where a rigger puts the jaw's hinge (world (3,)): just in front of the ears, at their middle height, on
+    the midline.  Face frame from the named landmarks: side = jaw_angle_R → jaw_angle_L, up = chin → brows (made
+    perpendicular), forward = side × up.  The ears are the vertices between the jaw angles' and the brows' height
+    that stick out sideways (lateral coordinate within 8 % of the largest); the hinge is their front-most point's
+    depth at their mean height."""
+    p = {n: world[v] for n, v in marks.items()}
+    side = p["jaw_angle_L"] - p["jaw_angle_R"]
+    side /= np.linalg.norm(side)
+    up = 0.5 * (p["brow_mid_L"] + p["brow_mid_R"]) - p["chin"]
+    up -= (up @ side) * side
+    up /= np.linalg.norm(up)
+    fwd = np.cross(side, up)
+    mid = 0.5 * (p["jaw_angle_L"] + p["jaw_angle_R"])
+    rel = world - mid
+    h, lat, f = rel @ up, rel @ side, rel @ fwd
+    band = (h > 0.0) & (h < (p["brow_mid_L"] - mid) @ up)
+    ears = band & (np.abs(lat) > 0.92 * np.abs(lat[band]).max())
+    midline = (0.5 * (p["chin"] + p["lip_upper_outer"]) - mid) @ side
+    return mid + up * h[ears].mean() + fwd * f[ears].max() + side * midline
+
+
 def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str = "hybrid",
                face_bones: int = 0) -> Rig:
     """A shared head + a weighted jaw bone + its shape keys ``keys`` (facecap and six keys by default; ``None``:
@@ -175,18 +210,19 @@ def hybrid_rig(path: str, mesh_name: str = "Mesh_2", keys=HYBRID_KEYS, name: str
     mag = np.linalg.norm(jaw, axis=1)
     world = Rig(ob, None, None, "").world_points()
     chin = world[np.argmax(mag)]
-    lo, hi = world.min(0), world.max(0)
-    pivot = np.array([0.5 * (lo[0] + hi[0]), chin[1] + 0.55 * (hi[1] - chin[1]), chin[2] + 0.35 * (hi[2] - lo[2])])
-    arm = _armature("FaceRig", {"jaw": (tuple(pivot), tuple(chin))})
+    pivot = jaw_hinge(world, load_head_file(os.path.join(LANDMARKS, HEAD_MARKS[mesh_name]), len(world)))
+    top = pivot + np.array([0.0, 0.0, 0.5 * np.linalg.norm(chin - pivot)])
+    arm = _armature("FaceRig", {"head": (tuple(pivot), tuple(top)), "jaw": (tuple(pivot), tuple(chin))})
     pb = arm.pose.bones["jaw"]
     pb.rotation_mode = "XYZ"
     pb.lock_rotation[1] = True
     _limit_rotation(pb, x=(-0.35, 0.35), z=(-0.15, 0.15))
     group = ob.vertex_groups.new(name="jaw")
     weights = np.clip(1.5 * mag / mag.max(), 0.0, 1.0)
-    for w in np.unique(np.round(weights[weights > 0], 3)):
-        idx = np.flatnonzero(np.isclose(np.round(weights, 3), w))
-        group.add(idx.tolist(), float(w), "REPLACE")
+    for g, wg in ((group, weights), (ob.vertex_groups.new(name="head"), 1.0 - weights)):
+        for w in np.unique(np.round(wg[wg > 0], 3)):
+            idx = np.flatnonzero(np.isclose(np.round(wg, 3), w))
+            g.add(idx.tolist(), float(w), "REPLACE")
     mod = ob.modifiers.new("Armature", "ARMATURE")
     mod.object = arm
     chans = [brig.bone_channel(arm, "jaw", "rotation", 0), brig.bone_channel(arm, "jaw", "rotation", 2)]
@@ -263,11 +299,14 @@ def driver_rig(path: str) -> Rig:
     return Rig(ob, arm, brig.control_set(chans), "driver")
 
 
-#: Rigify face controls (generated rig) the Rigify test rig solves for: (bone, kind, axes).
-RIGIFY_CONTROLS = (("jaw_master", "rotation", (0, 2)), ("lips.L", "location", (0, 2)), ("lips.R", "location", (0, 2)),
-                   ("lip.T", "location", (0, 2)), ("lip.B", "location", (0, 2)),
-                   ("brow.T.L.002", "location", (0, 2)), ("brow.T.R.002", "location", (0, 2)),
-                   ("lid.T.L.002", "location", (0, 2)), ("lid.T.R.002", "location", (0, 2)))
+#: Rigify face controls (generated rig) the Rigify test rig solves for: (bone, kind, axes) — the jaw's rotation
+#: (open, sideways) and, as an animator moves them, the lip corners, the upper and lower lip, the middle of each
+#: brow and upper lid and the chin in all three directions (the lips push forward for a pucker or funnel).
+RIGIFY_CONTROLS = (("jaw_master", "rotation", (0, 2)), ("lips.L", "location", (0, 1, 2)),
+                   ("lips.R", "location", (0, 1, 2)), ("lip.T", "location", (0, 1, 2)),
+                   ("lip.B", "location", (0, 1, 2)), ("brow.T.L.002", "location", (0, 1, 2)),
+                   ("brow.T.R.002", "location", (0, 1, 2)), ("lid.T.L.002", "location", (0, 1, 2)),
+                   ("lid.T.R.002", "location", (0, 1, 2)), ("chin", "location", (0, 1, 2)))
 
 
 def _metarig_head_only():
@@ -294,25 +333,92 @@ def _metarig_head_only():
     return meta
 
 
-def rigify_rig(path: str) -> Rig:
-    """Facecap's head with Rigify's face: the human meta-rig (head and face only) scaled to the head's width
-    (face bones across 90 % of it) and moved so its chin lands on the head's chin (the vertex ``jawOpen`` moves
-    most), generated by Rigify, bound with automatic weights; controls: jaw_master rotation and the lips,
-    brows and upper lids' location (:data:`RIGIFY_CONTROLS`), each location bounded by a Limit Location
-    constraint (±0.1, about 3 % of the head's diagonal) as an animator would; random poses rotate the jaw by
-    at most ±0.2 rad."""
+#: Where the meta-rig's face is seated on the head's named landmarks (``core/authoring/named.py``): meta-rig
+#: point → landmark name(s), their mean when two (the lip bones run along the middle of each lip, between its
+#: outer and inner midline landmarks).  A point is ``(bone, "head" | "tail")``; ``.R`` bones mirror ``.L``.
+RIGIFY_SEATS = {
+    ("lid.B.L", "head"): ("eye_inner_L",), ("lid.T.L", "head"): ("eye_outer_L",),
+    ("lid.T.L.002", "head"): ("lid_upper_L",), ("lid.B.L.002", "head"): ("lid_lower_L",),
+    ("brow.T.L.003", "head"): ("brow_inner_L",), ("brow.T.L.002", "head"): ("brow_mid_L",),
+    ("brow.T.L.001", "head"): ("brow_outer_L",),
+    ("nose.002", "head"): ("nose_tip",), ("nose.L.001", "head"): ("nostril_L",),
+    ("lip.T.L.001", "tail"): ("mouth_corner_L",), ("lip.T.L", "head"): ("lip_upper_outer", "lip_upper_inner"),
+    ("lip.B.L", "head"): ("lip_lower_outer", "lip_lower_inner"),
+    ("chin", "tail"): ("chin",), ("jaw.L", "tail"): ("jaw_angle_L",),
+}
+
+
+def _mirror_seat(bone: str) -> str:
+    return bone.replace(".L", ".R") if ".L" in bone else bone
+
+
+def rigify_seats(marks: dict, world: np.ndarray) -> dict:
+    """Every meta-rig face point of :data:`RIGIFY_SEATS` (both sides) → its place on the head (world, (3,))."""
+    out = {}
+    for (bone, end), names in RIGIFY_SEATS.items():
+        out[(bone, end)] = world[[marks[n] for n in names]].mean(0)
+        if bone.endswith(".L") or ".L." in bone:
+            out[(_mirror_seat(bone), end)] = world[[marks[n.replace("_L", "_R")] for n in names]].mean(0)
+    return out
+
+
+def _shepard(points: np.ndarray, at: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Inverse-squared-distance blend (Shepard) of ``offsets`` (m, 3) given at ``at`` (m, 3), evaluated at
+    ``points`` (p, 3): exact at ``at``, never larger than the largest offset (no extrapolation)."""
+    d2 = np.sum((points[:, None] - at[None]) ** 2, axis=-1)
+    w = 1.0 / np.maximum(d2, 1e-18)
+    return (w @ offsets) / w.sum(axis=1, keepdims=True)
+
+
+def _seat_metarig(meta, seats: dict) -> None:
+    """Fit the meta-rig's face to the head as a rigger does: move every meta-rig bone by the similarity (scale,
+    rotation, translation: Umeyama) that best takes the seat points (:func:`rigify_seats`) to their places on the
+    head, then every face bone by the smooth blend (:func:`_shepard`) of the seat points' remaining offsets, so
+    each seat point lands on its landmark and the bones between follow.  Two bones are placed as the Rigify
+    docs ask rather than warped: each eye from the middle of its seated lid ring (the meta-rig's eye offset from
+    its lid ring, scaled; both eyes parallel, looking where the meta-rig's look), and the jaw from the hinge (the
+    middle of the temples' lower ends, where the jaw line starts under the ears) to the chin."""
+    bpy.context.view_layer.objects.active = meta
+    bpy.ops.object.mode_set(mode="EDIT")
+    eb = meta.data.edit_bones
+    keys = list(seats)
+    src = np.array([list(getattr(eb[b], end)) for b, end in keys])
+    dst = np.array([seats[k] for k in keys])
+    s, R, t = similarity(src, dst)
+    A = s * R
+    face = {b.name for b in eb["face"].children_recursive} | {"face"}
+    moved = src @ A.T + t
+    ends = {}
+    for b in eb:
+        for end in ("head", "tail"):
+            p = np.array(list(getattr(b, end))) @ A.T + t
+            ends[(b.name, end)] = p + (_shepard(p[None], moved, dst - moved)[0] if b.name in face else 0.0)
+    for side in ("L", "R"):
+        ring = [f"lid.{tb}.{side}{k}" for tb in "TB" for k in ("", ".001", ".002", ".003")]
+        meta_c = np.mean([list(eb[n].head) for n in ring], axis=0)
+        seat_c = np.mean([ends[(n, "head")] for n in ring], axis=0)
+        eye = eb[f"eye.{side}"]
+        ends[(eye.name, "head")] = seat_c + (np.array(list(eye.head)) - meta_c) @ A.T
+        ends[(eye.name, "tail")] = ends[(eye.name, "head")] + (np.array(list(eye.tail - eye.head))) @ A.T
+    hinge = 0.5 * (ends[("jaw.L", "head")] + ends[("jaw.R", "head")])
+    ends[("jaw", "head")] = np.array([0.5 * (ends[("chin", "head")][0] + ends[("chin", "tail")][0]), *hinge[1:]])
+    for b in eb:
+        b.head, b.tail = tuple(ends[(b.name, "head")]), tuple(ends[(b.name, "tail")])
+    bpy.ops.object.mode_set(mode="OBJECT")
+
+
+def rigify_rig(path: str, marks: str = os.path.join(LANDMARKS, "facecap.json"), controls=None) -> Rig:
+    """Facecap's head with Rigify's face: the human meta-rig (head and face only) seated on the head's named
+    landmarks ``marks`` (:func:`_seat_metarig`: eye corners, lids, brows, nose, mouth corners, lips, chin, jaw
+    angles, :data:`RIGIFY_SEATS`), generated by Rigify, bound with automatic weights; controls: jaw_master
+    rotation and the lips, brows and upper lids' location (:data:`RIGIFY_CONTROLS`), each location bounded by a
+    Limit Location constraint (±0.1, about 3 % of the head's diagonal) as an animator would; random poses rotate
+    the jaw by at most ±0.2 rad."""
     ob = load_head(path)
     addon_utils.enable("rigify", default_set=True)
     world = Rig(ob, None, None, "").world_points()
-    chin = world[np.argmax(np.linalg.norm(_shape_delta(ob, "jawOpen"), axis=1))]
     meta = _metarig_head_only()
-    face = [b for b in meta.data.bones if not b.name.startswith("spine")]
-    pts = np.array([list(b.head_local) for b in face] + [list(b.tail_local) for b in face])
-    s = 0.9 * (world[:, 0].max() - world[:, 0].min()) / (pts[:, 0].max() - pts[:, 0].min())
-    meta.scale = (s, s, s)
-    meta.location = tuple(chin - s * np.array(meta.data.bones["chin"].tail_local))
-    bpy.context.view_layer.update()
-    bpy.ops.object.transform_apply(location=True, rotation=True, scale=True)
+    _seat_metarig(meta, rigify_seats(load_head_file(marks, len(ob.data.vertices)), world))
     bpy.ops.pose.rigify_generate()
     arm = bpy.context.object
     addon_utils.disable("rigify", default_set=True)           # the generated rig does not need the add-on
@@ -320,10 +426,10 @@ def rigify_rig(path: str) -> Rig:
     ob.select_set(True)
     arm.select_set(True)
     bpy.context.view_layer.objects.active = arm
-    bpy.ops.object.parent_set(type="ARMATURE_AUTO")
+    bpy.ops.object.parent_set(type="ARMATURE_AUTO", keep_transform=True)
     bpy.ops.object.select_all(action="DESELECT")
     chans, pose_lo, pose_hi = [], [], []
-    for bone, kind, axes in RIGIFY_CONTROLS:
+    for bone, kind, axes in RIGIFY_CONTROLS if controls is None else controls:
         pb = arm.pose.bones[bone]
         if kind == "location":
             con = pb.constraints.new("LIMIT_LOCATION")
