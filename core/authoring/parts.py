@@ -251,7 +251,7 @@ def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map
         kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, p in closed)
     _beside_eyes(V, lab, kinds, conf, why, diag)
     _teeth_rows(V, lab, PartPlan(lab, kinds, conf, why, frame), diag, _mouth_sheets(V, skin, lab, kinds, why, jaw))
-    _tongues(V, lab, kinds, why, frame, diag)
+    _tongues(V, TT, lab, kinds, why, frame, diag)
     extents = {int(p): float(np.ptp(V[lab == p], axis=0).max()) / diag for p in np.unique(lab[lab >= 0])}
     plan = PartPlan(lab, kinds, conf, why, frame, extents)
     for p in np.unique(lab[lab > 0]):
@@ -314,27 +314,53 @@ def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: n
     return propose_parts(dst_verts, dst_tris, t_lab, part_map, None if j is None else deltas[j], s_plan, moving)
 
 
-def _tongues(V, lab, kinds, why, frame, diag):
+def _tongues(V, TT, lab, kinds, why, frame, diag):
     """Mark the tongue (in place, :data:`TONGUE`): a solid of the lower row lying across the mirror plane (1 %
-    of the diagonal on either side: a tooth lies on one side) that does not hold the teeth (a closed mouth bag,
-    Face Cap's, holds the rows of teeth that lie on either side of the plane inside its hull)."""
+    of the diagonal on either side: a tooth lies on one side) that a rigger would call one —
+
+    - a blob, not an arch: its triangles, seen from above (along the frame's up), cover its own centroid (a
+      row of teeth or gums in one piece, as CC/Daz-style kits ship them, is a U whose centroid lies in the
+      hollow of the U);
+    - not what the other parts sit in: it does not hold (:func:`_holds`) the other rigid parts (a closed mouth
+      bag, Face Cap's, holds the rows of teeth inside its hull);
+    - behind the lower teeth: its centroid lies behind the foremost point of the lower row's other parts
+      along the frame's forward (where ``jawOpen`` gave the forward its sign: the chin is in front).
+
+    A tongue may come in several pieces, one inside the other (Ready Player Me's: two shells)."""
     rigid = [p for p, k in kinds.items() if k in ("jaw", "skull")]
     side = {p: (V[lab == p] - frame.centre) @ frame.left for p in rigid}
     across = [p for p in rigid if side[p].min() < -0.01 * diag and side[p].max() > 0.01 * diag]
-    teeth = np.flatnonzero(np.isin(lab, [p for p in rigid if p not in across]))
-    for p in across:
-        if kinds[p] == "jaw" and (teeth.size == 0 or not _holds(V[lab == p], V[teeth])):
+    blobs = [p for p in across if kinds[p] == "jaw" and _blob(V, TT, lab, p, frame.up)]
+    teeth = V[np.isin(lab, [q for q in rigid if q not in blobs])]
+    lower = V[np.isin(lab, [q for q in rigid if kinds[q] == "jaw" and q not in blobs])]
+    front = (lower @ frame.forward).max() if len(lower) and frame.chin is not None else np.inf
+    for p in blobs:
+        if V[lab == p].mean(axis=0) @ frame.forward < front and (len(teeth) == 0 or not _holds(V[lab == p], teeth)):
             why[p] = TONGUE
 
 
-def _tongue_out(V, lab, plan, canon):
-    """The ``tongueOut`` translation (3,) of the tongue parts: along the face's forward (perpendicular to the
-    eyes' up, :func:`_face_up`), :data:`TONGUE_OUT` of the tongue's depth; zero without a tongue."""
+def _blob(V, TT, lab, p, up):
+    """Whether part ``p``'s triangles, projected along ``up`` (3,), cover the projection of its centroid (the
+    mean of its vertices): a blob does, an arch (a U around a hollow) does not."""
+    e1 = _any_perpendicular(up)
+    P = (V[TT[lab[TT[:, 0]] == p]] - V[lab == p].mean(axis=0)) @ np.stack([e1, np.cross(up, e1)]).T  # (f, 3, 2)
+    a, b, c = P[:, 0], P[:, 1], P[:, 2]
+    area = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+    d = np.stack([u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0] for u, v in ((a, b), (b, c), (c, a))])  # origin's side
+    inside = (np.all(d >= 0, axis=0) | np.all(d <= 0, axis=0)) & (np.abs(area) > 1e-12 * max(np.ptp(P) ** 2, 1e-300))
+    return bool(inside.any())
+
+
+def _tongue_out(V, lab, plan, canon, face_forward=None):
+    """The ``tongueOut`` translation (3,) of the tongue parts: along the face's forward (``face_forward`` where
+    the caller gives it, else the plan's frame's; perpendicular to the eyes' up, :func:`_face_up`),
+    :data:`TONGUE_OUT` of the tongue's depth; zero without a tongue."""
     tongue = np.isin(lab, [p for p, r in plan.reasons.items() if r == TONGUE and plan.kinds.get(p) == "jaw"])
     if "tongueOut" not in canon or not tongue.any() or plan.frame is None:
         return np.zeros(3)
     up = _face_up(V, lab, plan)
-    fwd = plan.frame.forward - (plan.frame.forward @ up) * up
+    fwd = plan.frame.forward if face_forward is None else np.asarray(face_forward, dtype=np.float64)
+    fwd = fwd - (fwd @ up) * up
     fwd /= max(np.linalg.norm(fwd), 1e-300)
     return TONGUE_OUT * float(np.ptp(V[tongue] @ fwd)) * fwd
 
@@ -516,7 +542,7 @@ def move_parts(plan: PartPlan, verts: ArrayLike, tris: ArrayLike, deltas: np.nda
         deltas[:, follow] = _follow(V, _Skin(V, TT, lab), follow, deltas, jaw, jaw_motion,
                                     _cavity_shares(V, plan, follow), upper, bound, side)
     frame = plan.frame if face_forward is None else None
-    out_by = _tongue_out(V, lab, plan, canon)
+    out_by = _tongue_out(V, lab, plan, canon, face_forward)
     for p, kind in plan.kinds.items():
         idx = np.flatnonzero(lab == p)
         if kind in ("skin", "source") or idx.size == 0:

@@ -223,14 +223,35 @@ def test_a_lip_shape_leaves_the_mouth_cavity_still_even_where_it_touches_the_lip
     assert np.linalg.norm(out[0, low] - turned, axis=1).max() < 0.5 * np.linalg.norm(turned, axis=1).min()
 
 
-def _mouth(head, tongue=True, bag=False):
+def _arch(y, n=24, centre=(0.0, 0.55), radius=0.2, width=0.05, height=0.08, sweep=100.0):
+    """A row of teeth in one piece (a CC/Daz-style arch): a closed tube of rectangular section (``width``
+    radially, ``height`` along y) swept along a U in the horizontal plane at height ``y`` — the circle of
+    ``radius`` about (x, z) = ``centre``, ``sweep`` degrees either side of +z (the front) — with end caps."""
+    th = np.radians(np.linspace(-sweep, sweep, n))
+    corners = [(radius - width / 2, y - height / 2), (radius + width / 2, y - height / 2),
+               (radius + width / 2, y + height / 2), (radius - width / 2, y + height / 2)]
+    V = np.array([[r * np.sin(t) + centre[0], h, r * np.cos(t) + centre[1]] for t in th for r, h in corners])
+    T = []
+    for i in range(n - 1):
+        for c in range(4):
+            a, b, a1, b1 = 4 * i + c, 4 * i + (c + 1) % 4, 4 * (i + 1) + c, 4 * (i + 1) + (c + 1) % 4
+            T += [[a, b, b1], [a, b1, a1]]
+    last = 4 * (n - 1)
+    T += [[0, 2, 1], [0, 3, 2], [last, last + 1, last + 2], [last, last + 2, last + 3]]
+    return V, np.array(T)
+
+
+def _mouth(head, tongue=True, bag=False, arch=False):
     """The fixture's skin and eye with two lower and two upper teeth beside the mirror plane, and a tongue
-    across the plane behind the lower teeth (or a closed mouth bag holding the teeth)."""
+    across the plane behind the lower teeth (or a closed mouth bag holding the teeth); ``arch``: the lower
+    teeth in one piece (:func:`_arch`) around the tongue."""
     V0, T0, _, _, _, _ = head
     skin_eye = int(np.flatnonzero(parts.triangle_parts(len(V0), T0)[0] >= 2)[0])
     meshes = [(V0[:skin_eye], T0[np.all(T0 < skin_eye, axis=1)])]
     meshes += [_sphere(4, 8, r=0.06, centre=(x, y, 0.75), scale=(1.0, 0.4, 0.6)) for x in (-0.12, 0.12)
-               for y in (-0.5, -0.2)]
+               for y in ((-0.2,) if arch else (-0.5, -0.2))]
+    if arch:
+        meshes.append(_arch(-0.5))
     if tongue:
         meshes.append(_sphere(6, 10, r=0.15, centre=(0.0, -0.42, 0.55), scale=(0.8, 0.25, 1.0)))
     if bag:
@@ -262,6 +283,39 @@ def test_the_tongue_goes_with_the_jaw_and_slides_out_in_tongue_out(head):
     R, _ = Rotation.align_vectors(out[0, on] + V[on] - (out[0, on] + V[on]).mean(axis=0),
                                   V[on] - V[on].mean(axis=0))
     assert abs(R.magnitude() - np.radians(15.0)) < 1e-6
+
+
+@pytest.mark.parametrize("tongue", [True, False])
+def test_lower_teeth_in_one_piece_are_no_tongue(head, tongue):
+    """Lower teeth modelled as one arch (CC/Daz-style kits) lie across the mirror plane too, but they are a U
+    around the mouth, not a blob behind the teeth: they stay teeth (the jaw's rigid motion only, still in
+    ``tongueOut``), with the tongue inside them still the tongue."""
+    V, T, lab, jaw = _mouth(head, tongue=tongue, arch=True)
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    arch = _part_of(V, lab, (0.0, -0.5, 0.75))
+    assert plan.kinds[arch] == "jaw" and plan.reasons[arch] != parts.TONGUE
+    out, _ = parts.move_parts(plan, V, T, np.stack([jaw, np.zeros_like(V)]), ["jawOpen", "tongueOut"])
+    assert not out[1, lab == arch].any()
+    on = lab == arch
+    R, _ = Rotation.align_vectors(out[0, on] + V[on] - (out[0, on] + V[on]).mean(axis=0),
+                                  V[on] - V[on].mean(axis=0))
+    assert abs(R.magnitude() - np.radians(15.0)) < 1e-6
+    tongues = [p for p, r in plan.reasons.items() if r == parts.TONGUE]
+    assert tongues == ([_part_of(V, lab, (0.0, -0.42, 0.4))] if tongue else [])
+
+
+def test_tongue_out_goes_along_the_forward_the_caller_gives(head):
+    """``move_parts(face_forward=…)`` slides the tongue along the given forward (perpendicular to the eyes'
+    up), not the plan's own."""
+    V, T, lab, jaw = _mouth(head)
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    tongue = _part_of(V, lab, (0.0, -0.42, 0.4))
+    fwd = np.array([0.6, 0.0, 0.8])
+    out, _ = parts.move_parts(plan, V, T, np.stack([jaw, np.zeros_like(V)]), ["jawOpen", "tongueOut"],
+                              face_forward=fwd)
+    on = lab == tongue
+    depth = np.ptp(V[on] @ fwd)
+    assert np.allclose(out[1, on], parts.TONGUE_OUT * depth * fwd, atol=1e-6 * depth)
 
 
 def test_a_mouth_bag_holding_the_teeth_is_no_tongue(head):
