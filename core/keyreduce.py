@@ -366,7 +366,8 @@ def _valid_window_uniform(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: floa
     top, bottom = V.copy(), V.copy()                                  # range of the samples in [i, i + d]
     aM = np.abs(M)
     d2V = np.abs(np.diff(V, 2, axis=1))
-    bend = np.zeros((C, max(n - 2, 0)))                              # largest |Δ²V| in [i, i + d]
+    bend = np.zeros((C, n))                                          # largest |Δ²V| in [i, i + d] (first f − 2)
+    flat = (V.ravel(), M.ravel())
     valid = np.zeros((C, n, span + 1), dtype=bool)
     bound, tmp, err = np.empty((C, n)), np.empty((C, n)), np.empty((C, n))
     for d in range(1, min(span, n - 1) + 1):
@@ -385,51 +386,52 @@ def _valid_window_uniform(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: floa
         x *= 4.0 / 27.0 * h
         b += x
         ok = b <= tol
-        for k, e in enumerate(range(1, d) if d <= 12 else (d // 2,)):  # short spans whole, long ones at the middle
+        for k, e in enumerate(range(1, d) if d <= _WHOLE_SPAN else (d // 2,)):  # short spans whole, long: middle
             _hermite_at(V, M, w, d, e, h, b, x)
             if k == 0:
                 e_max[...] = b
             else:
                 np.maximum(e_max, b, out=e_max)
-        if d <= 12:
+        if d <= _WHOLE_SPAN:
             ok |= e_max <= tol
         else:
-            c, i = np.nonzero(~ok & (e_max <= tol))
-            if i.size:
-                keep = ~_window_fails(V, M, c, i, d, h, np.arange(1, 5) * d // 5, tol)
-                c, i = c[keep], i[keep]
-            if i.size:
-                c, i, sure = _grid_check(V, M, bend, c, i, d, h, step, tol)
-                ok[sure] = True
-            if i.size:
-                keep = ~_window_fails(V, M, c, i, d, h, None, tol)
-                ok[c[keep], i[keep]] = True
+            q = np.flatnonzero(~ok & (e_max <= tol))                  # into ok (c, w); base: into V (c, f)
+            base = q + (q // w) * d
+            if q.size:
+                keep = ~_window_fails(flat, d, h, base, np.arange(1, 5) * d // 5, tol)
+                q, base = q[keep], base[keep]
+            if q.size:
+                fails, grid_err = _window_fails(flat, d, h, base, np.arange(_GRID, d, _GRID), tol, with_err=True)
+                sure = _grid_sure(flat, bend.ravel(), base, d, h, step, grid_err, tol) & ~fails
+                ok.ravel()[q[sure]] = True
+                q, base = q[~fails & ~sure], base[~fails & ~sure]
+            if q.size:
+                ok.ravel()[q[~_window_fails(flat, d, h, base, None, tol)]] = True
         valid[:, :w, d] = ok
     return valid
 
 
+#: Longest span :func:`_valid_window_uniform` evaluates at every interior sample for every start (longer spans:
+#: at the middle sample, then the survivors on their whole window).
+_WHOLE_SPAN = 12
 #: Spacing (samples) of the grid on which :func:`_grid_check` evaluates a segment.
 _GRID = 8
 
 
-def _grid_check(V: np.ndarray, M: np.ndarray, bend: np.ndarray, c: np.ndarray, i: np.ndarray, d: int, h: float,
-                step: float, tol: float) -> tuple:
-    """Segments (curve ``c``, start i, span d) decided on a grid of every :data:`_GRID`-th interior sample: a
-    segment off by more than ``tol`` there fails; one whose grid error plus a bound of the rest is ≤ ``tol``
-    is valid.  The error E = P − V at the samples between two neighbouring known points a < b (grid samples
-    or the ends, where E = 0) is within ``(k − a)(b − k) / 2 · max|Δ²E| ≤ g² / 8 · max|Δ²E|`` (g = b − a ≤
-    :data:`_GRID`) of the chord between E(a) and E(b), and ``|Δ²E| ≤ step² · max|P″| + max|Δ²V|``: the
-    cubic's P″ is linear, so its largest size is at an end, ``|6 δ − 4 m_i − 2 m_j| / h`` or
-    ``|6 δ − 2 m_i − 4 m_j| / h`` (δ = (v_j − v_i) / h), and ``max|Δ²V|`` over the window is ``bend``
-    (c, f − 2).  Returns the undecided ``(c, i)`` and the index ``(c, i)`` of the proven-valid ones."""
-    offs = np.arange(_GRID, d, _GRID)
-    fails, grid_err = _window_fails(V, M, c, i, d, h, offs, tol, with_err=True)
-    delta = 6.0 * (V[c, i + d] - V[c, i]) / h
-    mi, mj = M[c, i], M[c, i + d]
+def _grid_sure(flat: tuple, bend: np.ndarray, base: np.ndarray, d: int, h: float, step: float,
+               grid_err: np.ndarray, tol: float) -> np.ndarray:
+    """Segments (span d, length h, starting at flat index ``base`` of ``V`` (c, f)) proven valid from their
+    error on a grid of every :data:`_GRID`-th interior sample (``grid_err``, :func:`_window_fails`): the error
+    E = P − V at the samples between two neighbouring known points a < b (grid samples or the ends, where
+    E = 0) is within ``(k − a)(b − k) / 2 · max|Δ²E| ≤ g² / 8 · max|Δ²E|`` (g = b − a ≤ :data:`_GRID`) of the
+    chord between E(a) and E(b), and ``|Δ²E| ≤ step² · max|P″| + max|Δ²V|``: the cubic's P″ is linear, so its
+    largest size is at an end, ``|6 δ − 4 m_i − 2 m_j| / h`` or ``|6 δ − 2 m_i − 4 m_j| / h``
+    (δ = (v_j − v_i) / h), and ``max|Δ²V|`` over the window is ``bend`` (c, f) flattened.  Shape (len(base),)."""
+    Vf, Mf = flat
+    delta = 6.0 * (Vf[base + d] - Vf[base]) / h
+    mi, mj = Mf[base], Mf[base + d]
     curv = np.maximum(np.abs(delta - 4.0 * mi - 2.0 * mj), np.abs(delta - 2.0 * mi - 4.0 * mj)) / h
-    sure = ~fails & (grid_err + _GRID * _GRID / 8.0 * (step * step * curv + bend[c, i]) <= tol)
-    rest = ~fails & ~sure
-    return c[rest], i[rest], (c[sure], i[sure])
+    return grid_err + _GRID * _GRID / 8.0 * (step * step * curv + bend[base]) <= tol
 
 
 def _hermite_at(V: np.ndarray, M: np.ndarray, w: int, d: int, e: int, h: float, out: np.ndarray,
@@ -448,24 +450,26 @@ def _hermite_at(V: np.ndarray, M: np.ndarray, w: int, d: int, e: int, h: float, 
     np.abs(out, out=out)
 
 
-def _window_fails(V: np.ndarray, M: np.ndarray, c: np.ndarray, i: np.ndarray, d: int, h: float, e, tol: float,
-                  with_err: bool = False):
-    """``True`` where the Hermite of curve ``c`` from sample i to i + d (length h, uniform steps) is more than
-    ``tol`` off at a sample i + e (``e`` interior offsets, or None: all of them), shape (len(i),).  The
-    windows are rows of a strided view of ``V`` (c, f), taken in blocks that bound the memory."""
-    win = np.lib.stride_tricks.sliding_window_view(V, d + 1, axis=1)    # (c, f − d, d + 1), no copy
+def _window_fails(flat: tuple, d: int, h: float, base: np.ndarray, e, tol: float, with_err: bool = False):
+    """``True`` where the Hermite from sample ``base`` to base + d of ``V`` (c, f) flattened (``flat`` = (V, M)
+    raveled; length h, uniform steps) is more than ``tol`` off at a sample base + e (``e`` interior offsets, or
+    None: all of them), shape (len(base),).  The windows are rows of a strided view of the flattened ``V``
+    (base + d stays in the curve's row), taken in blocks that bound the memory."""
+    Vf, Mf = flat
     offs = np.arange(1, d) if e is None else np.asarray(e)
     H = np.column_stack(_hermite_basis(offs / d)) * np.array([1.0, h, 1.0, h])      # (E, 4)
-    worst = np.zeros(i.size)
+    win = np.lib.stride_tricks.as_strided(Vf, shape=(Vf.size - d, d + 1), strides=(Vf.strides[0],) * 2,
+                                          writeable=False) if e is None else None
+    worst = np.zeros(base.size)
     step = max(1, _EVAL_BLOCK // (d + 1))
-    for lo in range(0, i.size, step):
-        ci, ii = c[lo:lo + step], i[lo:lo + step]
-        P = np.column_stack([V[ci, ii], M[ci, ii], V[ci, ii + d], M[ci, ii + d]])
+    for lo in range(0, base.size, step):
+        bb = base[lo:lo + step]
+        P = np.column_stack([Vf[bb], Mf[bb], Vf[bb + d], Mf[bb + d]])
         if e is None:
             r = P @ H.T
-            r -= win[ci, ii][:, 1:d]
+            r -= win[bb][:, 1:d]
         else:
-            r = P @ H.T - V[ci[:, None], ii[:, None] + offs]
+            r = P @ H.T - Vf[bb[:, None] + offs]
         worst[lo:lo + step] = np.abs(r).max(axis=1) if r.shape[1] else 0.0
     return (worst > tol, worst) if with_err else worst > tol
 
