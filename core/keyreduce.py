@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import breadth_first_order
 
 from .progress import ProgressFn, notify, scaled
 from .result import ShapeSpaceError
@@ -491,14 +493,16 @@ def _fewest_keys(ok: np.ndarray, extra: tuple | None = None) -> list:
     """Shortest path from sample 0 to the last over the valid segments ``ok[i, d]`` (f, D + 1) and the
     ``extra`` ones (starts, ends: longer than D) (breadth-first: every segment costs one key); ties: the
     earliest previous key."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import dijkstra
     n, span = ok.shape[0], ok.shape[1] - 1
-    i, d = np.nonzero(ok)                                             # sorted by start: CSR order
-    graph = csr_matrix((np.ones(i.size), i + d, np.r_[0, np.cumsum(ok.sum(axis=1))]), shape=(n, n))
-    if extra is not None and extra[0].size:
-        graph = graph + csr_matrix((np.ones(extra[0].size), extra), shape=(n, n))
-    dist = dijkstra(graph, directed=True, indices=0, unweighted=True)
+    f = np.flatnonzero(ok)                                            # sorted by start: CSR order
+    counts = ok.sum(axis=1)
+    cols = f - np.repeat(np.arange(n), counts) * span                 # i (D + 1) + d → i + d
+    if extra is not None and extra[0].size:                           # longer than any span: each start's last
+        ends = np.cumsum(counts)
+        cols = np.insert(cols, ends[extra[0]], extra[1])
+        counts = counts + np.bincount(extra[0], minlength=n)
+    graph = csr_matrix((np.ones(cols.size), cols, np.r_[0, np.cumsum(counts)]), shape=(n, n))
+    dist = _bfs_depth(breadth_first_order(graph, 0, directed=True, return_predecessors=True)[1])
     prev, start = np.full(n, -1), np.arange(n)                       # each sample's earliest previous key
     for d in range(1, span + 1):                                      # longer spans overwrite: earlier starts
         hit = ok[:n - d, d] & (dist[:n - d] == dist[d:] - 1)
@@ -512,6 +516,20 @@ def _fewest_keys(ok: np.ndarray, extra: tuple | None = None) -> list:
     while keys[-1] > 0:
         keys.append(prev[keys[-1]])
     return keys[::-1]
+
+
+def _bfs_depth(pred: np.ndarray) -> np.ndarray:
+    """Depth of every node of a breadth-first tree rooted at node 0 from its predecessors ``pred`` (n,) (the
+    root's negative): its distance from the root, by pointer doubling (log n vectorised steps)."""
+    anc = np.where(pred < 0, 0, pred)
+    depth = (anc != np.arange(anc.size)).astype(np.int64)
+    live = np.flatnonzero(anc != 0)
+    while live.size:                                                  # depth(v) += depth(anc(v)); anc(v) = anc²(v)
+        up = anc[live]
+        depth[live] += depth[up]
+        anc[live] = anc[up]
+        live = live[anc[live] != 0]
+    return depth
 
 
 def reduce_keys_bezier(times: ArrayLike, values: ArrayLike, tol: float, max_span: int = _MAX_SPAN,
