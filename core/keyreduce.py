@@ -921,12 +921,14 @@ def _lane_advance(lanes: list, lane: _Lane, failed: dict):
     i, v, m = lane.i, lane.v, lane.m
     while True:
         q = lane.q
-        while len(i) < q + 3 and lane.nxt < n:
-            i.append(gi[lane.nxt])
-            v.append(gv[lane.nxt])
-            m.append(gm[lane.nxt])
-            lane.nxt += 1
-        if q >= len(i) - 1:
+        size = len(i)
+        if size < q + 3 and lane.nxt < n:                            # copy the sweep's keys up to q + 2
+            lo, hi = lane.nxt, min(lane.nxt + q + 3 - size, n)
+            i += gi[lo:hi]
+            v += gv[lo:hi]
+            m += gm[lo:hi]
+            lane.nxt, size = hi, size + hi - lo
+        if q >= size - 1:
             lane.state = 1
             return None
         c = i[q]
