@@ -389,10 +389,8 @@ def _valid_window_uniform(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: floa
         b += x
         ok = b <= tol
         for k, e in enumerate(range(1, d) if d <= _WHOLE_SPAN else (d // 2,)):  # short spans whole, long: middle
-            _hermite_at(V, M, w, d, e, h, b, x)
-            if k == 0:
-                e_max[...] = b
-            else:
+            _hermite_at(V, M, w, d, e, h, b if k else e_max, x)
+            if k:
                 np.maximum(e_max, b, out=e_max)
         if d <= _WHOLE_SPAN:
             ok |= e_max <= tol
