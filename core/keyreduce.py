@@ -616,13 +616,17 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
     M = np.vstack([curve_slopes(t, v) for v in V]) if V.size else np.zeros(V.shape)
     if n <= 2:
         return [(np.arange(n), V[k].copy(), M[k].copy()) for k in range(V.shape[0])]
-    idx, block = [], max(1, _BLOCK_SAMPLES // n)                     # stage 1 in blocks of curves (memory)
+    # an exactly constant curve (slopes all 0) is its two end keys: the segment from the first sample to the
+    # last is that value, and stage 1 (a held pose, :func:`_flat_spans`) and stage 2 (nothing between) agree
+    idx = [[0, n - 1] for _ in range(V.shape[0])]
+    moving = np.flatnonzero(np.any(V != V[:, :1], axis=1))
+    block, span = max(1, _BLOCK_SAMPLES // n), min(max_span, n - 1)   # stage 1 in blocks of curves (memory)
     first = 0.4 if refine else 1.0
-    for lo in range(0, V.shape[0], block):
-        span = min(max_span, n - 1)
-        idx += [_fewest_keys(ok, _flat_spans(V[lo + k], M[lo + k], span))
-                for k, ok in enumerate(_valid_segments(t, V[lo:lo + block], M[lo:lo + block], tol, max_span))]
-        notify(progress, first * min(lo + block, V.shape[0]) / V.shape[0])
+    for lo in range(0, moving.size, block):
+        rows = moving[lo:lo + block]
+        for c, ok in zip(rows.tolist(), _valid_segments(t, V[rows], M[rows], tol, max_span)):
+            idx[c] = _fewest_keys(ok, _flat_spans(V[c], M[c], span))
+        notify(progress, first * min(lo + block, moving.size) / max(moving.size, 1))
     kv = [V[k, i].tolist() for k, i in enumerate(idx)]
     km = [M[k, i].tolist() for k, i in enumerate(idx)]
     if refine:                                                        # stage 2: all curves in lock step
