@@ -167,7 +167,7 @@ def test_long_take_in_chunks_and_lanes_keeps_the_tolerance_and_the_key_count(mon
 def _shortest_reference(ok, extra):
     """Reference for stage 1's shortest path: a plain dynamic programme in sample order over every valid segment
     (the graph only goes forward), each sample's previous key the earliest start one segment nearer the first."""
-    n, span = ok.shape[0], ok.shape[1] - 1
+    n = ok.shape[0]
     into = [[] for _ in range(n)]
     for i, d in zip(*np.nonzero(ok)):
         into[i + d].append(int(i))
