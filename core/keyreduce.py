@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import breadth_first_order
 
 from .progress import ProgressFn, notify, scaled
 from .result import ShapeSpaceError
@@ -366,7 +368,8 @@ def _valid_window_uniform(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: floa
     top, bottom = V.copy(), V.copy()                                  # range of the samples in [i, i + d]
     aM = np.abs(M)
     d2V = np.abs(np.diff(V, 2, axis=1))
-    bend = np.zeros((C, max(n - 2, 0)))                              # largest |Δ²V| in [i, i + d]
+    bend = np.zeros((C, n))                                          # largest |Δ²V| in [i, i + d] (first f − 2)
+    flat = (V.ravel(), M.ravel())
     valid = np.zeros((C, n, span + 1), dtype=bool)
     bound, tmp, err = np.empty((C, n)), np.empty((C, n)), np.empty((C, n))
     for d in range(1, min(span, n - 1) + 1):
@@ -385,51 +388,50 @@ def _valid_window_uniform(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: floa
         x *= 4.0 / 27.0 * h
         b += x
         ok = b <= tol
-        for k, e in enumerate(range(1, d) if d <= 12 else (d // 2,)):  # short spans whole, long ones at the middle
-            _hermite_at(V, M, w, d, e, h, b, x)
-            if k == 0:
-                e_max[...] = b
-            else:
+        for k, e in enumerate(range(1, d) if d <= _WHOLE_SPAN else (d // 2,)):  # short spans whole, long: middle
+            _hermite_at(V, M, w, d, e, h, b if k else e_max, x)
+            if k:
                 np.maximum(e_max, b, out=e_max)
-        if d <= 12:
+        if d <= _WHOLE_SPAN:
             ok |= e_max <= tol
         else:
-            c, i = np.nonzero(~ok & (e_max <= tol))
-            if i.size:
-                keep = ~_window_fails(V, M, c, i, d, h, np.arange(1, 5) * d // 5, tol)
-                c, i = c[keep], i[keep]
-            if i.size:
-                c, i, sure = _grid_check(V, M, bend, c, i, d, h, step, tol)
-                ok[sure] = True
-            if i.size:
-                keep = ~_window_fails(V, M, c, i, d, h, None, tol)
-                ok[c[keep], i[keep]] = True
+            q = np.flatnonzero(~ok & (e_max <= tol))                  # into ok (c, w); base: into V (c, f)
+            base = q + (q // w) * d
+            if q.size:
+                keep = ~_window_fails(flat, d, h, base, np.arange(1, 5) * d // 5, tol)
+                q, base = q[keep], base[keep]
+            if q.size:
+                fails, grid_err = _window_fails(flat, d, h, base, np.arange(_GRID, d, _GRID), tol, with_err=True)
+                sure = _grid_sure(flat, bend.ravel(), base, d, h, step, grid_err, tol) & ~fails
+                ok.ravel()[q[sure]] = True
+                q, base = q[~fails & ~sure], base[~fails & ~sure]
+            if q.size:
+                ok.ravel()[q[~_window_fails(flat, d, h, base, None, tol)]] = True
         valid[:, :w, d] = ok
     return valid
 
 
+#: Longest span :func:`_valid_window_uniform` evaluates at every interior sample for every start (longer spans:
+#: at the middle sample, then the survivors on their whole window).
+_WHOLE_SPAN = 12
 #: Spacing (samples) of the grid on which :func:`_grid_check` evaluates a segment.
 _GRID = 8
 
 
-def _grid_check(V: np.ndarray, M: np.ndarray, bend: np.ndarray, c: np.ndarray, i: np.ndarray, d: int, h: float,
-                step: float, tol: float) -> tuple:
-    """Segments (curve ``c``, start i, span d) decided on a grid of every :data:`_GRID`-th interior sample: a
-    segment off by more than ``tol`` there fails; one whose grid error plus a bound of the rest is ≤ ``tol``
-    is valid.  The error E = P − V at the samples between two neighbouring known points a < b (grid samples
-    or the ends, where E = 0) is within ``(k − a)(b − k) / 2 · max|Δ²E| ≤ g² / 8 · max|Δ²E|`` (g = b − a ≤
-    :data:`_GRID`) of the chord between E(a) and E(b), and ``|Δ²E| ≤ step² · max|P″| + max|Δ²V|``: the
-    cubic's P″ is linear, so its largest size is at an end, ``|6 δ − 4 m_i − 2 m_j| / h`` or
-    ``|6 δ − 2 m_i − 4 m_j| / h`` (δ = (v_j − v_i) / h), and ``max|Δ²V|`` over the window is ``bend``
-    (c, f − 2).  Returns the undecided ``(c, i)`` and the index ``(c, i)`` of the proven-valid ones."""
-    offs = np.arange(_GRID, d, _GRID)
-    fails, grid_err = _window_fails(V, M, c, i, d, h, offs, tol, with_err=True)
-    delta = 6.0 * (V[c, i + d] - V[c, i]) / h
-    mi, mj = M[c, i], M[c, i + d]
+def _grid_sure(flat: tuple, bend: np.ndarray, base: np.ndarray, d: int, h: float, step: float,
+               grid_err: np.ndarray, tol: float) -> np.ndarray:
+    """Segments (span d, length h, starting at flat index ``base`` of ``V`` (c, f)) proven valid from their
+    error on a grid of every :data:`_GRID`-th interior sample (``grid_err``, :func:`_window_fails`): the error
+    E = P − V at the samples between two neighbouring known points a < b (grid samples or the ends, where
+    E = 0) is within ``(k − a)(b − k) / 2 · max|Δ²E| ≤ g² / 8 · max|Δ²E|`` (g = b − a ≤ :data:`_GRID`) of the
+    chord between E(a) and E(b), and ``|Δ²E| ≤ step² · max|P″| + max|Δ²V|``: the cubic's P″ is linear, so its
+    largest size is at an end, ``|6 δ − 4 m_i − 2 m_j| / h`` or ``|6 δ − 2 m_i − 4 m_j| / h``
+    (δ = (v_j − v_i) / h), and ``max|Δ²V|`` over the window is ``bend`` (c, f) flattened.  Shape (len(base),)."""
+    Vf, Mf = flat
+    delta = 6.0 * (Vf[base + d] - Vf[base]) / h
+    mi, mj = Mf[base], Mf[base + d]
     curv = np.maximum(np.abs(delta - 4.0 * mi - 2.0 * mj), np.abs(delta - 2.0 * mi - 4.0 * mj)) / h
-    sure = ~fails & (grid_err + _GRID * _GRID / 8.0 * (step * step * curv + bend[c, i]) <= tol)
-    rest = ~fails & ~sure
-    return c[rest], i[rest], (c[sure], i[sure])
+    return grid_err + _GRID * _GRID / 8.0 * (step * step * curv + bend[base]) <= tol
 
 
 def _hermite_at(V: np.ndarray, M: np.ndarray, w: int, d: int, e: int, h: float, out: np.ndarray,
@@ -448,24 +450,26 @@ def _hermite_at(V: np.ndarray, M: np.ndarray, w: int, d: int, e: int, h: float, 
     np.abs(out, out=out)
 
 
-def _window_fails(V: np.ndarray, M: np.ndarray, c: np.ndarray, i: np.ndarray, d: int, h: float, e, tol: float,
-                  with_err: bool = False):
-    """``True`` where the Hermite of curve ``c`` from sample i to i + d (length h, uniform steps) is more than
-    ``tol`` off at a sample i + e (``e`` interior offsets, or None: all of them), shape (len(i),).  The
-    windows are rows of a strided view of ``V`` (c, f), taken in blocks that bound the memory."""
-    win = np.lib.stride_tricks.sliding_window_view(V, d + 1, axis=1)    # (c, f − d, d + 1), no copy
+def _window_fails(flat: tuple, d: int, h: float, base: np.ndarray, e, tol: float, with_err: bool = False):
+    """``True`` where the Hermite from sample ``base`` to base + d of ``V`` (c, f) flattened (``flat`` = (V, M)
+    raveled; length h, uniform steps) is more than ``tol`` off at a sample base + e (``e`` interior offsets, or
+    None: all of them), shape (len(base),).  The windows are rows of a strided view of the flattened ``V``
+    (base + d stays in the curve's row), taken in blocks that bound the memory."""
+    Vf, Mf = flat
     offs = np.arange(1, d) if e is None else np.asarray(e)
     H = np.column_stack(_hermite_basis(offs / d)) * np.array([1.0, h, 1.0, h])      # (E, 4)
-    worst = np.zeros(i.size)
+    win = np.lib.stride_tricks.as_strided(Vf, shape=(Vf.size - d, d + 1), strides=(Vf.strides[0],) * 2,
+                                          writeable=False) if e is None else None
+    worst = np.zeros(base.size)
     step = max(1, _EVAL_BLOCK // (d + 1))
-    for lo in range(0, i.size, step):
-        ci, ii = c[lo:lo + step], i[lo:lo + step]
-        P = np.column_stack([V[ci, ii], M[ci, ii], V[ci, ii + d], M[ci, ii + d]])
+    for lo in range(0, base.size, step):
+        bb = base[lo:lo + step]
+        P = np.column_stack([Vf[bb], Mf[bb], Vf[bb + d], Mf[bb + d]])
         if e is None:
             r = P @ H.T
-            r -= win[ci, ii][:, 1:d]
+            r -= win[bb][:, 1:d]
         else:
-            r = P @ H.T - V[ci[:, None], ii[:, None] + offs]
+            r = P @ H.T - Vf[bb[:, None] + offs]
         worst[lo:lo + step] = np.abs(r).max(axis=1) if r.shape[1] else 0.0
     return (worst > tol, worst) if with_err else worst > tol
 
@@ -487,14 +491,16 @@ def _fewest_keys(ok: np.ndarray, extra: tuple | None = None) -> list:
     """Shortest path from sample 0 to the last over the valid segments ``ok[i, d]`` (f, D + 1) and the
     ``extra`` ones (starts, ends: longer than D) (breadth-first: every segment costs one key); ties: the
     earliest previous key."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import dijkstra
     n, span = ok.shape[0], ok.shape[1] - 1
-    i, d = np.nonzero(ok)                                             # sorted by start: CSR order
-    graph = csr_matrix((np.ones(i.size), i + d, np.r_[0, np.cumsum(ok.sum(axis=1))]), shape=(n, n))
-    if extra is not None and extra[0].size:
-        graph = graph + csr_matrix((np.ones(extra[0].size), extra), shape=(n, n))
-    dist = dijkstra(graph, directed=True, indices=0, unweighted=True)
+    f = np.flatnonzero(ok)                                            # sorted by start: CSR order
+    counts = ok.sum(axis=1)
+    cols = f - np.repeat(np.arange(n), counts) * span                 # i (D + 1) + d → i + d
+    if extra is not None and extra[0].size:                           # longer than any span: each start's last
+        ends = np.cumsum(counts)
+        cols = np.insert(cols, ends[extra[0]], extra[1])
+        counts = counts + np.bincount(extra[0], minlength=n)
+    graph = csr_matrix((np.ones(cols.size), cols, np.r_[0, np.cumsum(counts)]), shape=(n, n))
+    dist = _bfs_depth(breadth_first_order(graph, 0, directed=True, return_predecessors=True)[1])
     prev, start = np.full(n, -1), np.arange(n)                       # each sample's earliest previous key
     for d in range(1, span + 1):                                      # longer spans overwrite: earlier starts
         hit = ok[:n - d, d] & (dist[:n - d] == dist[d:] - 1)
@@ -508,6 +514,20 @@ def _fewest_keys(ok: np.ndarray, extra: tuple | None = None) -> list:
     while keys[-1] > 0:
         keys.append(prev[keys[-1]])
     return keys[::-1]
+
+
+def _bfs_depth(pred: np.ndarray) -> np.ndarray:
+    """Depth of every node of a breadth-first tree rooted at node 0 from its predecessors ``pred`` (n,) (the
+    root's negative): its distance from the root, by pointer doubling (log n vectorised steps)."""
+    anc = np.where(pred < 0, 0, pred)
+    depth = (anc != np.arange(anc.size)).astype(np.int64)
+    live = np.flatnonzero(anc != 0)
+    while live.size:                                                  # depth(v) += depth(anc(v)); anc(v) = anc²(v)
+        up = anc[live]
+        depth[live] += depth[up]
+        anc[live] = anc[up]
+        live = live[anc[live] != 0]
+    return depth
 
 
 def reduce_keys_bezier(times: ArrayLike, values: ArrayLike, tol: float, max_span: int = _MAX_SPAN,
@@ -596,13 +616,17 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
     M = np.vstack([curve_slopes(t, v) for v in V]) if V.size else np.zeros(V.shape)
     if n <= 2:
         return [(np.arange(n), V[k].copy(), M[k].copy()) for k in range(V.shape[0])]
-    idx, block = [], max(1, _BLOCK_SAMPLES // n)                     # stage 1 in blocks of curves (memory)
+    # an exactly constant curve (slopes all 0) is its two end keys: the segment from the first sample to the
+    # last is that value, and stage 1 (a held pose, :func:`_flat_spans`) and stage 2 (nothing between) agree
+    idx = [[0, n - 1] for _ in range(V.shape[0])]
+    moving = np.flatnonzero(np.any(V != V[:, :1], axis=1))
+    block, span = max(1, _BLOCK_SAMPLES // n), min(max_span, n - 1)   # stage 1 in blocks of curves (memory)
     first = 0.4 if refine else 1.0
-    for lo in range(0, V.shape[0], block):
-        span = min(max_span, n - 1)
-        idx += [_fewest_keys(ok, _flat_spans(V[lo + k], M[lo + k], span))
-                for k, ok in enumerate(_valid_segments(t, V[lo:lo + block], M[lo:lo + block], tol, max_span))]
-        notify(progress, first * min(lo + block, V.shape[0]) / V.shape[0])
+    for lo in range(0, moving.size, block):
+        rows = moving[lo:lo + block]
+        for c, ok in zip(rows.tolist(), _valid_segments(t, V[rows], M[rows], tol, max_span)):
+            idx[c] = _fewest_keys(ok, _flat_spans(V[c], M[c], span))
+        notify(progress, first * min(lo + block, moving.size) / max(moving.size, 1))
     kv = [V[k, i].tolist() for k, i in enumerate(idx)]
     km = [M[k, i].tolist() for k, i in enumerate(idx)]
     if refine:                                                        # stage 2: all curves in lock step
@@ -899,12 +923,14 @@ def _lane_advance(lanes: list, lane: _Lane, failed: dict):
     i, v, m = lane.i, lane.v, lane.m
     while True:
         q = lane.q
-        while len(i) < q + 3 and lane.nxt < n:
-            i.append(gi[lane.nxt])
-            v.append(gv[lane.nxt])
-            m.append(gm[lane.nxt])
-            lane.nxt += 1
-        if q >= len(i) - 1:
+        size = len(i)
+        if size < q + 3 and lane.nxt < n:                            # copy the sweep's keys up to q + 2
+            lo, hi = lane.nxt, min(lane.nxt + q + 3 - size, n)
+            i += gi[lo:hi]
+            v += gv[lo:hi]
+            m += gm[lo:hi]
+            lane.nxt, size = hi, size + hi - lo
+        if q >= size - 1:
             lane.state = 1
             return None
         c = i[q]

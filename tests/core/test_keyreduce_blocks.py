@@ -162,3 +162,47 @@ def test_long_take_in_chunks_and_lanes_keeps_the_tolerance_and_the_key_count(mon
         for x, y in zip(a, b):
             np.testing.assert_array_equal(x, y)
     _assert_same(reduce_keys_bezier_curves(t, V, 0.01), ref, t, V, 0.01)
+
+
+def _shortest_reference(ok, extra):
+    """Reference for stage 1's shortest path: a plain dynamic programme in sample order over every valid segment
+    (the graph only goes forward), each sample's previous key the earliest start one segment nearer the first."""
+    n = ok.shape[0]
+    into = [[] for _ in range(n)]
+    for i, d in zip(*np.nonzero(ok)):
+        into[i + d].append(int(i))
+    for i, j in zip(*extra):
+        into[int(j)].append(int(i))
+    dist, prev = [0] + [None] * (n - 1), [-1] * n
+    for j in range(1, n):
+        best = min(dist[i] for i in into[j])
+        dist[j] = best + 1
+        prev[j] = min(i for i in into[j] if dist[i] == best)
+    keys = [n - 1]
+    while keys[-1] > 0:
+        keys.append(prev[keys[-1]])
+    return keys[::-1], dist
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_fewest_keys_is_the_shortest_path_with_the_earliest_previous_key(seed):
+    """Breadth-first depths by pointer doubling and the flat-pose segments inserted into the CSR rows: the same
+    distances and keys as a plain dynamic programme, on random segment tables with long extra segments."""
+    rng = np.random.default_rng(40 + seed)
+    n, span = int(rng.integers(50, 400)), int(rng.integers(2, 30))
+    ok = rng.random((n, span + 1)) < rng.uniform(0.05, 0.6)
+    ok[:, 0] = False
+    ok[:, 1] = True
+    ok[np.arange(n)[:, None] + np.arange(span + 1) >= n] = False
+    starts = np.sort(rng.choice(n - span - 1, size=int(rng.integers(0, 4)), replace=False))
+    ends = np.minimum(starts + span + 1 + rng.integers(0, 40, starts.size), n - 1)
+    extra = (starts, ends)
+    keys, dist = _shortest_reference(ok, extra)
+    assert keyreduce._fewest_keys(ok, extra) == keys
+    assert keyreduce._fewest_keys(ok, (np.array([], int), np.array([], int))) == _shortest_reference(ok, ([], []))[0]
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import breadth_first_order
+    i, d = np.nonzero(ok)
+    graph = csr_matrix((np.ones(i.size + starts.size), (np.r_[i, starts], np.r_[i + d, ends])), shape=(n, n))
+    pred = breadth_first_order(graph, 0, directed=True, return_predecessors=True)[1]
+    np.testing.assert_array_equal(keyreduce._bfs_depth(pred), dist)
