@@ -34,8 +34,10 @@ Two settings of the linear path carry over (thesis ch. 4):
 - *Learned* prior: ``prior_samples`` (f, n), the control channels per frame of the prior action
   (:func:`sample_action`: the F-curves evaluated, not the depsgraph), train a Gaussian on the controls when the
   drag begins (:func:`core.rig.prior.train_control_prior`, with the natural scales the evaluator measured and the
-  evaluated diagonal) and every solve minimises ``λ (x − μ)ᵀ Σ⁻¹ (x − μ)`` in place of the pull toward the
-  controls at mouse-down (:attr:`RigDrag.prior`).
+  evaluated diagonal) and every solve's pull toward the controls at mouse-down ``r`` becomes
+  ``λ (x − r)ᵀ Σ⁻¹ (x − r)`` (:attr:`RigDrag.prior`): centred on the pose at mouse-down as the linear path's
+  Learned mode, the prior's covariance the metric — moves the action makes together are cheap, channels it does
+  not tie to the pinned ones stay where they are, nothing is pulled toward the action's mean pose.
 - *Symmetric*: ``begin(pins, mirror_map=...)`` also fits the face's current mirror plane in world space from the
   evaluated positions of the map's vertex pairs (:func:`core.rig.mirror.fit_mirror_plane`; the face may be posed:
   a turned head, a moved object) — :attr:`RigDrag.plane`, across which the Pin tool reflects a mirror pin's target.
