@@ -14,9 +14,10 @@ import rigs
 from blender_support import bpy
 from shapespace.bridge import actions
 from shapespace.bridge import rig as brig
-from shapespace.bridge.rig import tool
+from shapespace.bridge.rig import stored, tool
 from shapespace.bridge.rig.drag import sample_action
 from shapespace.core.manipulation import Pin
+from support import shared
 from test_rig import _assert_same_state, _state
 from test_rig_drag import _fcurve_keys
 from test_rig_pin_tool import _drag, _face, _pins_world
@@ -287,3 +288,33 @@ def test_one_slotted_action_keys_the_bones_and_the_shape_keys_of_a_hybrid_face(r
     for k in (0, 13, 39):
         bpy.context.scene.frame_set(int(FRAMES[k]))
         np.testing.assert_allclose(values[k], brig.read_controls(rig.controls), atol=1e-6)
+
+
+def test_a_non_finite_quaternion_key_in_the_prior_action_is_refused_naming_action_channel_and_frame(registered):
+    """Rigify's face (a control bone in QUATERNION mode): a NaN key on its w curve is refused by the action, the
+    channel and the first frame Blender's curve is not finite at, before anything changes."""
+    rig = rigs.rigify_rig(shared(*rigs.FACECAP.split("/")))
+    stored.add_entries_of(rig.mesh, rig.armature.name, rig.controls.channels)
+    ch = rig.controls.channels[0]
+    assert ch.rotation_mode == "QUATERNION"
+    arm = rig.armature
+    before = actions.active_action(arm)
+    action = actions.new_action(arm, "broken quaternion")
+    for k, values in enumerate((np.ones(FRAMES.size), 0.1 * np.sin(FRAMES), np.zeros(FRAMES.size),
+                                np.zeros(FRAMES.size))):
+        actions.write_curve(arm, ch.path, FRAMES, values, index=k)
+    fc = next(fc for fc in actions.fcurves(action, arm) if fc.data_path == ch.path and fc.array_index == 0)
+    for key in fc.keyframe_points:
+        key.interpolation = "BEZIER"                     # sampled by FCurve.evaluate, as Blender plays it
+    key = fc.keyframe_points[10]
+    key.co.y = key.handle_left.y = key.handle_right.y = float("nan")
+    first = next(int(f) for f in FRAMES if not np.isfinite(fc.evaluate(f)))   # as Blender plays the curve
+    arm.animation_data.action = before
+    st = rig.mesh.shapespace
+    st.prior_action, st.prior_start, st.prior_end, st.mode = action, 1, 40, "LEARNED"
+    state = _state(rig)
+    with pytest.raises(Exception) as exc:
+        tool.drag_for(rig.mesh)
+    message = str(exc.value)
+    assert "'broken quaternion'" in message and repr(ch.name) in message and f"frame {first}:" in message, message
+    _assert_same_state(state, _state(rig))
