@@ -250,6 +250,9 @@ class _Session:
             return self._end_take()
         finally:
             self.receiver.stop()
+            settle = getattr(self.pipeline, "settle", None)    # a rig pipeline: the verified controls stay shown
+            if settle is not None:
+                settle()
 
 
 class LiveRuntime:

@@ -34,8 +34,10 @@ Two settings of the linear path carry over (thesis ch. 4):
 - *Learned* prior: ``prior_samples`` (f, n), the control channels per frame of the prior action
   (:func:`sample_action`: the F-curves evaluated, not the depsgraph), train a Gaussian on the controls when the
   drag begins (:func:`core.rig.prior.train_control_prior`, with the natural scales the evaluator measured and the
-  evaluated diagonal) and every solve minimises ``λ (x − μ)ᵀ Σ⁻¹ (x − μ)`` in place of the pull toward the
-  controls at mouse-down (:attr:`RigDrag.prior`).
+  evaluated diagonal) and every solve's pull toward the controls at mouse-down ``r`` becomes
+  ``λ (x − r)ᵀ Σ⁻¹ (x − r)`` (:attr:`RigDrag.prior`): centred on the pose at mouse-down as the linear path's
+  Learned mode, the prior's covariance the metric — moves the action makes together are cheap, channels it does
+  not tie to the pinned ones stay where they are, nothing is pulled toward the action's mean pose.
 - *Symmetric*: ``begin(pins, mirror_map=...)`` also fits the face's current mirror plane in world space from the
   evaluated positions of the map's vertex pairs (:func:`core.rig.mirror.fit_mirror_plane`; the face may be posed:
   a turned head, a moved object) — :attr:`RigDrag.plane`, across which the Pin tool reflects a mirror pin's target.
@@ -77,9 +79,16 @@ def _curve_table(action, idb) -> dict:
     return {(fc.data_path, fc.array_index): fc for fc in actions.fcurves(action, idb)}
 
 
-def _rotation_vectors(values: np.ndarray, attr: str) -> np.ndarray:
-    """Rotation vectors (f, 3) of quaternions or axis–angles (f, 4) sampled from F-curves."""
+def _rotation_vectors(values: np.ndarray, attr: str, action, channel: str, frames: np.ndarray) -> np.ndarray:
+    """Rotation vectors (f, 3) of quaternions or axis–angles (f, 4) sampled from ``action``'s F-curves at ``frames``
+    (f,); a quaternion that is not a rotation (non-finite or zero) is refused naming the action, ``channel`` and
+    the frame."""
     if attr == "rotation_quaternion":
+        bad = ~np.isfinite(values).all(axis=1) | ~(np.linalg.norm(np.nan_to_num(values), axis=1) > 0)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise ShapeSpaceError(f"action {action.name!r} gives the quaternion {values[k].tolist()} for channel "
+                                  f"{channel!r} at frame {frames[k]:g}: not a rotation", ErrorCode.NON_FINITE)
         return np.array([rotation_vector_from_quaternion(q) for q in values])
     norm = np.linalg.norm(values[:, 1:], axis=1, keepdims=True)
     return np.where(norm > 0, values[:, :1] * values[:, 1:] / np.where(norm > 0, norm, 1.0), 0.0)
@@ -115,7 +124,7 @@ def sample_action(controls: ControlSet, action, frames) -> tuple:
                 raw = np.array(b.raw(), dtype=np.float64)
                 comps = np.column_stack([actions.sample_curve(fc, frames) if fc is not None
                                          else np.full(frames.size, raw[k]) for k, fc in enumerate(curves)])
-                values[:, j] = _rotation_vectors(comps, b.attr)[:, ch.index]
+                values[:, j] = _rotation_vectors(comps, b.attr, action, ch.name, frames)[:, ch.index]
                 keyed[j] = True
                 continue
         else:

@@ -26,7 +26,9 @@ session's timer does not know the difference):
   verified one by more than :data:`LIVE_SHOW_TOL_REL` of the diagonal (``redisplays`` counts them).  So a
   packet costs the budget's evaluations and at most one more, and on a one-evaluation budget usually exactly one:
   the same as a shape-key face's packet (write, then the viewport's evaluation).  A frame that runs out of budget
-  is counted (:attr:`RigLivePipeline.budget_hits`, shown by the Live panel) — never silent.
+  is counted (:attr:`RigLivePipeline.budget_hits`, shown by the Live panel) — never silent.  Stop and Stop
+  Recording write the last verified controls once (:meth:`RigLivePipeline.settle`): the stream never leaves a
+  probe or a refused trial on the rig.
 
 Recording (:class:`RigTakeRecorder`) keys the control channels (a bone in ``QUATERNION`` / ``AXIS_ANGLE`` mode
 on all four components) and the head / eye bones, one LINEAR key per scene frame, in one new action per
@@ -146,7 +148,8 @@ class RigLivePipeline(CalibratedInput):
     Unlike the slider pipeline it keeps the open evaluator (its channel bindings) between frames: every frame
     first checks, by name and datablock address, that the face and the rig's objects are still the ones bound
     (deleted, or replaced by an undo: the session stops with that message rather than touch a stale datablock).
-    The evaluator is never restored: when the session stops the streamed pose stays, as on the sliders."""
+    The evaluator is never restored: when the session stops the last verified controls stay (:meth:`settle`), as
+    the streamed weights stay on the sliders."""
 
     method = METHOD
 
@@ -221,6 +224,14 @@ class RigLivePipeline(CalibratedInput):
         if bones:
             return write_pose_bones(self.armature, self.bones, bones)
         return ""
+
+    def settle(self) -> None:
+        """Write the last verified controls onto the rig (Stop, Stop Recording): a frame may leave the rig showing
+        its column-refresh probe or refused trial (within :data:`LIVE_SHOW_TOL_REL`, module doc), which must not be
+        the pose the stream leaves behind.  Only the channels that differ are written (nothing when the rig shows
+        them already); nothing when the rig's objects are gone."""
+        if not self._alive():
+            self._set(self.solver.c)
 
     @property
     def stats(self) -> dict:
@@ -374,6 +385,7 @@ class RigTakeRecorder:
     interface (``action``, ``frames``, ``meta``, ``add``, ``finish``)."""
 
     def __init__(self, pipeline: RigLivePipeline, name: str, meta: dict) -> None:
+        self.pipeline = pipeline
         self.specs = _curve_specs(pipeline)
         ids = []
         for s in self.specs:
@@ -428,7 +440,10 @@ class RigTakeRecorder:
         return ""
 
     def finish(self, complete: bool = True, play: bool = True) -> str:
-        """Store the final metadata and (``play``) make the rig's datablocks play the take; returns its name."""
+        """Store the final metadata and (``play``: Stop Recording, Stop) write the last verified controls on the rig
+        (:meth:`RigLivePipeline.settle`) and make the rig's datablocks play the take; returns its name."""
+        if play:
+            self.pipeline.settle()
         if bpy.data.actions.get(self.action) is None:
             return ""
         for fc in self._curves():

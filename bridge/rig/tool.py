@@ -19,10 +19,11 @@ where they are drawn at mouse-down.  The panel's settings apply as on the linear
 - *Learned* mode: a Gaussian prior on the control channels trained from the panel's prior action over its frame
   range (:func:`prior_samples`: the action's F-curves per frame on every channel it keys — bone rotation,
   location, scale, custom properties, sliders; channels it does not key hold their value at mouse-down), added to
-  the solve as ``λ (x − μ)ᵀ Σ⁻¹ (x − μ)`` in place of the Direct pull (:mod:`core.rig.prior`, weight α as the
-  linear path's Learned mode).  No prior action, an empty frame range, an action that keys none of the face's
-  control channels or moves none of them, fewer than 2 frames or a non-finite value: refused by name at
-  mouse-down.
+  the solve as ``λ (x − x₀)ᵀ Σ⁻¹ (x − x₀)`` around the controls at mouse-down ``x₀`` in place of the Direct pull
+  (:mod:`core.rig.prior`; centred and weighted (α) as the linear path's Learned mode: the covariance makes the
+  moves the action makes together cheap, it never pulls the face toward the action's mean pose).  No prior
+  action, an empty frame range, an action that keys none of the face's control channels or moves none of them,
+  fewer than 2 frames or a non-finite value: refused by name at mouse-down.
 - *Symmetric*: a new pin comes with its mirror pin (through the stored mirror map, linked both ways; a centre-line
   pin is linked to itself), and dragging a pin with a mirror link moves its mirror pin to the reflected target —
   reflected across the face's *current* mirror plane, fitted at mouse-down from the evaluated world positions of

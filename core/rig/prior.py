@@ -7,15 +7,19 @@ property, a slider — sampled per frame from the action(s) that key them.  :fun
 
     μ = mean of the frames (n,),   Σ = their covariance (n, n) + diag(ε),
 
-and the rig solve (:func:`core.rig.solve.solve_controls`) adds ``λ (x − μ)ᵀ Σ⁻¹ (x − μ)`` to its objective in place
-of the Direct-mode pull toward the controls at mouse-down.
+and the rig solve (:func:`core.rig.solve.solve_controls`) uses ``λ Σ⁻¹`` as the metric of its regulariser
+``λ (x − r)ᵀ Σ⁻¹ (x − r)`` around the controls at mouse-down ``r`` — as the linear path's Learned mode centres its
+prior metric on the weights at mouse-down: moves the animation makes together are cheap, the face is never pulled
+toward the training mean ``μ`` (:meth:`ControlPrior.mahalanobis` measures from it).
 
 Units and weight — the linear path's Learned-mode convention (:func:`core.manipulation.prior.prior_terms`: the
 data term measured at a 30-unit head diagonal, the prior metric ``σ̄² (Σ + ε σ̄² I)⁻¹``, weight α) carried to
 channels of mixed units through their natural scales ``s_i`` (surface displacement per unit): in normalised surface
-coordinates ``z_i = s_i x_i / u`` (``u`` = the evaluated diagonal / 30) the mean variance is ``σ̄² = mean_i Σ_ii
-s_i² / u²`` and the ridge adds ``ε σ̄²`` to every direction, i.e. ``ε_i = eps · σ̄² u² / s_i²`` in the channel's own
-unit; the weight is ``λ = α u² σ̄²``, so with an isotropic Σ the term is ``α/(1 + eps) Σ (s_i (x_i − μ_i))²`` — the
+coordinates ``z_i = s_i x_i / u`` (``u`` = the evaluated diagonal / 30) the mean variance ``σ̄²`` is the mean of the
+non-zero eigenvalues of ``Σ_z = diag(s/u) Σ diag(s/u)`` (above ``1e-12`` of the largest, as the linear path keeps
+only its non-zero PCA variances: channels the animation never moves do not weaken the prior) and the ridge adds
+``ε σ̄²`` to every direction, i.e. ``ε_i = eps · σ̄² u² / s_i²`` in the channel's own unit;
+the weight is ``λ = α u² σ̄²``, so with an isotropic Σ the term is ``α/(1 + eps) Σ (s_i (x_i − r_i))²`` — the
 Direct regulariser in surface lengths, weighted as the linear path weights its sliders.  Channels the animation
 never moves keep only ``ε_i``: moving one by a surface distance δ costs ``α/eps · δ²`` (as a slider outside the
 training span does on the linear path).
@@ -71,9 +75,11 @@ class ControlPrior:
     keyed: np.ndarray
     precision: np.ndarray
 
-    def energy(self, x: ArrayLike) -> float:
-        """``λ (x − μ)ᵀ Σ⁻¹ (x − μ)`` for controls ``x`` (n,)."""
-        d = np.asarray(x, dtype=np.float64).reshape(-1) - self.mean
+    def energy(self, x: ArrayLike, reference: ArrayLike | None = None) -> float:
+        """``λ (x − r)ᵀ Σ⁻¹ (x − r)`` for controls ``x`` (n,) around ``reference`` ``r`` (n,) (``μ`` by default;
+        a drag's regulariser is this around the controls at mouse-down)."""
+        r = self.mean if reference is None else np.asarray(reference, dtype=np.float64).reshape(-1)
+        d = np.asarray(x, dtype=np.float64).reshape(-1) - r
         return float(d @ self.precision @ d)
 
     def mahalanobis(self, x: ArrayLike) -> float:
@@ -125,9 +131,10 @@ def train_control_prior(samples: ArrayLike, names: Sequence[str], scale: ArrayLi
     mean = x.mean(axis=0)
     centred = x - mean
     cov = centred.T @ centred / (x.shape[0] - 1)
-    var_z = np.diag(cov) * s * s / (unit * unit)
+    z = s / unit
+    var_z = np.diag(cov) * z * z
     keyed = var_z > 1e-12 * max(float(var_z.max()), 1e-300)
-    sigma2 = float(var_z.mean())
+    sigma2 = _mean_variance(cov * np.outer(z, z))
     if not (sigma2 > 1e-24):
         raise ShapeSpaceError("the prior's animation moves none of the control channels", ErrorCode.PRIOR_CONSTANT)
     ridge = eps * sigma2 * unit * unit / (s * s)
@@ -141,3 +148,14 @@ def train_control_prior(samples: ArrayLike, names: Sequence[str], scale: ArrayLi
     precision = weight * (inv_chol.T @ inv_chol)
     precision = 0.5 * (precision + precision.T)
     return ControlPrior(names, mean, cov, weight, int(x.shape[0]), keyed, precision)
+
+
+def _mean_variance(cov_z: np.ndarray) -> float:
+    """``σ̄²``: the mean of the eigenvalues of ``Σ_z`` (n, n) above ``1e-12`` of the largest — the directions the
+    animation moves in, as the linear path's :func:`core.manipulation.prior.train_prior` keeps only its non-zero
+    PCA variances — so channels the animation never moves do not dilute it (0 when nothing moves)."""
+    ev = np.linalg.eigvalsh(0.5 * (cov_z + cov_z.T))
+    top = float(ev.max(initial=0.0))
+    if not (top > 0.0):
+        return 0.0
+    return float(ev[ev > 1e-12 * top].mean())

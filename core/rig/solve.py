@@ -11,10 +11,13 @@ their targets, ``r`` (n,) the reference controls the solve is pulled toward (the
 and ``μ`` a small dimensionless weight.
 
 With a learned prior (``prior``, :class:`~core.rig.prior.ControlPrior`: thesis 4.3 on the controls, the Learned
-mode of a drag) the regulariser is the full quadratic ``λ (c − μ)ᵀ Σ⁻¹ (c − μ)`` (the prior's mean ``μ`` (n,),
-precision ``λ Σ⁻¹`` (n, n)) in place of ``μ Σ_i (s_i (c_i − r_i))²``: every step's Hessian gets ``λ Σ⁻¹`` and its
-gradient ``λ Σ⁻¹ (c − μ)``, the bounded steps and the stopping tests are the same.  Without a prior the
-diagonal regulariser's arithmetic is exactly the one it always was.
+mode of a drag) the regulariser is the full quadratic ``(c − r)ᵀ W (c − r)`` with the prior's metric
+``W = λ Σ⁻¹`` (n, n) in place of ``μ Σ_i (s_i (c_i − r_i))²`` — still centred on the reference ``r`` (the controls at
+mouse-down), as the linear path's Learned mode (:func:`core.manipulation.prior.prior_terms`) centres
+``α (w − w0)ᵀ P (w − w0)`` on the weights at mouse-down: the prior's covariance only says which moves are cheap
+(channels the animation moves together move along), it never pulls the face toward the training mean.  Every
+step's Hessian gets ``W`` and its gradient ``W (c − r)``, the bounded steps and the stopping tests are the same.
+Without a prior the diagonal regulariser's arithmetic is exactly the one it always was.
 
 Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one update between Jacobians):
 
@@ -22,7 +25,7 @@ Method (Levenberg–Marquardt on the box; Moré 1978, with Broyden's rank-one up
   one evaluation per channel, steps pointing into the box.  It is kept between iterations and corrected by
   Broyden's rank-one update ``J += (ΔP − J d) dᵀ / dᵀd`` after every evaluated trial step.
 - Each step solves the bounded linear least-squares problem ``min ‖J d + e‖² + μ‖S(c + d − r)‖² + λ‖D d‖²``
-  (with a prior: ``+ (c + d − μ)ᵀ λΣ⁻¹ (c + d − μ)`` in place of the second term)
+  (with a prior: ``+ (c + d − r)ᵀ λΣ⁻¹ (c + d − r)`` in place of the second term)
   on ``lo − c ≤ d ≤ hi − c`` exactly (a dense primal active set, :func:`box_qp_primal`, warm-started from the
   previous step's active sets, falling back on SciPy's bounded least squares), with Marquardt's scaling
   ``D² = diag(JᵀJ + μS²)`` (with a prior: ``diag(JᵀJ + λΣ⁻¹)``).
@@ -218,7 +221,7 @@ def bounded_step(J: np.ndarray, e: np.ndarray, reg_w: np.ndarray, c: np.ndarray,
     (``held``: (at lo, at hi) (n,) bool of a previous step's end point, a warm start).
 
     ``reg_w`` (n,) is a diagonal regulariser; (n, n) a full symmetric positive semi-definite one ``W``, the
-    term then ``(c + d − ref)ᵀ W (c + d − ref)`` (a learned prior: ``W = λΣ⁻¹``, ``ref = μ``)."""
+    term then ``(c + d − ref)ᵀ W (c + d − ref)`` (a learned prior: ``W = λΣ⁻¹``, ``ref`` the reference)."""
     if reg_w.ndim == 2:
         return _bounded_step_full(J, e, reg_w, c, ref, lam, D2, lo, hi, held)
     H = J.T @ J + np.diag(reg_w + lam * D2)
@@ -368,7 +371,7 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         a warm start for the bounded steps (only their speed depends on it).
     prior : ControlPrior, optional
         A learned prior on the controls (:func:`core.rig.prior.train_control_prior`): the regulariser becomes
-        ``λ (c − μ)ᵀ Σ⁻¹ (c − μ)`` (module doc) and ``mu`` / ``reference`` are not used.
+        ``(c − r)ᵀ λΣ⁻¹ (c − r)`` around the same ``reference`` ``r`` (module doc) and ``mu`` is not used.
 
     Returns
     -------
@@ -384,7 +387,7 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
         raise ShapeSpaceError(f"steps: expected {c.size} positive numbers", ErrorCode.RANGE)
     run = _LevenbergMarquardt(evaluate, jacobian, t, lo, hi, s, w, ref, mu, h)
     if prior is not None:
-        run.ref, run.reg_w = _check_prior(prior, c.size)
+        run.reg_w = _check_prior(prior, c.size)
     run.defer = bool(defer_refresh)
     if first_active is not None:
         run.held = tuple(np.asarray(a, bool).reshape(c.shape) for a in first_active)
@@ -408,15 +411,15 @@ def solve_controls(evaluate: Callable, c0: ArrayLike, targets: ArrayLike, *, lo:
     return run.result(status, message)
 
 
-def _check_prior(prior: ControlPrior, n: int) -> tuple:
-    """``(μ (n,), λΣ⁻¹ (n, n))`` of a prior for ``n`` controls (refused when it does not match or is not finite)."""
-    mean = np.asarray(prior.mean, dtype=np.float64).reshape(-1)
+def _check_prior(prior: ControlPrior, n: int) -> np.ndarray:
+    """The metric ``λΣ⁻¹`` (n, n) of a prior for ``n`` controls (refused when it does not match or is not finite)."""
     W = np.asarray(prior.precision, dtype=np.float64)
-    if mean.shape != (n,) or W.shape != (n, n):
-        raise ShapeSpaceError(f"prior: trained on {mean.size} channels, the solve has {n}", ErrorCode.SHAPE)
-    if not (np.isfinite(mean).all() and np.isfinite(W).all()):
-        raise ShapeSpaceError("prior: its mean or precision is not finite", ErrorCode.NON_FINITE)
-    return mean, 0.5 * (W + W.T)
+    if W.shape != (n, n):
+        raise ShapeSpaceError(f"prior: trained on {W.shape[0] if W.ndim else 0} channels, the solve has {n}",
+                              ErrorCode.SHAPE)
+    if not np.isfinite(W).all():
+        raise ShapeSpaceError("prior: its precision is not finite", ErrorCode.NON_FINITE)
+    return 0.5 * (W + W.T)
 
 
 class _LevenbergMarquardt:

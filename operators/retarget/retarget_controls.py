@@ -11,6 +11,7 @@ import os
 import bpy
 
 from ...bridge.rig import steps, stored
+from ...bridge.rig.last_take import summary
 from ..polls import active_rig
 from ..progress import SteppedJobModal
 from ..reporting import FAILED, attempt
@@ -64,7 +65,7 @@ into new actions on the armature (or other owners) with key reduction (Esc cance
             return {"CANCELLED"}
         for issue in rep.issues:
             self.report({"WARNING"}, issue.message)
-        self.report({"INFO"}, steps.summary(rep))
+        self.report({"INFO"}, summary(rep))
         return {"FINISHED"}
 
     def execute(self, context):

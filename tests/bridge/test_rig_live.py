@@ -255,3 +255,51 @@ def test_refusals_name_the_culprit_and_change_nothing():
     assert session.RUNTIME.session is None and "the rig 'Controls' was deleted" in session.RUNTIME.message
     for fc in actions.action_fcurves(bpy.data.actions[take]):
         assert len(fc.keyframe_points) == keyed
+
+
+def _rounding(pipe):
+    """What reading a channel back may differ by (float32 storage, a rotation read as its rotation vector): a
+    thousandth of the smallest probe step."""
+    return 1e-3 * float(np.min(rig_live.LIVE_REFRESH_STEP * pipe.ev.steps))
+
+
+def _stream_until_a_probe_is_shown(pipe, packets):
+    """Feed packets through the running session's pipeline (solve, write, the viewport's update) until a frame
+    leaves the rig showing something other than its verified controls (a probe or refused trial within
+    ``LIVE_SHOW_TOL_REL``); returns those verified controls."""
+    rig_controls = pipe.controls
+    tol = _rounding(pipe)
+    for _, data in packets:
+        frame = decode_llf(data, 0.0)
+        assert pipe.write(*pipe.solve(pipe.process(frame.vector(), frame.time))) == ""
+        bpy.context.view_layer.update()
+        shown = brig.read_controls(rig_controls)
+        if np.abs(shown - pipe.last.value).max() > tol:
+            return pipe.last.value.copy()
+    raise AssertionError("no frame left a probe on the rig")
+
+
+@pytest.mark.parametrize("recording", [False, True], ids=["stop", "stop_recording"])
+def test_stop_leaves_the_last_verified_controls_on_the_rig_not_a_probe(recording):
+    """Rigify's face on a budget of one evaluation (probes are shown, module doc of bridge.rig.live): right after a
+    frame that leaves a probe on the rig, Stop (or Stop Recording) leaves exactly the last verified controls —
+    read back from the rig's own channels (to float32 rounding, a thousandth of a probe step) — and Blender's
+    evaluation draws them."""
+    rig = _rig("rigify")
+    packets = live_replay.llf_packets(CSV)[:160]
+    configure(rig.mesh, method="CONTROLS")
+    session.start(bpy.context.scene, rig.mesh)
+    s = session.RUNTIME.session
+    s.pipeline = pipe = rig_live.build_rig_pipeline(bpy.context.scene, bpy.context.scene.shapespace_live, rig.mesh,
+                                                    budget=1)
+    if recording:
+        session.record(bpy.context.scene, "Probe")
+    verified = _stream_until_a_probe_is_shown(pipe, packets)
+    if recording:
+        session.stop_recording()
+    else:
+        session.stop()
+    np.testing.assert_allclose(brig.read_controls(rig.controls), verified, rtol=0, atol=_rounding(pipe))
+    surface = _evaluated(rig)
+    brig.apply_controls(rig.controls, verified)
+    np.testing.assert_array_equal(_evaluated(rig), surface)
