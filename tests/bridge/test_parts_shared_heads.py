@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+import bench_transfer_v2
 from blender_support import bpy, import_file
 from shapespace.bridge import shapekeys
 from shapespace.core.authoring import parts
-from shapespace.core.names import canonical_name
 from support import shared
 
 
@@ -43,41 +43,17 @@ def test_a_jaw_open_on_a_shared_head_moves_the_lower_teeth_with_the_chin():
     assert not out[0, upper].any()
 
 
-#: Each shared head whole, as a user rigs it (as tools/bench_transfer_v2.py reads it): file and objects.
-HEADS = {"facecap": (("facecap", "facecap_decoded.glb"), ("Mesh_2", "Mesh_0", "Mesh_1", "Mesh_3")),
-         "fbhead": (("llf_fbhead", "Live_Link_Face.blend"), ("FBHead",)),
-         "ict": (("ict_facekit", "ict_facekit_expressions.glb"), ("ICTFace",)),
-         "rpm": (("rpm_brunette", "brunette-t.glb"), ("Wolf3D_Head", "EyeLeft", "EyeRight", "Wolf3D_Teeth"))}
-
-
 def _whole(tag):
     """Neutral (n, 3), triangles (f, 3) and the authored ``jawOpen`` and ``tongueOut`` (n, 3) (zero where an
-    object has no such key) of a whole head, world space."""
-    rel, objects = HEADS[tag]
-    import_file(shared(*rel))
-    verts, tris, keys, off = [], [], {"jawOpen": [], "tongueOut": []}, 0
-    for name in objects:
-        ob = bpy.data.objects[name]
-        me = ob.data
-        M = np.array(ob.matrix_world)
-        me.calc_loop_triangles()
-        t = np.empty(len(me.loop_triangles) * 3, dtype=np.int32)
-        me.loop_triangles.foreach_get("vertices", t)
-        co = np.empty(len(me.vertices) * 3, dtype=np.float32)
-        me.vertices.foreach_get("co", co)
-        model = shapekeys.read_blendshape_model(ob) if me.shape_keys else None
-        co = co.reshape(-1, 3).astype(np.float64) if model is None else model.neutral
-        verts.append(co @ M[:3, :3].T + M[:3, 3])
-        tris.append(t.reshape(-1, 3).astype(np.int64) + off)
-        for key, out in keys.items():
-            names = [] if model is None else [canonical_name(n) for n in model.names]
-            out.append(model.deltas[names.index(key)] @ M[:3, :3].T if key in names else np.zeros_like(co))
-        off += len(co)
-    return (np.concatenate(verts), np.concatenate(tris), np.concatenate(keys["jawOpen"]),
-            np.concatenate(keys["tongueOut"]))
+    object has no such key) of a whole head, world space, read as the transfer benchmark reads it."""
+    V, T, D, names = bench_transfer_v2.read_head(tag)
+
+    def key(name):
+        return D[names.index(name)] if name in names else np.zeros_like(V)
+    return V, T, key("jawOpen"), key("tongueOut")
 
 
-@pytest.mark.parametrize("tag", sorted(HEADS))
+@pytest.mark.parametrize("tag", sorted(bench_transfer_v2.HEADS))
 def test_the_tongue_of_a_shared_head_is_the_part_its_artist_puts_out(tag):
     """On every shared head the parts proposed as the tongue (:data:`parts.TONGUE`, from the head's own
     ``jawOpen``) are exactly those its artist slides out in ``tongueOut`` (median motion over 5 % of the
