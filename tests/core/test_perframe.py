@@ -91,3 +91,38 @@ def test_fit_frames_documented_objective_unnormalized_B():
     rel = reg * np.trace(B.T @ B) / B.shape[1]
     for f in range(3):
         np.testing.assert_allclose(out[f], ridge_lstsq(B, frames[f] - neutral, rel), rtol=0, atol=1e-6)
+
+
+def test_batched_active_set_gives_each_frame_s_bvls_minimiser_with_one_sided_and_infinite_bounds():
+    from core.retarget.perframe import batched_active_set
+    rng = np.random.default_rng(24)
+    m3, n, F = 30, 8, 300
+    B = normalized_B(rng, m3, n)
+    S = rng.uniform(-0.8, 1.8, (F, n)) @ B.T + 0.05 * rng.standard_normal((F, m3))
+    a = 1e-3
+    H = 2.0 * (B.T @ B + a * np.eye(n))
+    lo = np.array([0.0, 0.0, -np.inf, 0.0, -1.0, 0.0, -np.inf, 0.2])
+    hi = np.array([1.0, np.inf, 1.0, 1.0, 0.5, 1.0, np.inf, 0.8])
+    X, done = batched_active_set(H, 2.0 * (S @ B), lo, hi)
+    assert done.all() and np.all(X >= lo) and np.all(X <= hi)
+    A = np.vstack([B, np.sqrt(a) * np.eye(n)])
+    from scipy.optimize import lsq_linear
+    for f in range(F):
+        ref = lsq_linear(A, np.concatenate([S[f], np.zeros(n)]), bounds=(lo, hi), method="bvls", tol=1e-12).x
+        np.testing.assert_allclose(X[f], ref, rtol=0, atol=1e-9)
+    held = (X == lo) | (X == hi)
+    assert held.sum() > F and len({r.tobytes() for r in held}) > 10          # many distinct held sets
+
+
+def test_batched_active_set_hands_back_frames_it_does_not_settle():
+    from core.retarget.perframe import batched_active_set
+    rng = np.random.default_rng(3)
+    n = 6
+    U = np.linalg.qr(rng.normal(size=(n, n)))[0]
+    H = U @ np.diag(np.geomspace(10.0, 0.01, n)) @ U.T
+    G = rng.normal(size=(50, n)) * 5.0
+    X, done = batched_active_set(H, G, np.zeros(n), np.ones(n), max_iter=1)   # one pass: only the interior ones
+    free = np.linalg.solve(H, G.T).T
+    inside = np.all((free >= 0) & (free <= 1), axis=1)
+    np.testing.assert_array_equal(done, inside)
+    assert not inside.all()

@@ -146,6 +146,16 @@ def test_run_peaks_marks_the_deepest_entry_of_every_run_per_channel():
     assert not run_peaks(np.zeros((4, 3))).any()
 
 
+def test_run_peaks_with_a_fraction_marks_each_run_s_entries_at_least_that_deep():
+    v = np.array([[0.0, 1.0], [0.2, 2.0], [0.5, 0.0], [0.1, 3.0], [0.0, 3.5], [0.3, 0.0]])
+    want = np.zeros_like(v, dtype=bool)
+    want[[2, 5], 0] = True                              # runs [0.2, 0.5] and [0.3]: 0.2 < 0.25
+    want[[0, 1, 3, 4], 1] = True                        # runs [1, 2] and [3, 3.5]: all at least half
+    np.testing.assert_array_equal(run_peaks(v, 0.5), want)
+    np.testing.assert_array_equal(run_peaks(v, 1.0), run_peaks(v))
+    assert run_peaks(v, 1e-9).sum() == np.count_nonzero(v)
+
+
 def test_a_long_clipped_take_needs_few_exact_solves():
     # the cost of the bounded solve is its number of exact reduced solves: a handful, not one per active entry
     B, b0, S = _take(7, F=600, n=8, m3=30)

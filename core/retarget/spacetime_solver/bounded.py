@@ -1,7 +1,7 @@
 """The bounded methods: the held (active) set of ``min ½ yᵀ𝓗y − r₀ᵀy, ylo ≤ y ≤ yhi``, each step a kernel solve.
 
 - :func:`clipped_solve` — one exact solve with every violated entry held (shallow violations only);
-- :func:`peak_active_set` — hold the deepest entry of every run of violated frames (:func:`run_peaks`);
+- :func:`peak_active_set` — hold the deepest entries of every run of violated frames (:func:`run_peaks`);
 - :func:`interior_point` — Mehrotra predictor–corrector with an exact crossover (rank-deficient rigs);
 - :func:`active_set` — the primal–dual active set (Hintermüller–Ito–Kunisch);
 - :func:`projected_newton` — an ε-active set and a projected Armijo search (Bertsekas 1982), monotone.
@@ -18,23 +18,32 @@ from .kernels import BlockCholesky, block_step, capacitance_limit, reduced_step
 from .system import SpacetimeSystem
 
 __all__ = ["clipped_solve", "peak_active_set", "interior_point", "active_set", "projected_newton", "run_peaks",
-           "shallow_violation", "PEAK_PATIENCE", "SHALLOW_VIOLATION"]
+           "shallow_violation", "PEAK_PATIENCE", "PEAK_FRACTION", "SHALLOW_VIOLATION"]
 
 #: Iterations :func:`peak_active_set` may go without lowering the best 2-norm of its natural residual by 10 %.
 PEAK_PATIENCE = 5
+
+#: :func:`peak_active_set` holds the entries of a violated run at least this fraction of the run's deepest violation
+#: (1: the deepest entry alone).  A run's final held stretch is its deepest part, so holding the upper half at once
+#: grows it geometrically: 36,000 frames onto FBHead settle in 3 exact solves instead of 13 (the deepest entry
+#: alone), with the same KKT point (the natural-residual test decides either way).
+PEAK_FRACTION = 0.5
 
 #: :func:`clipped_solve` is tried first when no entry of the unbounded solution violates its bound by more than
 #: this fraction of the slider's range (tiny dips below 0 where the source rests; never real clipping).
 SHALLOW_VIOLATION = 1e-3
 
 
-def run_peaks(v: np.ndarray) -> np.ndarray:
-    """The deepest entry of every run of consecutive positive entries along time, per channel.
+def run_peaks(v: np.ndarray, fraction: float = 1.0) -> np.ndarray:
+    """The deepest entry of every run of consecutive positive entries along time, per channel (with
+    ``fraction`` < 1: every entry of a run at least that fraction of the run's deepest).
 
     Parameters
     ----------
     v : ndarray (f − 2, n)
         Violation (> 0 where violated).
+    fraction : float
+        In (0, 1].
 
     Returns
     -------
@@ -53,7 +62,7 @@ def run_peaks(v: np.ndarray) -> np.ndarray:
         starts[1:] = np.diff(idx) > 1
         run = np.cumsum(starts) - 1
         peak = np.maximum.reduceat(vals[idx], np.flatnonzero(starts))
-        out[idx[vals[idx] >= peak[run]]] = True
+        out[idx[vals[idx] >= fraction * peak[run]]] = True
     return out.reshape(n, N + 1)[:, :N].T
 
 
@@ -87,25 +96,32 @@ def clipped_solve(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo: n
     -------
     Y : ndarray (f − 2, n)
     converged : bool
-        Whether the natural residual meets ``tol · scale`` (else the caller starts over from ``Y``).
+        Whether the natural residual meets ``tol · scale``.
+    start : tuple or None
+        ``(lower, upper, factor)``: the held sets and their :class:`BlockCholesky`, from which
+        :func:`peak_active_set` goes on when the solve did not converge (36,000 frames onto FBHead: 2 more
+        solves instead of 3 from the unbounded solution, and the factor's memory taken over); ``None`` when the
+        factorisation failed (the caller starts over from the unbounded solution).
     """
     upper, lower = Y > yhi, Y < ylo
     Yh = np.where(upper, yhi, np.where(lower, ylo, Y))
     try:
         factor = BlockCholesky(system, upper | lower, progress=progress)
     except np.linalg.LinAlgError:
-        return Y, False
+        return Y, False, None
     system.solves += 1
     Yn = Yh + factor.solve(R0 - system.apply(Yh))
-    return Yn, _natural(Yn, R0 - system.apply(Yn), ylo, yhi) <= tol * scale
+    return Yn, _natural(Yn, R0 - system.apply(Yn), ylo, yhi) <= tol * scale, (lower, upper, factor)
 
 
 def peak_active_set(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo: np.ndarray, yhi: np.ndarray,
-                    tol: float, max_iter: int, scale: float, progress: ProgressFn | None = None) -> tuple:
-    """Active set grown from below: hold the deepest entry of every violated run, free wrong-signed holds.
+                    tol: float, max_iter: int, scale: float, progress: ProgressFn | None = None,
+                    start: tuple | None = None) -> tuple:
+    """Active set grown from below: hold the deepest entries of every violated run, free wrong-signed holds.
 
     From the unbounded solution, each iteration holds (at its bound) the most
-    violated entry of every run of consecutive violated frames of a slider,
+    violated entries of every run of consecutive violated frames of a slider (those violated by at
+    least :data:`PEAK_FRACTION` of the run's deepest),
     releases held entries whose multiplier has the wrong sign, and solves
     exactly for the rest (:class:`BlockCholesky`).  Holding a run's deepest
     point lifts its neighbours through the time coupling, so the held set
@@ -125,12 +141,15 @@ def peak_active_set(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo:
     ----------
     system : SpacetimeSystem
     Y : ndarray (f − 2, n)
-        The unbounded solution.
+        The unbounded solution (with ``start``: the exact solution for its held sets).
     R0, ylo, yhi : ndarray (f − 2, n)
     tol, scale : float
     max_iter : int
     progress : callable, optional
         Called with the iteration's fraction of ``max_iter``.
+    start : tuple, optional
+        ``(lower, upper, factor)``: held sets to go on from (nothing held by default) and their
+        :class:`BlockCholesky` (or ``None``), as :func:`clipped_solve` returns them.
 
     Returns
     -------
@@ -139,11 +158,10 @@ def peak_active_set(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo:
     iterations : int
     converged : bool
     """
-    lower = np.zeros(Y.shape, dtype=bool)
-    upper = np.zeros(Y.shape, dtype=bool)
+    lower, upper, factor = start or (np.zeros(Y.shape, dtype=bool), np.zeros(Y.shape, dtype=bool), None)
     seen = set()
     best, since = np.inf, 0
-    limit, factor = capacitance_limit(system), None
+    limit = capacitance_limit(system)
     for it in range(max_iter + 1):
         notify(progress, it / max_iter)
         mult = R0 - system.apply(Y)
@@ -156,8 +174,8 @@ def peak_active_set(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, ylo:
             break                                                   # no progress: the caller globalises
         held = lower | upper
         thr = 1e-3 * tol * scale
-        add_lo = run_peaks(np.where(held, 0.0, ylo - Y - thr))
-        add_hi = run_peaks(np.where(held, 0.0, Y - yhi - thr))
+        add_lo = run_peaks(np.where(held, 0.0, ylo - Y - thr), PEAK_FRACTION)
+        add_hi = run_peaks(np.where(held, 0.0, Y - yhi - thr), PEAK_FRACTION)
         new_lower = (lower & ~(mult > 0)) | add_lo
         new_upper = (upper & ~(mult < 0)) | add_hi
         key = hash(np.packbits(new_lower).tobytes() + np.packbits(new_upper).tobytes())

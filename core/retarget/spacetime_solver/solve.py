@@ -84,17 +84,17 @@ def _solve_bounded(system: SpacetimeSystem, Y: np.ndarray, R0: np.ndarray, lo: n
     system.solves = 0
     peak_iterations = ipm_iterations = pdas_iterations = 0
     exact = block_fits(system)
-    Ys, done = Y, False
+    Ys, done, start = Y, False, None
     # a rank-deficient rig (duplicate keys: M singular) has many bounded ties only λ tells apart, on which active-set
     # iterations cycle; the interior point goes straight through them
     degenerate = float(system.mu.min()) <= DEGENERATE_RATIO * float(system.mu.max())
     clipped = exact and shallow_violation(Y, ylo, yhi)
     if clipped:                              # nothing really clips: hold every sliver, one solve (usually final)
-        Ys, done = clipped_solve(system, Y, R0, ylo, yhi, tol, scale, scaled(progress, 0.0, 0.5))
-        Ys = Ys if done else Y
-    if exact and not degenerate and not done:
-        Ys, peak_iterations, done = peak_active_set(system, Y, R0, ylo, yhi, tol, max_iter, scale,
-                                                    scaled(progress, 0.0, 0.5))
+        Yc, done, start = clipped_solve(system, Y, R0, ylo, yhi, tol, scale, scaled(progress, 0.0, 0.5))
+        Ys = Yc if done else Y
+    if exact and not degenerate and not done:  # the peak iteration goes on from the clipped solve's held sets
+        Ys, peak_iterations, done = peak_active_set(system, Yc if start else Y, R0, ylo, yhi, tol, max_iter, scale,
+                                                    scaled(progress, 0.0, 0.5), start)
     if not done and exact and bool(np.all(lo < hi)):
         Ys, ipm_iterations, done = interior_point(system, Y, R0, ylo, yhi, tol, max_iter, scale,
                                                   scaled(progress, 0.5, 0.9))
