@@ -119,17 +119,18 @@ def test_symmetric_drag_moves_the_mirror_pin_to_the_reflected_target_and_keeps_t
 
 
 def _turn_head(rig, rotation):
-    """A second Armature modifier with one ``head`` bone weighting every vertex 1 (after the jaw's): the head
-    bone turned by ``rotation`` (Euler XYZ).  Returns the rigid world transform (4, 4) it applies to the face."""
+    """A second Armature modifier with one ``turn`` bone weighting every vertex 1 (after the jaw's; not named
+    ``head``: the hybrid's own armature has a head bone and group): that bone turned by ``rotation`` (Euler XYZ).
+    Returns the rigid world transform (4, 4) it applies to the face."""
     ob = rig.mesh
     rest = rig.world_points()
     centre = 0.5 * (rest.min(0) + rest.max(0))
-    arm = rigs._armature("Neck", {"head": (tuple(centre - [0, 0, 0.3]), tuple(centre))})
-    group = ob.vertex_groups.new(name="head")
+    arm = rigs._armature("Neck", {"turn": (tuple(centre - [0, 0, 0.3]), tuple(centre))})
+    group = ob.vertex_groups.new(name="turn")
     group.add(list(range(len(ob.data.vertices))), 1.0, "REPLACE")
     mod = ob.modifiers.new("Head", "ARMATURE")
     mod.object = arm
-    pb = arm.pose.bones["head"]
+    pb = arm.pose.bones["turn"]
     pb.rotation_mode = "XYZ"
     pb.rotation_euler = rotation
     bpy.context.view_layer.objects.active = ob
