@@ -35,10 +35,14 @@ _EXIT_STATUS = pytest.StashKey[int]()
 
 @pytest.fixture(autouse=True)
 def gltf_export_guard(request):
-    """Note that the session exported glTF (tests marked ``gltf_export``; see the note above)."""
+    """Note that the session exported glTF (tests marked ``gltf_export``; see the note above) or generated a Rigify
+    rig (Rigify loaded: the same exit crash and hang follow, so every test that builds one is guarded, marked or
+    not)."""
     if request.node.get_closest_marker("gltf_export") is not None:
         request.config.stash[_GLTF_EXPORTED] = True
     yield
+    if "rigify" in sys.modules:
+        request.config.stash[_GLTF_EXPORTED] = True
 
 
 def pytest_sessionfinish(session, exitstatus):
