@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.linalg.lapack import dpotrf, dpotrs
 
 from ..blas_threads import single_threaded
-from ..boxqp import active_set_dense, solve_box_qp
+from ..boxqp import active_set_dense, solve_box_qp, spd_solve
 from ..progress import ProgressFn, notify
 from ..validate import array
 
@@ -130,7 +129,7 @@ def _group_solve(H: np.ndarray, G: np.ndarray, lower: np.ndarray, upper: np.ndar
     X = np.where(upper, hi, np.where(lower, lo, 0.0))
     held = lower | upper
     if not held.any():
-        return _spd_solve(H, G.T).T
+        return spd_solve(H, G.T).T
     keys = np.packbits(np.concatenate([lower, upper], axis=1), axis=1)
     _, inverse = np.unique(keys, axis=0, return_inverse=True)
     inverse = inverse.ravel()
@@ -144,7 +143,7 @@ def _group_solve(H: np.ndarray, G: np.ndarray, lower: np.ndarray, upper: np.ndar
         r = G[np.ix_(rows, fi)]
         if hd.size:
             r -= X[np.ix_(rows, hd)] @ H[np.ix_(hd, fi)]
-        X[np.ix_(rows, fi)] = _spd_solve(H[np.ix_(fi, fi)], r.T).T
+        X[np.ix_(rows, fi)] = spd_solve(H[np.ix_(fi, fi)], r.T).T
     return X
 
 
@@ -199,17 +198,6 @@ def batched_active_set(H: np.ndarray, G: np.ndarray, lo: np.ndarray, hi: np.ndar
     scale = np.maximum(1.0, np.abs(G).max(axis=1, initial=0.0))
     natural = np.abs(X - np.clip(X - (X @ H - G), lo, hi)).max(axis=1, initial=0.0)
     return X, done & (natural <= FRAME_TOL * scale)
-
-
-def _spd_solve(H: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``H⁻¹ b`` (b: (n,) or (n, k)) for a symmetric positive definite ``H`` (LAPACK ``potrf``/``potrs``; LU if
-    ``H`` is not numerically positive definite)."""
-    factor, info = dpotrf(H, lower=1, clean=0)
-    if info == 0:
-        x, info = dpotrs(factor, b, lower=1)
-        if info == 0:
-            return x
-    return np.linalg.solve(H, b)
 
 
 def _frame(H, a, V, s, g, B, r, lo, hi, x, lower, upper) -> np.ndarray:

@@ -102,6 +102,6 @@ def test_spd_solve_uses_cholesky_and_falls_back_for_an_indefinite_matrix():
     rng = np.random.default_rng(2)
     A = rng.normal(size=(12, 12))
     spd, b = A @ A.T + 12 * np.eye(12), rng.normal(size=12)
-    np.testing.assert_allclose(boxqp._spd_solve(spd, b), np.linalg.solve(spd, b), rtol=1e-10)
+    np.testing.assert_allclose(boxqp.spd_solve(spd, b), np.linalg.solve(spd, b), rtol=1e-10)
     indefinite = A + A.T
-    np.testing.assert_allclose(boxqp._spd_solve(indefinite, b), np.linalg.solve(indefinite, b), rtol=1e-8)
+    np.testing.assert_allclose(boxqp.spd_solve(indefinite, b), np.linalg.solve(indefinite, b), rtol=1e-8)
