@@ -15,11 +15,15 @@ Sampling keyed curves and frame-rate conversion are :mod:`core.animation`.
 """
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from numpy.typing import ArrayLike
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order
 
+from .blas_threads import single_threaded
 from .progress import ProgressFn, notify, scaled
 from .result import ShapeSpaceError
 from .validate import array, non_negative
@@ -292,8 +296,10 @@ def _span_fails(t: np.ndarray, V: np.ndarray, M: np.ndarray, c: np.ndarray, i: n
     return out
 
 
-#: Starts per chunk of stage 1 (:func:`_valid_segments`): its temporaries stay in the cache.
-_CHUNK_STARTS = 4096
+#: Starts per chunk of stage 1 (:func:`_valid_segments`).  With the starts that can no longer have a valid
+#: segment dropped as the span grows (:func:`_valid_window_uniform`), 16,384 starts of a block's curves measured
+#: fastest (4,096 kept the temporaries in cache but paid NumPy's per-call overhead on shrinking arrays).
+_CHUNK_STARTS = 16384
 
 
 def _valid_segments(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span: int) -> np.ndarray:
@@ -311,13 +317,14 @@ def _valid_segments(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max
     for lo in range(0, n - 1, _CHUNK_STARTS):
         hi = min(lo + _CHUNK_STARTS + span, n)
         w = min(_CHUNK_STARTS, n - lo)
-        valid[:, lo:lo + w] = _valid_window(t[lo:hi], V[:, lo:hi], M[:, lo:hi], tol, span, uniform)[:, :w]
+        valid[:, lo:lo + w] = _valid_window(t[lo:hi], V[:, lo:hi], M[:, lo:hi], tol, span, uniform, w)
     return valid
 
 
-def _valid_window(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span: int, uniform: bool) -> np.ndarray:
-    """:func:`_valid_segments` on the samples of ``t`` (f,) (spans up to ``span``; ``uniform`` time steps), shape
-    (c, f, span + 1).
+def _valid_window(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span: int, uniform: bool,
+                  starts: int | None = None) -> np.ndarray:
+    """:func:`_valid_segments` on the samples of ``t`` (f,) (spans up to ``span``; ``uniform`` time steps) for
+    the first ``starts`` starts (all by default), shape (c, starts or f, span + 1).
 
     Vectorised over curves and starts for each span d (slices, no gathers).  A segment is accepted at once
     when a bound proves it (the curve stays in the end values' range widened by 4/27 · h · (|m_i| + |m_j|), so
@@ -325,7 +332,7 @@ def _valid_window(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span:
     interior sample, longer ones at their middle sample, and the survivors (gathered) on 4, every 8th, then
     all interior samples (failing anywhere is failing).  Exactly the segments whose max error is ≤ tol."""
     if uniform:
-        return _valid_window_uniform(t, np.ascontiguousarray(V), np.ascontiguousarray(M), tol, span)
+        return _valid_window_uniform(t, np.ascontiguousarray(V), np.ascontiguousarray(M), tol, span, starts)
     C, n = V.shape
     top, bottom = V.copy(), V.copy()                                  # range of the samples in [i, i + d]
     valid = np.zeros((C, n, span + 1), dtype=bool)
@@ -354,61 +361,148 @@ def _valid_window(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span:
                     c, i = c[keep], i[keep]
                 ok[c, i] = True
         valid[:, :w, d] = ok
-    return valid
+    return valid if starts is None else valid[:, :starts]
 
 
-def _valid_window_uniform(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span: int) -> np.ndarray:
-    """:func:`_valid_window` for uniform time steps (scene frames): every segment of span d has the same length
-    h, so the Hermite basis at each interior offset is four numbers and each offset costs a few in-place passes
-    over the (c, f) window; the survivors of the middle-sample test are checked on their whole window at once
-    (:func:`_window_fails`: a strided view, one small matrix product).  The same tests in the same order as the
-    general path: exactly the segments whose max error is ≤ tol."""
+def _valid_window_uniform(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, span: int,
+                          starts: int | None = None) -> np.ndarray:
+    """:func:`_valid_window` for uniform time steps (scene frames), shape (c, ``starts`` or f, span + 1).
+
+    Every segment of span d has the same length h, so the Hermite basis at each interior offset is four numbers.
+    The (curve, start) pairs still in play are kept as flat arrays and advance one span at a time; a pair leaves
+    for good when no longer segment from its start can be valid (:func:`_no_longer_span`: the samples so far
+    already rule out every cubic with the start's value and slope), so each start costs about the length of its
+    longest valid segment instead of ``span``.  The tests per segment are the general path's, in the same order
+    and the same arithmetic: exactly the segments whose max error is ≤ tol."""
     C, n = V.shape
+    rows = n if starts is None else min(starts, n)
+    valid = np.zeros((C, rows, span + 1), dtype=bool)
+    s = min(rows, n - 1)                                              # starts with a segment
+    if s <= 0 or span < 1:
+        return valid
     step = float(t[1] - t[0])
-    top, bottom = V.copy(), V.copy()                                  # range of the samples in [i, i + d]
-    aM = np.abs(M)
-    d2V = np.abs(np.diff(V, 2, axis=1))
-    bend = np.zeros((C, n))                                          # largest |Δ²V| in [i, i + d] (first f − 2)
     flat = (V.ravel(), M.ravel())
-    valid = np.zeros((C, n, span + 1), dtype=bool)
-    bound, tmp, err = np.empty((C, n)), np.empty((C, n)), np.empty((C, n))
-    for d in range(1, min(span, n - 1) + 1):
-        w = n - d
-        np.maximum(top[:, :w], V[:, d:], out=top[:, :w])
-        np.minimum(bottom[:, :w], V[:, d:], out=bottom[:, :w])
-        if d > 1:
-            np.maximum(bend[:, :w], d2V[:, d - 2:], out=bend[:, :w])
+    Vf, Mf = flat
+    d2 = np.zeros((C, n))
+    d2[:, :n - 2] = np.abs(np.diff(V, 2, axis=1))
+    d2f, out_flat = d2.ravel(), valid.reshape(-1)
+    c_of, i_of = np.repeat(np.arange(C), s), np.tile(np.arange(s), C)
+    st = _Starts(c_of * n + i_of, (c_of * rows + i_of) * (span + 1), n - 1 - i_of, Vf, Mf)
+    slack = tol * (1.0 + 1e-6) + 1e-12 * (float(np.abs(V).max()) + float(np.abs(M).max()) * span * step)
+    for d in range(1, span + 1):
+        if d >= 3:
+            st.live &= ~_no_longer_span(st, Vf, d - 1, step, slack)
+        st.compact(d)
+        if st.base.size == 0:
+            break
+        j = st.base + d
+        vj, mj = Vf[j], Mf[j]
+        np.maximum(st.top, vj, out=st.top)
+        np.minimum(st.bottom, vj, out=st.bottom)
         if d == 1:                                                    # no sample between: always valid
-            valid[:, :w, 1] = True
+            out_flat[st.out + 1] = True
             continue
-        h = d * step
-        b, x, e_max = bound[:, :w], tmp[:, :w], err[:, :w]
-        np.subtract(top[:, :w], bottom[:, :w], out=b)
-        np.add(aM[:, :w], aM[:, d:], out=x)
-        x *= 4.0 / 27.0 * h
-        b += x
-        ok = b <= tol
-        for k, e in enumerate(range(1, d) if d <= _WHOLE_SPAN else (d // 2,)):  # short spans whole, long: middle
-            _hermite_at(V, M, w, d, e, h, b if k else e_max, x)
-            if k:
-                np.maximum(e_max, b, out=e_max)
-        if d <= _WHOLE_SPAN:
-            ok |= e_max <= tol
-        else:
-            q = np.flatnonzero(~ok & (e_max <= tol))                  # into ok (c, w); base: into V (c, f)
-            base = q + (q // w) * d
-            if q.size:
-                keep = ~_window_fails(flat, d, h, base, np.arange(1, 5) * d // 5, tol)
-                q, base = q[keep], base[keep]
-            if q.size:
-                fails, grid_err = _window_fails(flat, d, h, base, np.arange(_GRID, d, _GRID), tol, with_err=True)
-                sure = _grid_sure(flat, bend.ravel(), base, d, h, step, grid_err, tol) & ~fails
-                ok.ravel()[q[sure]] = True
-                q, base = q[~fails & ~sure], base[~fails & ~sure]
-            if q.size:
-                ok.ravel()[q[~_window_fails(flat, d, h, base, None, tol)]] = True
-        valid[:, :w, d] = ok
+        np.maximum(st.bend, d2f[j - 2], out=st.bend)
+        ok = _uniform_tests(flat, st, vj, mj, d, d * step, step, tol)
+        out_flat[st.out[ok & st.live] + d] = True
     return valid
+
+
+class _Starts:
+    """The (curve, start) pairs of :func:`_valid_window_uniform` still in play, as flat arrays: ``base`` (the
+    start's index into ``V`` (c, f) flattened), ``out`` (into the result flattened), ``room`` (samples after
+    the start), the start's value, slope and |slope|, the samples' range ``top``/``bottom`` and largest
+    |Δ²V| ``bend`` in the current window, the slope interval ``lo``/``hi`` of :func:`_no_longer_span`, and
+    ``live`` (False once no longer segment can be valid; such pairs are dropped in batches)."""
+
+    __slots__ = ("base", "out", "room", "vi", "mi", "ami", "top", "bottom", "bend", "lo", "hi", "live")
+
+    def __init__(self, base, out, room, Vf, Mf):
+        self.base, self.out, self.room = base, out, room
+        self.vi, self.mi = Vf[base], Mf[base]
+        self.ami = np.abs(self.mi)
+        self.top, self.bottom = self.vi.copy(), self.vi.copy()
+        self.bend = np.zeros(base.size)
+        self.lo, self.hi = np.full(base.size, -np.inf), np.full(base.size, np.inf)
+        self.live = np.ones(base.size, dtype=bool)
+
+    def compact(self, d: int) -> None:
+        """Drop the pairs without room for span d, and the dead ones once they are a quarter of the rest."""
+        short = self.room < d
+        if not short.any() and 4 * np.count_nonzero(self.live) >= 3 * self.live.size:
+            return
+        keep = self.live & ~short
+        for name in self.__slots__:
+            setattr(self, name, getattr(self, name)[keep])
+
+
+def _no_longer_span(st: _Starts, Vf: np.ndarray, last: int, step: float, slack: float) -> np.ndarray:
+    """``True`` where no segment from the start can be valid once it spans sample ``last`` (any
+    span > last).
+
+    A valid segment's Hermite is ``v_i + m_i x + α x² + β x³`` (x the time from the start) with
+    ``|P(x_k) − v_k| ≤ tol`` at every interior sample k, i.e. ``α + β x_k ∈ [(r_k − tol) / x_k², (r_k + tol) /
+    x_k²]`` with ``r_k = v_k − v_i − m_i x_k``.  Two samples k < l bound β to
+    ``[(r_l / x_l² − r_k / x_k²) ∓ tol (1 / x_l² + 1 / x_k²)] / (x_l − x_k)``; the pair (⌊l / 2⌋, l) is added for
+    each new sample l = ``last`` and the intersection of the intervals kept (``st.lo``, ``st.hi``).  Once it is empty no
+    α, β fit the samples so far, and every longer segment contains them.  ``slack`` (tol widened for rounding)
+    keeps the test from dropping a segment the exact tests would accept."""
+    if last < 2:
+        return np.zeros(st.base.size, dtype=bool)
+    k = last // 2
+    xl, xk = last * step, k * step
+    r_l = Vf[st.base + last] - st.vi - st.mi * xl
+    r_k = Vf[st.base + k] - st.vi - st.mi * xk
+    g = r_l * (1.0 / (xl * xl)) - r_k * (1.0 / (xk * xk))
+    half = slack * (1.0 / (xl * xl) + 1.0 / (xk * xk))
+    inv = 1.0 / (xl - xk)
+    np.maximum(st.lo, (g - half) * inv, out=st.lo)
+    np.minimum(st.hi, (g + half) * inv, out=st.hi)
+    return st.lo > st.hi
+
+
+def _uniform_tests(flat: tuple, st: _Starts, vj: np.ndarray, mj: np.ndarray, d: int, h: float, step: float,
+                   tol: float) -> np.ndarray:
+    """Which segments of span d ≥ 2 (length h) from the pairs ``st`` (ends ``vj``, ``mj``) are valid: the
+    range bound, then every interior sample (d ≤ :data:`_WHOLE_SPAN`) or the middle one, then the survivors on
+    4 samples, the grid (:func:`_grid_sure`) and their whole window (:func:`_window_fails`)."""
+    Vf = flat[0]
+    x = st.ami + np.abs(mj)
+    x *= 4.0 / 27.0 * h
+    b = st.top - st.bottom
+    b += x
+    ok = b <= tol
+    e_max = None
+    for e in range(1, d) if d <= _WHOLE_SPAN else (d // 2,):          # short spans whole, long: middle
+        err = _hermite_abs(st, vj, mj, Vf[st.base + e], e / d, h)
+        e_max = err if e_max is None else np.maximum(e_max, err, out=e_max)
+    if d <= _WHOLE_SPAN:
+        return ok | (e_max <= tol)
+    q = np.flatnonzero(~ok & (e_max <= tol) & st.live)
+    base = st.base[q]
+    if q.size:
+        keep = ~_window_fails(flat, d, h, base, np.arange(1, 5) * d // 5, tol)
+        q, base = q[keep], base[keep]
+    if q.size:
+        fails, grid_err = _window_fails(flat, d, h, base, np.arange(_GRID, d, _GRID), tol, with_err=True)
+        sure = _grid_sure(flat, st.bend[q], base, d, h, step, grid_err, tol) & ~fails
+        ok[q[sure]] = True
+        q, base = q[~fails & ~sure], base[~fails & ~sure]
+    if q.size:
+        ok[q[~_window_fails(flat, d, h, base, None, tol)]] = True
+    return ok
+
+
+def _hermite_abs(st: _Starts, vj: np.ndarray, mj: np.ndarray, ve: np.ndarray, s: float, h: float) -> np.ndarray:
+    """``|Hermite − sample|`` at the fraction ``s`` of every segment from the pairs ``st`` (ends ``vj``, ``mj``,
+    length h) to the samples ``ve`` there."""
+    a0, a1, a2, a3 = (float(a) for a in _hermite_basis(np.float64(s)))
+    out = st.vi * a0
+    out += st.mi * (a1 * h)
+    out += vj * a2
+    out += mj * (a3 * h)
+    out -= ve
+    return np.abs(out, out=out)
 
 
 #: Longest span :func:`_valid_window_uniform` evaluates at every interior sample for every start (longer spans:
@@ -426,12 +520,12 @@ def _grid_sure(flat: tuple, bend: np.ndarray, base: np.ndarray, d: int, h: float
     E = 0) is within ``(k − a)(b − k) / 2 · max|Δ²E| ≤ g² / 8 · max|Δ²E|`` (g = b − a ≤ :data:`_GRID`) of the
     chord between E(a) and E(b), and ``|Δ²E| ≤ step² · max|P″| + max|Δ²V|``: the cubic's P″ is linear, so its
     largest size is at an end, ``|6 δ − 4 m_i − 2 m_j| / h`` or ``|6 δ − 2 m_i − 4 m_j| / h``
-    (δ = (v_j − v_i) / h), and ``max|Δ²V|`` over the window is ``bend`` (c, f) flattened.  Shape (len(base),)."""
+    (δ = (v_j − v_i) / h), and ``max|Δ²V|`` over each window is ``bend`` (len(base),).  Shape (len(base),)."""
     Vf, Mf = flat
     delta = 6.0 * (Vf[base + d] - Vf[base]) / h
     mi, mj = Mf[base], Mf[base + d]
     curv = np.maximum(np.abs(delta - 4.0 * mi - 2.0 * mj), np.abs(delta - 2.0 * mi - 4.0 * mj)) / h
-    return grid_err + _GRID * _GRID / 8.0 * (step * step * curv + bend[base]) <= tol
+    return grid_err + _GRID * _GRID / 8.0 * (step * step * curv + bend) <= tol
 
 
 def _hermite_at(V: np.ndarray, M: np.ndarray, w: int, d: int, e: int, h: float, out: np.ndarray,
@@ -578,7 +672,9 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
                               refine: bool = True, *, progress: ProgressFn | None = None) -> list:
     """:func:`reduce_keys_bezier` for many curves sampled at the same times, vectorised over the curves.
 
-    Stage 1 tests each span for every curve and start at once (in cache-sized chunks of starts); stage 2
+    Stage 1 tests each span for every curve and start still in play at once (in chunks of starts; a start
+    leaves once the samples rule out any longer segment from it; blocks of curves on up to
+    :data:`_MAX_WORKERS` threads, :func:`_stage_one`); stage 2
     runs the curves' sweeps in lock step, each sweep split into lanes of keys that hand over where they meet
     (:func:`_absorb_keys`: exactly the sequential sweep), one absorption test per lane and step solved for all
     lanes together (least squares by the normal equations, the minimax fits by a batched exchange algorithm,
@@ -619,20 +715,62 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
     # an exactly constant curve (slopes all 0) is its two end keys: the segment from the first sample to the
     # last is that value, and stage 1 (a held pose, :func:`_flat_spans`) and stage 2 (nothing between) agree
     idx = [[0, n - 1] for _ in range(V.shape[0])]
-    moving = np.flatnonzero(np.any(V != V[:, :1], axis=1))
-    block, span = max(1, _BLOCK_SAMPLES // n), min(max_span, n - 1)   # stage 1 in blocks of curves (memory)
     first = 0.4 if refine else 1.0
-    for lo in range(0, moving.size, block):
-        rows = moving[lo:lo + block]
-        for c, ok in zip(rows.tolist(), _valid_segments(t, V[rows], M[rows], tol, max_span)):
-            idx[c] = _fewest_keys(ok, _flat_spans(V[c], M[c], span))
-        notify(progress, first * min(lo + block, moving.size) / max(moving.size, 1))
+    _stage_one(t, V, M, tol, max_span, idx, scaled(progress, 0.0, first))
     kv = [V[k, i].tolist() for k, i in enumerate(idx)]
     km = [M[k, i].tolist() for k, i in enumerate(idx)]
     if refine:                                                        # stage 2: all curves in lock step
         _absorb_keys(t, V, idx, kv, km, tol, progress=scaled(progress, first, 1.0))
     notify(progress, 1.0)
     return [(np.array(i), np.array(a), np.array(b)) for i, a, b in zip(idx, kv, km)]
+
+
+def _stage_one(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span: int, idx: list,
+               progress: ProgressFn | None) -> None:
+    """Stage 1 of :func:`reduce_keys_bezier_curves` into ``idx`` (the key indices of each curve, rows of ``V``
+    (c, f)): the valid segments of the moving curves (:func:`_valid_segments`) and their fewest keys
+    (:func:`_fewest_keys`), in blocks of curves of at most :data:`_BLOCK_SAMPLES` samples (memory) spread over
+    :func:`_workers` threads (NumPy releases the GIL in its array passes; OpenBLAS is held to one thread meanwhile,
+    :func:`~core.blas_threads.single_threaded`).  Progress is reported, and a cancel raised, from the calling
+    thread; on a cancel the blocks not started are dropped and the running ones finish."""
+    n = t.size
+    moving = np.flatnonzero(np.any(V != V[:, :1], axis=1))
+    if moving.size == 0:
+        return
+    span = min(max_span, n - 1)
+    workers = _workers()
+    block = max(1, min(_BLOCK_SAMPLES // n, -(-moving.size // workers)))
+    blocks = [moving[lo:lo + block] for lo in range(0, moving.size, block)]
+
+    def run(rows: np.ndarray) -> list:
+        ok = _valid_segments(t, V[rows], M[rows], tol, max_span)
+        return [_fewest_keys(o, _flat_spans(V[c], M[c], span)) for c, o in zip(rows.tolist(), ok)]
+
+    pool = ThreadPoolExecutor(max_workers=min(workers, len(blocks)), thread_name_prefix="shapespace-keyreduce")
+    try:
+        with single_threaded():
+            futures = [pool.submit(run, rows) for rows in blocks]
+            done = 0
+            for rows, fut in zip(blocks, futures):
+                for c, keys in zip(rows.tolist(), fut.result()):
+                    idx[c] = keys
+                done += rows.size
+                notify(progress, done / moving.size)
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _workers() -> int:
+    """Threads for stage 1: the CPUs this process may use, at most :data:`_MAX_WORKERS`."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, _MAX_WORKERS))
+
+
+#: Most threads stage 1 uses (beyond this the GIL held between NumPy's passes limits the gain).
+_MAX_WORKERS = 4
 
 
 def _ragged_argmax(vals: np.ndarray, starts: np.ndarray, owner: np.ndarray) -> tuple:
