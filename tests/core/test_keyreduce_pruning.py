@@ -12,6 +12,7 @@ import pytest
 from core import keyreduce
 from core.keyreduce import _valid_window, curve_slopes, reduce_keys_bezier_curves
 from core.progress import Cancelled
+from test_keyreduce_blocks import _random_curves
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CSV = os.path.join(ROOT, "assets", "llf_fbhead", "MySlate_3_Jason_Millers_iPhone.csv")
@@ -26,16 +27,9 @@ def _take(count, curves):
 
 
 def _random(seed, n=700, count=6):
-    rng = np.random.default_rng(seed)
-    rows = []
-    for k in range(count):
-        w = int(rng.choice([5, 9, 21, 41, 81]))
-        v = np.convolve(rng.normal(size=n + 2 * w), np.hanning(w), "same")[w:n + w] * rng.uniform(0.02, 0.2)
-        v += rng.normal(size=n) * rng.choice([0.0, 0.001, 0.004])
-        if k % 3 == 2:
-            v[n // 3:n // 2] = v[n // 3]                                # a held plateau
-        rows.append(v)
-    return np.arange(n, dtype=np.float64) * 0.5, np.vstack(rows)
+    """Smooth random curves with noise and held plateaus (``test_keyreduce_blocks``'s), half-frame steps, (c, f)."""
+    V = _random_curves(np.random.default_rng(seed), n, count)
+    return np.arange(n, dtype=np.float64) * 0.5, np.ascontiguousarray(V.T)
 
 
 def _both(t, V, tol, span):
