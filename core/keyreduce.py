@@ -9,13 +9,14 @@ stays within a max-error tolerance of every sample.
   keys; :func:`hermite` is the cubic Hermite Blender evaluates for such keys.
   :func:`reduce_keys_bezier_curves` does the same for many curves at once,
   vectorised over them (an action's curves: ~20× faster than one by one),
-  in time and memory linear in the number of samples.
+  in time and memory linear in the number of samples, a long take's curves
+  spread over the CPUs (threads, and child processes for the Python-bound
+  second stage, :mod:`core.workers`) with the same keys.
 
 Sampling keyed curves and frame-rate conversion are :mod:`core.animation`.
 """
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -27,6 +28,7 @@ from .blas_threads import single_threaded
 from .progress import ProgressFn, notify, scaled
 from .result import ShapeSpaceError
 from .validate import array, non_negative
+from .workers import ChildCall, child_cpus
 
 __all__ = ["reduce_keys", "reduce_keys_bezier", "reduce_keys_bezier_curves", "curve_slopes", "hermite", "chebyshev_fit"]
 
@@ -674,7 +676,8 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
 
     Stage 1 tests each span for every curve and start still in play at once (in chunks of starts; a start
     leaves once the samples rule out any longer segment from it; blocks of curves on up to
-    :data:`_MAX_WORKERS` threads, :func:`_stage_one`); stage 2
+    :data:`_MAX_WORKERS` threads, :func:`_stage_one`; a long take's curves are split into groups reduced in
+    parallel, all but one in child processes, :func:`_reduce_groups`); stage 2
     runs the curves' sweeps in lock step, each sweep split into lanes of keys that hand over where they meet
     (:func:`_absorb_keys`: exactly the sequential sweep), one absorption test per lane and step solved for all
     lanes together (least squares by the normal equations, the minimax fits by a batched exchange algorithm,
@@ -714,19 +717,96 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
         return [(np.arange(n), V[k].copy(), M[k].copy()) for k in range(V.shape[0])]
     # an exactly constant curve (slopes all 0) is its two end keys: the segment from the first sample to the
     # last is that value, and stage 1 (a held pose, :func:`_flat_spans`) and stage 2 (nothing between) agree
+    out = [(np.array([0, n - 1]), V[k, [0, n - 1]], M[k, [0, n - 1]]) for k in range(V.shape[0])]
+    moving = np.flatnonzero(np.any(V != V[:, :1], axis=1))
+    if moving.size:
+        groups = _process_groups(V[moving], n)
+        for rows, keys in zip(groups, _reduce_groups(t, V[moving], M[moving], tol, max_span, refine, groups,
+                                                     progress)):
+            for r, k in zip(rows.tolist(), keys):
+                out[int(moving[r])] = k
+    notify(progress, 1.0)
+    return out
+
+
+def _reduce_groups(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span: int, refine: bool,
+                   groups: list, progress: ProgressFn | None) -> list:
+    """:func:`_reduce_group` on each group of rows of ``V`` (c, f) (moving curves): the first here, the others in
+    child processes (:class:`~core.workers.ChildCall`) meanwhile; a group whose child gives no usable result is
+    reduced here afterwards (the same function on the same rows: the same keys).  A cancel stops the children."""
+    threads = max(1, child_cpus() // len(groups))
+    children = [ChildCall("keyreduce", "_reduce_group", (t, V[g], M[g], tol, max_span, refine, None, threads))
+                for g in groups[1:]]
+    share = 1.0 / len(groups)
+    try:
+        parts = [_reduce_group(t, V[groups[0]], M[groups[0]], tol, max_span, refine, scaled(progress, 0.0, share),
+                               threads)]
+        for k, (g, child) in enumerate(zip(groups[1:], children), start=1):
+            got = child.result(progress, k * share)
+            if not _usable(got, g.size, t.size):
+                got = _reduce_group(t, V[g], M[g], tol, max_span, refine, scaled(progress, k * share,
+                                                                                  (k + 1) * share))
+            parts.append(got)
+    finally:
+        for child in children:
+            child.stop()
+    return parts
+
+
+def _reduce_group(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span: int, refine: bool,
+                  progress: ProgressFn | None = None, threads: int | None = None) -> list:
+    """Both stages for the curves ``V`` (c, f) (slopes ``M``; none constant): per curve (indices, values, slopes)
+    as :func:`reduce_keys_bezier_curves` returns; stage 1 on ``threads`` threads (default :func:`_workers`)."""
+    n = t.size
     idx = [[0, n - 1] for _ in range(V.shape[0])]
     first = 0.4 if refine else 1.0
-    _stage_one(t, V, M, tol, max_span, idx, scaled(progress, 0.0, first))
+    _stage_one(t, V, M, tol, max_span, idx, scaled(progress, 0.0, first), threads)
     kv = [V[k, i].tolist() for k, i in enumerate(idx)]
     km = [M[k, i].tolist() for k, i in enumerate(idx)]
     if refine:                                                        # stage 2: all curves in lock step
         _absorb_keys(t, V, idx, kv, km, tol, progress=scaled(progress, first, 1.0))
-    notify(progress, 1.0)
     return [(np.array(i), np.array(a), np.array(b)) for i, a, b in zip(idx, kv, km)]
 
 
+def _usable(got, count: int, n: int) -> bool:
+    """Whether a child's result has the shape of :func:`_reduce_group`'s for ``count`` curves of ``n`` samples."""
+    if not isinstance(got, list) or len(got) != count:
+        return False
+    for keys in got:
+        if not (isinstance(keys, tuple) and len(keys) == 3 and all(isinstance(a, np.ndarray) for a in keys)):
+            return False
+        i, a, b = keys
+        if not (i.ndim == 1 and i.size >= 2 and a.shape == b.shape == i.shape and i[0] == 0 and i[-1] == n - 1
+                and np.all(np.diff(i) > 0) and np.isfinite(a).all() and np.isfinite(b).all()):
+            return False
+    return True
+
+
+def _process_groups(V: np.ndarray, n: int) -> list:
+    """Rows of ``V`` (c, f) split into groups for :func:`_reduce_groups`: one group below
+    :data:`_CHILD_SAMPLES` samples or on one CPU, else one per CPU (at most :data:`_MAX_PROCESSES`), balanced
+    by each curve's total variation (a proxy of its keys, which set the work), largest first."""
+    count = min(child_cpus(), _MAX_PROCESSES, V.shape[0]) if V.size >= _CHILD_SAMPLES else 1
+    if count <= 1:
+        return [np.arange(V.shape[0])]
+    work = np.abs(np.diff(V, axis=1)).sum(axis=1)
+    load, members = np.zeros(count), [[] for _ in range(count)]
+    for r in np.argsort(-work, kind="stable").tolist():
+        g = int(np.argmin(load))
+        members[g].append(r)
+        load[g] += work[r]
+    return [np.array(sorted(m)) for m in members]
+
+
+#: Samples (curves × frames) from which :func:`reduce_keys_bezier_curves` spreads the curves over child processes
+#: (a child costs ~0.3 s to start; a 10-minute take has 1.8 M).
+_CHILD_SAMPLES = 1 << 19
+#: Most processes (this one and its children) key reduction uses.
+_MAX_PROCESSES = 4
+
+
 def _stage_one(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span: int, idx: list,
-               progress: ProgressFn | None) -> None:
+               progress: ProgressFn | None, threads: int | None = None) -> None:
     """Stage 1 of :func:`reduce_keys_bezier_curves` into ``idx`` (the key indices of each curve, rows of ``V``
     (c, f)): the valid segments of the moving curves (:func:`_valid_segments`) and their fewest keys
     (:func:`_fewest_keys`), in blocks of curves of at most :data:`_BLOCK_SAMPLES` samples (memory) spread over
@@ -738,7 +818,7 @@ def _stage_one(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span
     if moving.size == 0:
         return
     span = min(max_span, n - 1)
-    workers = _workers()
+    workers = threads or _workers()
     block = max(1, min(_BLOCK_SAMPLES // n, -(-moving.size // workers)))
     blocks = [moving[lo:lo + block] for lo in range(0, moving.size, block)]
 
@@ -762,11 +842,7 @@ def _stage_one(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span
 
 def _workers() -> int:
     """Threads for stage 1: the CPUs this process may use, at most :data:`_MAX_WORKERS`."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cpus = os.cpu_count() or 1
-    return max(1, min(cpus, _MAX_WORKERS))
+    return min(child_cpus(), _MAX_WORKERS)
 
 
 #: Most threads stage 1 uses (beyond this the GIL held between NumPy's passes limits the gain).
