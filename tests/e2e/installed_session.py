@@ -11,6 +11,8 @@ import json
 import os
 import sys
 
+import numpy as np
+
 zip_path, asset = sys.argv[1], sys.argv[2]
 import bpy  # noqa: E402
 
@@ -56,6 +58,19 @@ seen["prior_stored"] = "shapespace_face_prior" in head.data.shape_keys
 
 scipy = sys.modules.get("scipy")
 seen["scipy_file"] = os.path.realpath(scipy.__file__) if scipy is not None else None
+
+# key reduction in a child process of this Blender (long takes): the installed core, the SciPy this process found
+keyreduce = importlib.import_module("bl_ext.user_default.shapespace.core.keyreduce")
+workers = importlib.import_module("bl_ext.user_default.shapespace.core.workers")
+t = np.arange(400.0)
+V = np.vstack([np.sin(t / s) * 0.3 + 0.01 * np.cos(t * 1.7) for s in (7.0, 19.0, 40.0)])
+M = np.vstack([keyreduce.curve_slopes(t, v) for v in V])
+got = workers.ChildCall("keyreduce", "_reduce_group", (t, V, M, 0.01, 128, True, None, 1)).result()
+here = keyreduce._reduce_group(t, V, M, 0.01, 128, True)
+seen["child_keys_usable"] = keyreduce._usable(got, V.shape[0], t.size)
+seen["child_keys_equal"] = seen["child_keys_usable"] and all(
+    all(np.array_equal(a, b) for a, b in zip(x, y)) for x, y in zip(got, here))
+seen["child_core_root"] = os.path.realpath(workers._ROOT)
 
 buf = io.StringIO()
 with contextlib.redirect_stdout(buf):

@@ -192,6 +192,8 @@ def test_install_enable_run_operator_and_cli(built_zips, tmp_path):
     assert seen["add_pin"] == ["FINISHED"] and seen["solve_pins"] == ["FINISHED"]
     assert seen["retarget"] == ["FINISHED"] and seen["analyse_rig"] == ["FINISHED"]
     assert seen["learn_face_prior"] == ["FINISHED"] and seen["prior_stored"]
+    assert seen["child_keys_equal"], "a child process of Blender did not reduce keys as this process does"
+    assert seen["child_core_root"].startswith(str(user))      # the child imported the installed core
     assert seen["cli_exit"] == 0
     head = {m["object"]: m for m in seen["cli_json"]["shape_key_meshes"]}["Mesh_2"]
     assert head["shape_keys"] == 52
