@@ -453,14 +453,15 @@ def _no_longer_span(st: _Starts, Vf: np.ndarray, last: int, step: float, slack: 
         return np.zeros(st.base.size, dtype=bool)
     k = last // 2
     xl, xk = last * step, k * step
-    r_l = Vf[st.base + last] - st.vi - st.mi * xl
-    r_k = Vf[st.base + k] - st.vi - st.mi * xk
-    g = r_l * (1.0 / (xl * xl)) - r_k * (1.0 / (xk * xk))
-    half = slack * (1.0 / (xl * xl) + 1.0 / (xk * xk))
-    inv = 1.0 / (xl - xk)
-    np.maximum(st.lo, (g - half) * inv, out=st.lo)
-    np.minimum(st.hi, (g + half) * inv, out=st.hi)
-    return st.lo > st.hi
+    with np.errstate(over="ignore", invalid="ignore"):              # inf or NaN bounds drop nothing
+        r_l = Vf[st.base + last] - st.vi - st.mi * xl
+        r_k = Vf[st.base + k] - st.vi - st.mi * xk
+        g = r_l * (1.0 / (xl * xl)) - r_k * (1.0 / (xk * xk))
+        half = slack * (1.0 / (xl * xl) + 1.0 / (xk * xk))
+        inv = 1.0 / (xl - xk)
+        np.maximum(st.lo, (g - half) * inv, out=st.lo)
+        np.minimum(st.hi, (g + half) * inv, out=st.hi)
+        return st.lo > st.hi
 
 
 def _uniform_tests(flat: tuple, st: _Starts, vj: np.ndarray, mj: np.ndarray, d: int, h: float, step: float,
@@ -561,13 +562,22 @@ def _window_fails(flat: tuple, d: int, h: float, base: np.ndarray, e, tol: float
     for lo in range(0, base.size, step):
         bb = base[lo:lo + step]
         P = np.column_stack([Vf[bb], Mf[bb], Vf[bb + d], Mf[bb + d]])
+        r = _products(P, H.T)
         if e is None:
-            r = P @ H.T
             r -= win[bb][:, 1:d]
         else:
-            r = P @ H.T - Vf[bb[:, None] + offs]
+            r -= Vf[bb[:, None] + offs]
         worst[lo:lo + step] = np.abs(r).max(axis=1) if r.shape[1] else 0.0
     return (worst > tol, worst) if with_err else worst > tol
+
+
+def _products(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """``P @ Q`` (P (r, 4)) with every row rounded as in a product of many rows: a one-row product goes to BLAS's
+    matrix-vector kernel, whose rounding differs from the matrix-matrix one by an ulp, so a segment's verdict at
+    tol would depend on which other segments share its block (and so on the CPU count)."""
+    if P.shape[0] == 1:
+        return (np.vstack([P, P]) @ Q)[:1]
+    return P @ Q
 
 
 def _flat_spans(v: np.ndarray, m: np.ndarray, span: int) -> tuple:
@@ -734,11 +744,13 @@ def _reduce_groups(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_
     """:func:`_reduce_group` on each group of rows of ``V`` (c, f) (moving curves): the first here, the others in
     child processes (:class:`~core.workers.ChildCall`) meanwhile; a group whose child gives no usable result is
     reduced here afterwards (the same function on the same rows: the same keys).  A cancel stops the children."""
-    threads = max(1, child_cpus() // len(groups))
-    children = [ChildCall("keyreduce", "_reduce_group", (t, V[g], M[g], tol, max_span, refine, None, threads))
-                for g in groups[1:]]
+    threads = min(_MAX_WORKERS, max(1, child_cpus() // len(groups)))
+    children = []
     share = 1.0 / len(groups)
     try:
+        for g in groups[1:]:
+            children.append(ChildCall("keyreduce", "_reduce_group", (t, V[g], M[g], tol, max_span, refine, None,
+                                                                     threads)))
         parts = [_reduce_group(t, V[groups[0]], M[groups[0]], tol, max_span, refine, scaled(progress, 0.0, share),
                                threads)]
         for k, (g, child) in enumerate(zip(groups[1:], children), start=1):
@@ -776,6 +788,8 @@ def _usable(got, count: int, n: int) -> bool:
         if not (isinstance(keys, tuple) and len(keys) == 3 and all(isinstance(a, np.ndarray) for a in keys)):
             return False
         i, a, b = keys
+        if i.dtype.kind not in "iu" or a.dtype.kind != "f" or b.dtype.kind != "f":
+            return False
         if not (i.ndim == 1 and i.size >= 2 and a.shape == b.shape == i.shape and i[0] == 0 and i[-1] == n - 1
                 and np.all(np.diff(i) > 0) and np.isfinite(a).all() and np.isfinite(b).all()):
             return False
@@ -792,12 +806,13 @@ def _process_groups(V: np.ndarray, tol: float) -> list:
     if count <= 1:
         return [np.arange(V.shape[0])]
     work = np.sqrt(np.abs(np.diff(V, 2, axis=1)) / max(tol, 1e-12)).sum(axis=1)
-    load, members = np.zeros(count), [[] for _ in range(count)]
+    load, size, members = np.zeros(count), np.zeros(count), [[] for _ in range(count)]
     for r in np.argsort(-work, kind="stable").tolist():
-        g = int(np.argmin(load))
+        g = int(np.lexsort((size, load))[0])                          # least work, then fewest curves
         members[g].append(r)
         load[g] += work[r]
-    return [np.array(sorted(m)) for m in members]
+        size[g] += 1
+    return [np.array(sorted(m), dtype=np.intp) for m in members if m]
 
 
 #: Samples (curves × frames) from which :func:`reduce_keys_bezier_curves` spreads the curves over child processes
@@ -828,9 +843,9 @@ def _stage_one(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span
         ok = _valid_segments(t, V[rows], M[rows], tol, max_span)
         return [_fewest_keys(o, _flat_spans(V[c], M[c], span)) for c, o in zip(rows.tolist(), ok)]
 
-    pool = ThreadPoolExecutor(max_workers=min(workers, len(blocks)), thread_name_prefix="shapespace-keyreduce")
-    try:
-        with single_threaded():
+    with single_threaded():                                           # held until every worker has stopped
+        pool = ThreadPoolExecutor(max_workers=min(workers, len(blocks)), thread_name_prefix="shapespace-keyreduce")
+        try:
             futures = [pool.submit(run, rows) for rows in blocks]
             done = 0
             for rows, fut in zip(blocks, futures):
@@ -838,8 +853,8 @@ def _stage_one(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span
                     idx[c] = keys
                 done += rows.size
                 notify(progress, done / moving.size)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _workers() -> int:

@@ -4,21 +4,28 @@ Work that is Python-heavy (key reduction's absorption sweeps hold the GIL betwee
 up on threads; a second process does.  :class:`ChildCall` runs ``core.<module>.<function>(*args)`` in a child of
 the running interpreter (``sys.executable``: Blender's bundled Python inside Blender, the venv's under the PyPI
 ``bpy``), with ``core`` imported as a top-level package from this extension's folder and the parent's
-``sys.path`` (so the child finds the same NumPy and the SciPy wheels the extension ships).  The arguments and the
-result travel pickled through pipes; the child never touches Blender data.
+``sys.path`` (so the child finds the same NumPy and the SciPy wheels the extension ships; the paths travel first,
+and a child whose NumPy is not the parent's gives up).  The arguments and the result travel pickled through pipes;
+the child never touches Blender data.
 
 A child is an optimisation, never a requirement: :meth:`ChildCall.result` returns ``None`` when the child could not
 start, failed or returned something unreadable, and the caller computes that part itself — the same function on
 the same arguments, so the same result.  :meth:`ChildCall.stop` kills the child (a cancel, an error in the
-parent); a child also ends when its parent closes the pipes.
+parent).  The child's stdin stays open until its result is read: when the parent goes away (Blender quits or
+crashes), the pipe closes and the child exits at once instead of finishing its work.  The thread that writes to
+the child blocks SIGPIPE, so a child that died early is a ``BrokenPipeError`` there, never a signal that would end
+Blender (whose embedded Python may leave SIGPIPE at its default).
 """
 from __future__ import annotations
 
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import threading
+
+import numpy as np
 
 from .progress import ProgressFn, notify
 
@@ -27,16 +34,28 @@ __all__ = ["ChildCall", "child_cpus"]
 #: The extension's folder: ``core`` is imported from here as a top-level package in the child.
 _ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-#: What the child runs: read the paths, the target and the arguments, call it, write the result.
+#: What the child runs: take the parent's paths (before anything imports NumPy), check it has the parent's NumPy,
+#: watch stdin for the parent going away, call the target, write the result.
 _BOOT = (
-    "import pickle, sys\n"
-    "paths, module, name, args = pickle.load(sys.stdin.buffer)\n"
-    "sys.path[:0] = paths\n"
-    "import importlib\n"
-    "fn = getattr(importlib.import_module('core.' + module), name)\n"
-    "out = pickle.dumps(fn(*args), protocol=pickle.HIGHEST_PROTOCOL)\n"
-    "sys.stdout.buffer.write(out)\n"
-    "sys.stdout.buffer.flush()\n"
+    "import os, pickle, sys, threading\n"
+    "sys.path[:0] = pickle.load(sys.stdin.buffer)\n"
+    "import numpy\n"
+    "numpy_file, module, name, args = pickle.load(sys.stdin.buffer)\n"
+    "if os.path.realpath(numpy.__file__) != numpy_file:\n"
+    "    sys.exit(3)\n"
+    "def orphaned():\n"
+    "    sys.stdin.buffer.read()\n"
+    "    os._exit(4)\n"
+    "threading.Thread(target=orphaned, daemon=True).start()\n"
+    "try:\n"
+    "    import importlib\n"
+    "    fn = getattr(importlib.import_module('core.' + module), name)\n"
+    "    out = pickle.dumps(fn(*args), protocol=pickle.HIGHEST_PROTOCOL)\n"
+    "    sys.stdout.buffer.write(out)\n"
+    "    sys.stdout.buffer.flush()\n"
+    "except BaseException:\n"
+    "    os._exit(1)\n"
+    "os._exit(0)\n"                 # no interpreter shutdown: the watcher holds stdin's lock (a daemon thread)
 )
 
 #: Seconds between checks for a cancel while waiting for a child.
@@ -77,8 +96,10 @@ class ChildCall:
         exe = _interpreter()
         if exe is None:
             return
-        payload = pickle.dumps(([_ROOT, *[p for p in sys.path if isinstance(p, str) and p]], module, name, args),
-                               protocol=pickle.HIGHEST_PROTOCOL)
+        paths = [_ROOT, *[p for p in sys.path if isinstance(p, str) and p]]
+        payload = (pickle.dumps(paths, protocol=pickle.HIGHEST_PROTOCOL)
+                   + pickle.dumps((os.path.realpath(np.__file__), module, name, args),
+                                  protocol=pickle.HIGHEST_PROTOCOL))
         env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
         flags = getattr(subprocess, "CREATE_NO_WINDOW", 0)
         try:
@@ -88,13 +109,21 @@ class ChildCall:
             self._proc = None
             return
         self._io = threading.Thread(target=self._talk, args=(payload,), name="shapespace-child-io", daemon=True)
-        self._io.start()
+        try:
+            self._io.start()
+        except RuntimeError:                                          # no thread to talk to it: no child
+            self._proc.kill()
+            self._proc.wait()
+            self._proc = None
 
     def _talk(self, payload: bytes) -> None:
-        """Write the arguments, then read the whole result (a thread, so neither side waits on a full pipe)."""
+        """Write the arguments, then read the whole result (a thread, so neither side waits on a full pipe).
+        stdin stays open: its end is how the child sees its parent go away."""
+        if hasattr(signal, "pthread_sigmask"):
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGPIPE})
         try:
             self._proc.stdin.write(payload)
-            self._proc.stdin.close()
+            self._proc.stdin.flush()
             self._out.append(self._proc.stdout.read())
         except (OSError, ValueError):
             pass
@@ -109,6 +138,7 @@ class ChildCall:
             while self._io.is_alive():
                 notify(progress, fraction)
                 self._io.join(_POLL_S)
+            self._close_stdin()
             code = self._proc.wait()
         except BaseException:
             self.stop()
@@ -128,3 +158,11 @@ class ChildCall:
             self._proc.kill()
         self._proc.wait()
         self._io.join()
+        self._close_stdin()
+
+    def _close_stdin(self) -> None:
+        """Close the child's stdin (it then exits if it still runs; a closed pipe is fine)."""
+        try:
+            self._proc.stdin.close()
+        except (OSError, ValueError):
+            pass
