@@ -531,22 +531,6 @@ def _grid_sure(flat: tuple, bend: np.ndarray, base: np.ndarray, d: int, h: float
     return grid_err + _GRID * _GRID / 8.0 * (step * step * curv + bend) <= tol
 
 
-def _hermite_at(V: np.ndarray, M: np.ndarray, w: int, d: int, e: int, h: float, out: np.ndarray,
-                tmp: np.ndarray) -> None:
-    """``|Hermite − sample|`` at offset e of every segment of span d (length h) starting at 0 … w − 1, into
-    ``out`` (c, w) (``tmp`` the same shape, scratch)."""
-    a0, a1, a2, a3 = (float(a) for a in _hermite_basis(np.float64(e / d)))
-    np.multiply(V[:, :w], a0, out=out)
-    np.multiply(M[:, :w], a1 * h, out=tmp)
-    out += tmp
-    np.multiply(V[:, d:], a2, out=tmp)
-    out += tmp
-    np.multiply(M[:, d:], a3 * h, out=tmp)
-    out += tmp
-    out -= V[:, e:e + w]
-    np.abs(out, out=out)
-
-
 def _window_fails(flat: tuple, d: int, h: float, base: np.ndarray, e, tol: float, with_err: bool = False):
     """``True`` where the Hermite from sample ``base`` to base + d of ``V`` (c, f) flattened (``flat`` = (V, M)
     raveled; length h, uniform steps) is more than ``tol`` off at a sample base + e (``e`` interior offsets, or

@@ -104,7 +104,7 @@ class ChildCall:
         flags = getattr(subprocess, "CREATE_NO_WINDOW", 0)
         try:
             self._proc = subprocess.Popen([exe, "-I", "-c", _BOOT], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                          stderr=subprocess.DEVNULL, env=env, creationflags=flags)
+                                          stderr=subprocess.DEVNULL, env=env, creationflags=flags, bufsize=0)
         except (OSError, ValueError):
             self._proc = None
             return
@@ -118,12 +118,14 @@ class ChildCall:
 
     def _talk(self, payload: bytes) -> None:
         """Write the arguments, then read the whole result (a thread, so neither side waits on a full pipe).
-        stdin stays open: its end is how the child sees its parent go away."""
+        stdin stays open: its end is how the child sees its parent go away.  The pipes are unbuffered, so closing
+        stdin later (another thread) never flushes a write into a dead child."""
         if hasattr(signal, "pthread_sigmask"):
             signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGPIPE})
         try:
-            self._proc.stdin.write(payload)
-            self._proc.stdin.flush()
+            view = memoryview(payload)
+            while view:
+                view = view[self._proc.stdin.write(view):]
             self._out.append(self._proc.stdout.read())
         except (OSError, ValueError):
             pass
