@@ -257,9 +257,9 @@ def chebyshev_fit(A: ArrayLike, y: ArrayLike, stop_above: float = np.inf, max_it
 
 #: Longest stage-1 segment searched by default, in samples.  A shorter search (32) makes stage 1 four times
 #: cheaper but leaves held poses in many keys, and stage 2 absorbing them one by one into ever longer segments
-#: costs far more (2.5× the whole reduction on the 36,000-frame take).  Exactly held poses are one segment at
-#: any length (:func:`_flat_spans`), but nearly held ones (capture noise) are not: 10 curves of the take plus
-#: noise of 1e-4 take 8× longer at span 32 than at 128.
+#: costs far more (2.5× the whole reduction on the 36,000-frame take).  Held poses, exactly or within
+#: ``tol`` · :data:`_HELD_STEP` per step, are one segment at any length (:func:`_held_spans`), but noisier ones
+#: are not: 10 curves of the take plus noise of 1e-4 take 8× longer at span 32 than at 128.
 _MAX_SPAN = 128
 #: Curves × samples processed together by :func:`reduce_keys_bezier_curves` (bounds its memory for long takes).
 _BLOCK_SAMPLES = 1 << 18
@@ -564,17 +564,75 @@ def _products(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     return P @ Q
 
 
-def _flat_spans(v: np.ndarray, m: np.ndarray, span: int) -> tuple:
-    """Held poses longer than ``span`` samples: the runs i … j of samples of one value whose slopes
-    (:func:`curve_slopes`) are all exactly zero, where the Hermite from i to j is that value (exact, so valid
-    at any tolerance), as starts and ends ``(i (r,), j (r,))`` with j − i > ``span``.  Stage 1 takes them as
-    segments beyond its search, so a held pose costs two keys instead of one per ``span`` samples (which
-    stage 2 would absorb one by one at a cost growing with the pose's length)."""
-    link = np.r_[False, (m[:-1] == 0) & (m[1:] == 0) & (v[:-1] == v[1:]), False].astype(np.int8)
-    edge = np.diff(link)
+def _held_spans(t: np.ndarray, v: np.ndarray, m: np.ndarray, tol: float, span: int) -> tuple:
+    """Held poses longer than ``span`` samples, as extra stage-1 segments ``(starts (r,), ends (r,))`` sorted by
+    start then end (:func:`_fewest_keys`).
+
+    Exactly held: the runs i … j of samples of one value whose slopes (:func:`curve_slopes`) are all exactly zero,
+    where the Hermite from i to j is that value (valid at any tolerance).  Nearly held (a solver's round-off, a
+    slider resting a hair above zero, capture noise): the runs whose neighbouring samples differ by at most
+    ``tol`` · :data:`_HELD_STEP`, as do the slopes over a step, each kept where the Hermite from its first sample
+    to its last is within ``tol`` of every sample between (the stage-1 test), else halved until its pieces are
+    (:func:`_within_tol`).  Stage 1 takes them as segments beyond its search, so a held pose costs two keys
+    instead of one per ``span`` samples, which stage 2 would absorb one by one at a cost growing with the pose's
+    length (the square of it: 93 samples per test instead of 16 on a 10-minute take solved per frame)."""
+    dt = np.diff(t)
+    exact = (m[:-1] == 0) & (m[1:] == 0) & (v[:-1] == v[1:])
+    step = tol * _HELD_STEP
+    near = exact | ((np.abs(np.diff(v)) <= step) & (np.abs(m[:-1]) * dt <= step) & (np.abs(m[1:]) * dt <= step))
+    ei, ej = _runs(exact, span)
+    pi, pj = _within_tol(t, v, m, tol, span, *_runs(near, span))
+    # an exactly held run inside a kept nearly held one adds nothing
+    host = np.searchsorted(pi, ei, side="right") - 1
+    inside = (host >= 0) & (pj[np.maximum(host, 0)] >= ej) if pi.size else np.zeros(ei.size, dtype=bool)
+    i, j = np.r_[ei[~inside], pi], np.r_[ej[~inside], pj]
+    order = np.lexsort((j, i))
+    return i[order], j[order]
+
+
+#: A nearly held pose (:func:`_held_spans`): neighbouring samples within this fraction of the tolerance.
+_HELD_STEP = 1e-2
+
+
+def _runs(link: np.ndarray, span: int) -> tuple:
+    """The maximal runs of samples i … j joined by ``link`` (f − 1,) (sample k to k + 1) longer than ``span``:
+    ``(i (r,), j (r,))`` in order."""
+    edge = np.diff(np.r_[False, link, False].astype(np.int8))
     i, j = np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)
     long = j - i > span
     return i[long], j[long]
+
+
+def _within_tol(t: np.ndarray, v: np.ndarray, m: np.ndarray, tol: float, span: int, i: np.ndarray,
+                j: np.ndarray) -> tuple:
+    """The segments i → j (disjoint, in order) whose Hermite (values and slopes of the curve at its ends) is within
+    ``tol`` of every sample between, each one that is not halved until its pieces are or are no longer than
+    ``span``: the pieces kept, ``(i, j)`` in order (pieces of one segment share their ends)."""
+    keep_i, keep_j = [], []
+    while i.size:
+        bad = _segments_off(t, v, m, tol, i, j)
+        keep_i.append(i[~bad])
+        keep_j.append(j[~bad])
+        mid = (i[bad] + j[bad]) // 2
+        i, j = np.r_[i[bad], mid], np.r_[mid, j[bad]]
+        long = j - i > span
+        i, j = i[long], j[long]
+    i, j = np.concatenate(keep_i or [i]), np.concatenate(keep_j or [j])
+    order = np.argsort(i, kind="stable")
+    return i[order], j[order]
+
+
+def _segments_off(t: np.ndarray, v: np.ndarray, m: np.ndarray, tol: float, i: np.ndarray,
+                  j: np.ndarray) -> np.ndarray:
+    """``True`` per segment i → j (j − i ≥ 2) whose Hermite is more than ``tol`` off at a sample between."""
+    inner = j - i - 1
+    seg = np.repeat(np.arange(i.size), inner)
+    k = i[seg] + 1 + np.arange(seg.size) - np.repeat(np.cumsum(inner) - inner, inner)
+    h = t[j] - t[i]
+    h00, h10, h01, h11 = _hermite_basis((t[k] - t[i][seg]) / h[seg])
+    curve = h00 * v[i][seg] + h10 * (h * m[i])[seg] + h01 * v[j][seg] + h11 * (h * m[j])[seg]
+    off = np.abs(curve - v[k]) > tol
+    return np.logical_or.reduceat(off, np.cumsum(inner) - inner) if seg.size else np.zeros(i.size, dtype=bool)
 
 
 def _fewest_keys(ok: np.ndarray, extra: tuple | None = None) -> list:
@@ -598,7 +656,9 @@ def _fewest_keys(ok: np.ndarray, extra: tuple | None = None) -> list:
     if extra is not None and extra[0].size:                           # longer than any span: earliest starts
         ei, ej = extra
         hit = dist[ei] == dist[ej] - 1
-        prev[ej[hit]] = ei[hit]
+        first = np.full(n, n)
+        np.minimum.at(first, ej[hit], ei[hit])
+        prev[first < n] = first[first < n]
     prev = prev.tolist()
     keys = [n - 1]
     while keys[-1] > 0:
@@ -710,7 +770,7 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
     if n <= 2:
         return [(np.arange(n), V[k].copy(), M[k].copy()) for k in range(V.shape[0])]
     # an exactly constant curve (slopes all 0) is its two end keys: the segment from the first sample to the
-    # last is that value, and stage 1 (a held pose, :func:`_flat_spans`) and stage 2 (nothing between) agree
+    # last is that value, and stage 1 (a held pose, :func:`_held_spans`) and stage 2 (nothing between) agree
     out = [(np.array([0, n - 1]), V[k, [0, n - 1]], M[k, [0, n - 1]]) for k in range(V.shape[0])]
     moving = np.flatnonzero(np.any(V != V[:, :1], axis=1))
     if moving.size:
@@ -825,7 +885,7 @@ def _stage_one(t: np.ndarray, V: np.ndarray, M: np.ndarray, tol: float, max_span
 
     def run(rows: np.ndarray) -> list:
         ok = _valid_segments(t, V[rows], M[rows], tol, max_span)
-        return [_fewest_keys(o, _flat_spans(V[c], M[c], span)) for c, o in zip(rows.tolist(), ok)]
+        return [_fewest_keys(o, _held_spans(t, V[c], M[c], tol, span)) for c, o in zip(rows.tolist(), ok)]
 
     with single_threaded():                                           # held until every worker has stopped
         pool = ThreadPoolExecutor(max_workers=min(workers, len(blocks)), thread_name_prefix="shapespace-keyreduce")

@@ -193,3 +193,36 @@ def test_reduce_keys_bezier_bad_input(times, values, tol, code):
     with pytest.raises(ShapeSpaceError) as exc:
         reduce_keys_bezier(times, values, tol)
     assert exc.value.code == code
+
+
+@pytest.mark.parametrize("noise", [1e-12, 1e-7, 5e-5])
+def test_reduce_keys_bezier_nearly_held_pose_costs_two_keys(noise):
+    # a pose held to within a solver's round-off or capture noise (not exactly equal samples) for 3,000 frames:
+    # stage 1 spans it with one segment, as an exactly held pose, and the curve through the keys (SciPy's
+    # CubicHermiteSpline) is within the tolerance everywhere
+    from scipy.interpolate import CubicHermiteSpline
+    rng = np.random.default_rng(7)
+    t = np.arange(3400.0)
+    v = np.where(t < 200, np.sin(t / 30.0) * 0.3, 0.3 * np.sin(200 / 30.0))
+    v[3200:] += np.sin((t[3200:] - 3200) / 25.0) * 0.2
+    v[205:3195] += rng.uniform(-noise, noise, 2990)
+    for refine in (False, True):
+        idx, kv, km = reduce_keys_bezier(t, v, 0.01, refine=refine)
+        assert np.abs(CubicHermiteSpline(t[idx], kv, km)(t) - v).max() <= 0.01
+        assert np.sum((idx > 210) & (idx < 3190)) == 0
+
+
+def test_reduce_keys_bezier_slow_drift_is_split_until_within_tolerance():
+    # a pose drifting slowly (each step within the "nearly held" band, 0.06 over the whole run): the Hermite from
+    # its first sample to its last is off by more than the tolerance, so the run is halved until its pieces are
+    # within it; the keys stay within the tolerance everywhere, and stage 2 then refits the whole run as one
+    from scipy.interpolate import CubicHermiteSpline
+    t = np.arange(6000.0)
+    v = 0.06 * (0.5 - 0.5 * np.cos(np.pi * t / 6000.0)) ** 3 + 1e-5 * np.sin(t / 3.0)
+    for tol in (0.01, 0.005):
+        h = CubicHermiteSpline(t[[0, 5999]], v[[0, 5999]], curve_slopes(t, v)[[0, 5999]])(t)
+        assert np.abs(h - v).max() > tol
+        for refine in (False, True):
+            idx, kv, km = reduce_keys_bezier(t, v, tol, refine=refine)
+            assert np.abs(CubicHermiteSpline(t[idx], kv, km)(t) - v).max() <= tol
+            assert idx.size <= 3

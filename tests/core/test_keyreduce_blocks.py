@@ -206,3 +206,24 @@ def test_fewest_keys_is_the_shortest_path_with_the_earliest_previous_key(seed):
     graph = csr_matrix((np.ones(i.size + starts.size), (np.r_[i, starts], np.r_[i + d, ends])), shape=(n, n))
     pred = breadth_first_order(graph, 0, directed=True, return_predecessors=True)[1]
     np.testing.assert_array_equal(keyreduce._bfs_depth(pred), dist)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_fewest_keys_with_extra_segments_sharing_starts_and_ends(seed):
+    """Nearly held poses add extra segments that share a start or an end with an exactly held one inside them
+    (:func:`keyreduce._held_spans`): several per start, sorted by start then end, and several into one sample
+    (the earliest start wins): the plain dynamic programme's keys."""
+    rng = np.random.default_rng(80 + seed)
+    n, span = int(rng.integers(120, 400)), int(rng.integers(2, 20))
+    ok = rng.random((n, span + 1)) < rng.uniform(0.05, 0.4)
+    ok[:, 0] = False
+    ok[:, 1] = True
+    ok[np.arange(n)[:, None] + np.arange(span + 1) >= n] = False
+    pairs = set()
+    for _ in range(int(rng.integers(2, 8))):
+        i = int(rng.integers(0, n - span - 2))
+        j = min(i + span + 1 + int(rng.integers(0, 60)), n - 1)
+        pairs |= {(i, j), (i, min(j + int(rng.integers(1, 30)), n - 1)), (max(i - int(rng.integers(1, 9)), 0), j)}
+    pairs = sorted(p for p in pairs if p[1] - p[0] > span)
+    extra = (np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs]))
+    assert keyreduce._fewest_keys(ok, extra) == _shortest_reference(ok, extra)[0]
