@@ -137,6 +137,36 @@ def test_block_cholesky_solves_the_held_and_shifted_systems(monkeypatch, keep_by
     np.testing.assert_allclose(BlockCholesky(system, shift=shift).solve(r).ravel(), want, rtol=1e-9, atol=1e-11)
 
 
+@pytest.mark.parametrize("keep_bytes", [2 ** 28, 0])
+def test_block_cholesky_factors_only_the_free_entries(monkeypatch, keep_bytes):
+    """Frames with every entry held (none free: no block at all), with none held, and mixed, at the ends and in
+    runs; a change of held set reusing the frames before it: the dense solve on the free entries (NumPy)."""
+    monkeypatch.setattr(kernels, "BLOCK_KEEP_BYTES", keep_bytes)
+    rng = np.random.default_rng(11)
+    B = rng.normal(size=(12, 6))
+    system = SpacetimeSystem(B, rng.uniform(0.5, 2, 6), 1e-3, 24, beta=0.1)
+    H = _dense_operator(system)
+    r = rng.normal(size=system.shape)
+    held = rng.uniform(size=system.shape) < 0.4
+    held[[0, 5, 6, 7, 13, -1]] = True                              # nothing free
+    held[[2, 9, 10]] = False                                        # everything free
+    for case in (held, ~held, np.zeros_like(held), np.ones_like(held)):
+        free = ~case.ravel()
+        want = np.zeros(H.shape[0])
+        if free.any():
+            want[free] = np.linalg.solve(H[np.ix_(free, free)], r.ravel()[free])
+        got = BlockCholesky(system, case).solve(r)
+        np.testing.assert_allclose(got.ravel(), want, rtol=1e-9, atol=1e-11)
+        assert np.all(got[case] == 0.0)
+    later = held.copy()
+    later[8:, :3] = ~later[8:, :3]
+    free = ~later.ravel()
+    want = np.zeros(H.shape[0])
+    want[free] = np.linalg.solve(H[np.ix_(free, free)], r.ravel()[free])
+    reused = BlockCholesky(system, later, previous=BlockCholesky(system, held))
+    np.testing.assert_allclose(reused.solve(r).ravel(), want, rtol=1e-9, atol=1e-11)
+
+
 def test_run_peaks_marks_the_deepest_entry_of_every_run_per_channel():
     v = np.array([[0.0, 1.0], [0.2, 2.0], [0.5, 0.0], [0.1, 3.0], [0.0, 3.5], [0.3, 0.0]])
     want = np.zeros_like(v, dtype=bool)
