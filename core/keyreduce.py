@@ -922,19 +922,25 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
                      stop_above: float, max_iter: int = 500) -> tuple:
     """:func:`chebyshev_fit` (k = 4 unknowns) for many systems at once, their rows stacked: system g is rows
     ``starts[g]`` … of ``A`` (R, 4), ``y`` (R,), ``owner`` (R,) the system of each row.  ``first`` (G, 5): a
-    starting reference per system whose first four rows are independent.  Returns ``x`` (G, 4) and ``err``
-    (G,): the minimax error, or ``inf`` where the lower bound exceeded ``stop_above`` (or cycling)."""
+    starting reference per system whose first four rows are independent.  Returns ``x`` (G, 4), ``err``
+    (G,): the minimax error, or ``inf`` where the lower bound exceeded ``stop_above`` (or cycling), and
+    ``bad`` (G,): the systems whose exchange met a singular reference (``err`` inf there; the caller takes
+    another route).  Each system's arithmetic is its own (stacked LAPACK solves, one matrix each), so a system
+    gets the same result in any batch, and a singular one leaves the batch without disturbing the others."""
     G = starts.size
     x = np.zeros((G, 4))
     err = np.full(G, np.inf)
+    bad = np.zeros(G, dtype=bool)
     scale = np.maximum.reduceat(np.abs(y), starts)
     S = first.copy()
     u = np.ones((G, 5))
-    u[:, :4] = -np.linalg.solve(np.transpose(A[S[:, :4]], (0, 2, 1)), A[S[:, 4]][..., None])[..., 0]
+    sol, sing = _stacked_solve(np.transpose(A[S[:, :4]], (0, 2, 1)), A[S[:, 4]][..., None])
+    u[:, :4] = -sol[..., 0]
+    bad[sing] = True
     u *= np.where(np.einsum("gi,gi->g", u, y[S]) < 0, -1.0, 1.0)[:, None]      # start with h ≥ 0
     sigma = np.where(u < 0, -1.0, 1.0)
     w = np.abs(u) / np.abs(u).sum(axis=1, keepdims=True)
-    act = np.arange(G)
+    act = np.flatnonzero(~sing)
     rows, grp, A_c, y_c = np.arange(y.size), owner, A, y                 # the rows of the running systems
     for _ in range(max_iter):
         if act.size == 0:
@@ -947,7 +953,12 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
             grp = np.searchsorted(act, owner[rows])
         Sa, sa = S[act], sigma[act]
         Mm = np.concatenate([np.transpose(A[Sa] * sa[..., None], (0, 2, 1)), np.ones((act.size, 1, 5))], axis=1)
-        pi = np.linalg.solve(np.transpose(Mm, (0, 2, 1)), (sa * y[Sa])[..., None])[..., 0]
+        pi, sing = _stacked_solve(np.transpose(Mm, (0, 2, 1)), (sa * y[Sa])[..., None])
+        if sing.any():                                                # those leave; the step again for the others
+            bad[act[sing]] = True
+            act = act[~sing]
+            continue
+        pi = pi[..., 0]
         xa, h = pi[:, :4], pi[:, 4]
         res = y_c - np.einsum("rk,rk->r", A_c, xa[grp])
         top, jl = _ragged_argmax(np.abs(res), np.searchsorted(grp, np.arange(act.size)), grp)
@@ -958,10 +969,12 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
         go = ~(over | conv)
         if not go.any():
             break
-        g, jj, wa = act[go], j[go], w[act[go]]
         tau = np.where(res[jl[go]] > 0, 1.0, -1.0)
-        dd = np.linalg.solve(Mm[go], np.concatenate([tau[:, None] * A[jj], np.ones((g.size, 1))], axis=1)[..., None])
-        dd = dd[..., 0]
+        dd, sing = _stacked_solve(Mm[go], np.concatenate([tau[:, None] * A[j[go]], np.ones((tau.size, 1))],
+                                                          axis=1)[..., None])
+        g, jj, wa = act[go][~sing], j[go][~sing], w[act[go][~sing]]
+        bad[act[go][sing]] = True
+        tau, dd = tau[~sing], dd[~sing, :, 0]
         pos = dd > 1e-14
         ratios = np.where(pos, wa / np.where(pos, dd, 1.0), np.inf)
         leave = np.argmin(ratios, axis=1)
@@ -971,31 +984,23 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
         w[g] = wa
         S[g, leave], sigma[g, leave] = jj, tau
         act = g
-    return x, err
-
-
-def _chebyshev_each(A: np.ndarray, y: np.ndarray, starts: np.ndarray, first: np.ndarray, stop_above: float) -> tuple:
-    """:func:`_chebyshev_batch` on a batch where some system met a singular reference: the batch split in halves
-    until the singular systems stand alone (a system's arithmetic does not depend on the batch it is in, so
-    the others get the same result as in any batch): ``x`` (G, 4), ``err`` (G,) and ``bad`` (G,) where the
-    exchange met a singular reference (``err`` inf there)."""
-    G = starts.size
-    ends = np.r_[starts[1:], y.size]
-    x, err, bad = np.zeros((G, 4)), np.full(G, np.inf), np.zeros(G, dtype=bool)
-    todo = [(0, G)]
-    while todo:
-        q0, q1 = todo.pop()
-        lo, hi = int(starts[q0]), int(ends[q1 - 1])
-        sub = starts[q0:q1] - lo
-        owner = np.repeat(np.arange(q1 - q0), np.diff(np.r_[sub, hi - lo]))
-        try:
-            x[q0:q1], err[q0:q1] = _chebyshev_batch(A[lo:hi], y[lo:hi], owner, sub, first[q0:q1] - lo, stop_above)
-        except np.linalg.LinAlgError:
-            if q1 - q0 == 1:
-                bad[q0] = True
-            else:
-                todo += [(q0, (q0 + q1) // 2), ((q0 + q1) // 2, q1)]
     return x, err, bad
+
+
+def _stacked_solve(M: np.ndarray, b: np.ndarray) -> tuple:
+    """``np.linalg.solve`` of the stacked systems ``M`` (G, k, k), ``b`` (G, k, 1) and which are singular (G,)
+    (their solution 0): the others solved as in one call (each matrix its own LAPACK solve)."""
+    try:
+        return np.linalg.solve(M, b), np.zeros(M.shape[0], dtype=bool)
+    except np.linalg.LinAlgError:                                     # rare: find the singular ones
+        sing = np.zeros(M.shape[0], dtype=bool)
+        out = np.zeros(b.shape)
+        for g in range(M.shape[0]):
+            try:
+                out[g] = np.linalg.solve(M[g:g + 1], b[g:g + 1])[0]
+            except np.linalg.LinAlgError:
+                sing[g] = True
+        return out, sing
 
 
 def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list, km: list, tol: float,
@@ -1081,11 +1086,8 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
         score = np.abs(res[keep])
         score[first[:, :4].ravel()] = -1.0
         first[:, 4] = _ragged_argmax(score, sub_starts, sub_owner)[1]
-        try:
-            xc, ec = _chebyshev_batch(A[keep], y[keep], sub_owner, sub_starts, first, tol)
-        except np.linalg.LinAlgError:                                 # a degenerate reference: one at a time
-            xc, ec, bad = _chebyshev_each(A[keep], y[keep], sub_starts, first, tol)
-            startable[g[bad]] = False                                 # … and those the scalar path
+        xc, ec, bad = _chebyshev_batch(A[keep], y[keep], sub_owner, sub_starts, first, tol)
+        startable[g[bad]] = False                                     # a singular reference: the scalar path
         for q in np.flatnonzero(ec <= tol * (1 - 1e-6)).tolist():
             out[int(g[q])] = tuple(xc[q].tolist())
     # rank-deficient or tiny systems: the scalar path

@@ -80,12 +80,13 @@ def test_batched_minimax_matches_linprog_on_random_segments(seed):
         r = np.abs(Ag @ np.linalg.lstsq(Ag, yg, rcond=None)[0] - yg)
         r[f4] = -1.0
         first[g] = starts[g] + np.r_[f4, np.argmax(r)]
-    x, err = _chebyshev_batch(A, y, owner, starts, first, np.inf)
+    x, err, bad = _chebyshev_batch(A, y, owner, starts, first, np.inf)
+    assert not bad.any()
     for g, (Ag, yg, _) in enumerate(systems):
         assert err[g] == pytest.approx(np.abs(Ag @ x[g] - yg).max(), abs=1e-14)
         assert err[g] == pytest.approx(_lp_minimax(Ag, yg), rel=1e-7, abs=1e-12)
     # stopping early (the lower bound passed the threshold): reported as not fitting (inf)
-    _, low = _chebyshev_batch(A, y, owner, starts, first, 0.5 * err.min())
+    _, low, _ = _chebyshev_batch(A, y, owner, starts, first, 0.5 * err.min())
     assert np.all(np.isinf(low) | (low <= 0.5 * err.min()))
 
 
