@@ -208,7 +208,8 @@ def chebyshev_fit(A: ArrayLike, y: ArrayLike, stop_above: float = np.inf, max_it
     stop_above : float
         Return as soon as the lower bound h exceeds this (``x`` is then None).
     max_iter : int
-        Exchange steps before giving up (degenerate cycling; ``x`` None, error inf).
+        Exchange steps before giving up (degenerate cycling; ``x`` None, error inf; also on a singular
+        reference).
 
     Returns
     -------
@@ -230,6 +231,16 @@ def chebyshev_fit(A: ArrayLike, y: ArrayLike, stop_above: float = np.inf, max_it
         return x, float(np.abs(A @ x - y).max())
     cols = piv[:k]
     Ar = A[:, cols]
+    try:
+        return _exchange(Ar, y, cols, x, stop_above, max_iter)
+    except np.linalg.LinAlgError:                                    # a singular reference: no answer
+        return None, np.inf
+
+
+def _exchange(Ar: np.ndarray, y: np.ndarray, cols: np.ndarray, x: np.ndarray, stop_above: float,
+              max_iter: int) -> tuple:
+    """:func:`chebyshev_fit`'s exchange steps on the full-rank columns ``Ar`` (into ``x`` at ``cols``)."""
+    k = Ar.shape[1]
     S, sigma, w = _chebyshev_start(Ar, y)
     scale = float(np.abs(y).max())
     last = np.ones(k + 1)
@@ -762,6 +773,8 @@ def reduce_keys_bezier_curves(times: ArrayLike, values: ArrayLike, tol: float, m
         raise ShapeSpaceError(f"times and values must be non-empty and of equal length, got {t.size} times and "
                               f"{V.shape[0]} rows of values", "shape")
     non_negative(tol, "tol")
+    if isinstance(max_span, bool) or not isinstance(max_span, (int, np.integer)) or max_span < 1:
+        raise ShapeSpaceError(f"max_span must be a whole number of samples ≥ 1, got {max_span!r}", "range")
     n = t.size
     if n > 1 and np.any(np.diff(t) <= 0):
         raise ShapeSpaceError("times must increase strictly", "order")
@@ -942,7 +955,8 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
     w = np.abs(u) / np.abs(u).sum(axis=1, keepdims=True)
     act = np.flatnonzero(~sing)
     rows, grp, A_c, y_c = np.arange(y.size), owner, A, y                 # the rows of the running systems
-    for _ in range(max_iter):
+    steps = 0
+    while steps < max_iter:
         if act.size == 0:
             break
         if act.size != grp[-1] + 1:                                   # systems finished: drop their rows
@@ -954,10 +968,11 @@ def _chebyshev_batch(A: np.ndarray, y: np.ndarray, owner: np.ndarray, starts: np
         Sa, sa = S[act], sigma[act]
         Mm = np.concatenate([np.transpose(A[Sa] * sa[..., None], (0, 2, 1)), np.ones((act.size, 1, 5))], axis=1)
         pi, sing = _stacked_solve(np.transpose(Mm, (0, 2, 1)), (sa * y[Sa])[..., None])
-        if sing.any():                                                # those leave; the step again for the others
+        if sing.any():                                                # those leave; the same step for the others
             bad[act[sing]] = True
             act = act[~sing]
             continue
+        steps += 1
         pi = pi[..., 0]
         xa, h = pi[:, :4], pi[:, 4]
         res = y_c - np.einsum("rk,rk->r", A_c, xa[grp])
@@ -1055,7 +1070,12 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
     err = np.maximum.reduceat(np.abs(res), starts)
     norm = np.sqrt(np.add.reduceat(res * res, starts))
     out = [None] * B
-    accept = good & (err <= tol * (1 - 1e-6))
+    span_l = t[K[:, 1]] - t[K[:, 0]]
+    span_m = t[K[:, 2]] - t[K[:, 1]]
+    span_r = t[K[:, 3]] - t[K[:, 2]]
+    reach = np.column_stack([np.maximum(span_l, span_m), np.maximum(span_m, span_r)])      # per refitted slope
+    size = np.abs(np.column_stack([held[:, [0, 2]], x[:, [0, 2]]])).max(axis=1)       # the keys' values
+    accept = good & (err <= tol * (1 - 1e-6)) & _slopes_safe(x[:, [1, 3]], reach, size, tol)
     xs = x.tolist()
     for g in np.flatnonzero(accept).tolist():
         out[g] = tuple(xs[g])
@@ -1088,7 +1108,8 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
         first[:, 4] = _ragged_argmax(score, sub_starts, sub_owner)[1]
         xc, ec, bad = _chebyshev_batch(A[keep], y[keep], sub_owner, sub_starts, first, tol)
         startable[g[bad]] = False                                     # a singular reference: the scalar path
-        for q in np.flatnonzero(ec <= tol * (1 - 1e-6)).tolist():
+        safe = _slopes_safe(xc[:, [1, 3]], reach[g], np.maximum(size[g], np.abs(xc[:, [0, 2]]).max(axis=1)), tol)
+        for q in np.flatnonzero((ec <= tol * (1 - 1e-6)) & safe).tolist():
             out[int(g[q])] = tuple(xc[q].tolist())
     # rank-deficient or tiny systems: the scalar path
     for gg in np.flatnonzero(~good | ((err > tol) & (norm <= tol * np.sqrt(rows)) & ~startable)):
@@ -1104,7 +1125,34 @@ def _absorb_one(t: np.ndarray, v: np.ndarray, idx: list, kv: list, km: list, p: 
     if err > tol and np.linalg.norm(A @ x - y) <= tol * np.sqrt(y.size):
         # ‖r‖∞ ≥ ‖r_ls‖₂ / √m for every fit, so only then can the minimax one be within tol
         x, err = chebyshev_fit(A, y, stop_above=tol)
-    return tuple(float(a) for a in x) if err <= tol * (1 - 1e-6) else None
+    if x is None or err > tol * (1 - 1e-6):
+        return None
+    a, b = max(p - 2, 0), min(p + 2, len(idx) - 1)
+    h = np.diff(t[[idx[a], idx[p - 1], idx[p + 1], idx[b]]])
+    size = max(abs(kv[a]), abs(kv[b]), abs(x[0]), abs(x[2]))
+    if not _slopes_safe(np.array([[x[1], x[3]]]), np.array([[max(h[0], h[1]), max(h[1], h[2])]]), np.array([size]),
+                        tol)[0]:
+        return None
+    return tuple(float(a) for a in x)
+
+
+#: Largest ``|h · m|`` (a refitted key slope times the longest segment it shapes) an absorption may leave, in
+#: tolerances or (:data:`_SLOPE_SIZE`) in the keys' values, whichever allows more: rounding in evaluating the
+#: Hermite is a few ulps of it, 1e8 · tol · 2⁻⁵² · 16 ≈ 4e-7 · tol (inside the acceptance's 1e-6 · tol margin), or
+#: 1e3 · 16 ulps of the values (at tolerances near the values' own precision).  Between keys with no sample between
+#: them a least-squares slope is free, and refits across sweeps could grow it to 1e12 per time unit, whose
+#: rounding alone then broke the tolerance (values of 1,500 at a tolerance of 0.0026).
+_SLOPE_REACH = 1e8
+#: See :data:`_SLOPE_REACH`.
+_SLOPE_SIZE = 1e3
+
+
+def _slopes_safe(m: np.ndarray, reach: np.ndarray, size: np.ndarray, tol: float) -> np.ndarray:
+    """Per row of refitted slopes ``m`` (B, 2), the longest segment each shapes ``reach`` (B, 2) and the largest
+    key value involved ``size`` (B,): whether every ``|h · m|`` is within :data:`_SLOPE_REACH` tolerances or
+    :data:`_SLOPE_SIZE` times ``size`` (B,)."""
+    bound = np.maximum(_SLOPE_REACH * tol, _SLOPE_SIZE * size)
+    return np.all(np.abs(m) * reach <= bound[:, None], axis=1)
 
 
 def _absorb_system(t: np.ndarray, v: np.ndarray, idx: list, kv: list, km: list, p: int) -> tuple:

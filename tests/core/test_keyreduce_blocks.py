@@ -184,16 +184,22 @@ def _shortest_reference(ok, extra):
     return keys[::-1], dist
 
 
+def _segment_table(rng, n, span, density):
+    """A random stage-1 table ``ok`` (n, span + 1): every one-sample step valid, none past the end."""
+    ok = rng.random((n, span + 1)) < rng.uniform(0.05, density)
+    ok[:, 0] = False
+    ok[:, 1] = True
+    ok[np.arange(n)[:, None] + np.arange(span + 1) >= n] = False
+    return ok
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_fewest_keys_is_the_shortest_path_with_the_earliest_previous_key(seed):
     """Breadth-first depths by pointer doubling and the flat-pose segments inserted into the CSR rows: the same
     distances and keys as a plain dynamic programme, on random segment tables with long extra segments."""
     rng = np.random.default_rng(40 + seed)
     n, span = int(rng.integers(50, 400)), int(rng.integers(2, 30))
-    ok = rng.random((n, span + 1)) < rng.uniform(0.05, 0.6)
-    ok[:, 0] = False
-    ok[:, 1] = True
-    ok[np.arange(n)[:, None] + np.arange(span + 1) >= n] = False
+    ok = _segment_table(rng, n, span, 0.6)
     starts = np.sort(rng.choice(n - span - 1, size=int(rng.integers(0, 4)), replace=False))
     ends = np.minimum(starts + span + 1 + rng.integers(0, 40, starts.size), n - 1)
     extra = (starts, ends)
@@ -215,10 +221,7 @@ def test_fewest_keys_with_extra_segments_sharing_starts_and_ends(seed):
     (the earliest start wins): the plain dynamic programme's keys."""
     rng = np.random.default_rng(80 + seed)
     n, span = int(rng.integers(120, 400)), int(rng.integers(2, 20))
-    ok = rng.random((n, span + 1)) < rng.uniform(0.05, 0.4)
-    ok[:, 0] = False
-    ok[:, 1] = True
-    ok[np.arange(n)[:, None] + np.arange(span + 1) >= n] = False
+    ok = _segment_table(rng, n, span, 0.4)
     pairs = set()
     for _ in range(int(rng.integers(2, 8))):
         i = int(rng.integers(0, n - span - 2))

@@ -112,26 +112,33 @@ def _dense_operator(system):
     return np.kron(T + system.beta * np.eye(N), system.M) + system.lam * np.eye(N * n)
 
 
+def _random_system(rng, rows, n, frames, beta):
+    """A random space-time system, its dense operator and a right-hand side."""
+    system = SpacetimeSystem(rng.normal(size=(rows, n)), rng.uniform(0.5, 2, n), 1e-3, frames, beta=beta)
+    return system, _dense_operator(system), rng.normal(size=system.shape)
+
+
+def _held_reference(H, r, held):
+    """The dense solve of the held system on the free entries (NumPy), held entries 0, flat."""
+    free = ~held.ravel()
+    want = np.zeros(H.shape[0])
+    if free.any():
+        want[free] = np.linalg.solve(H[np.ix_(free, free)], r.ravel()[free])
+    return want
+
+
 @pytest.mark.parametrize("keep_bytes", [2 ** 28, 0])          # products kept, or recomputed (long takes)
 def test_block_cholesky_solves_the_held_and_shifted_systems(monkeypatch, keep_bytes):
     monkeypatch.setattr(kernels, "BLOCK_KEEP_BYTES", keep_bytes)
     rng = np.random.default_rng(6)
-    B = rng.normal(size=(15, 5))
-    system = SpacetimeSystem(B, rng.uniform(0.5, 2, 5), 1e-3, 17, beta=0.2)
-    H = _dense_operator(system)
-    r = rng.normal(size=system.shape)
+    system, H, r = _random_system(rng, 15, 5, 17, 0.2)
     held = rng.uniform(size=system.shape) < 0.3
-    free = ~held.ravel()
-    want = np.zeros(H.shape[0])
-    want[free] = np.linalg.solve(H[np.ix_(free, free)], r.ravel()[free])
-    np.testing.assert_allclose(BlockCholesky(system, held).solve(r).ravel(), want, rtol=1e-9, atol=1e-11)
+    np.testing.assert_allclose(BlockCholesky(system, held).solve(r).ravel(), _held_reference(H, r, held),
+                               rtol=1e-9, atol=1e-11)
     later = held.copy()                                             # a change from frame 9 on: blocks 0–8 reused
     later[9:] = rng.uniform(size=later[9:].shape) < 0.3
-    free = ~later.ravel()
-    want = np.zeros(H.shape[0])
-    want[free] = np.linalg.solve(H[np.ix_(free, free)], r.ravel()[free])
     reused = BlockCholesky(system, later, previous=BlockCholesky(system, held))
-    np.testing.assert_allclose(reused.solve(r).ravel(), want, rtol=1e-9, atol=1e-11)
+    np.testing.assert_allclose(reused.solve(r).ravel(), _held_reference(H, r, later), rtol=1e-9, atol=1e-11)
     shift = rng.uniform(0, 3, size=system.shape)
     want = np.linalg.solve(H + np.diag(shift.ravel()), r.ravel())
     np.testing.assert_allclose(BlockCholesky(system, shift=shift).solve(r).ravel(), want, rtol=1e-9, atol=1e-11)
@@ -142,29 +149,19 @@ def test_block_cholesky_factors_only_the_free_entries(monkeypatch, keep_bytes):
     """Frames with every entry held (none free: no block at all), with none held, and mixed, at the ends and in
     runs; a change of held set reusing the frames before it: the dense solve on the free entries (NumPy)."""
     monkeypatch.setattr(kernels, "BLOCK_KEEP_BYTES", keep_bytes)
-    rng = np.random.default_rng(11)
-    B = rng.normal(size=(12, 6))
-    system = SpacetimeSystem(B, rng.uniform(0.5, 2, 6), 1e-3, 24, beta=0.1)
-    H = _dense_operator(system)
-    r = rng.normal(size=system.shape)
+    system, H, r = _random_system(np.random.default_rng(11), 12, 6, 24, 0.1)
+    rng = np.random.default_rng(12)
     held = rng.uniform(size=system.shape) < 0.4
     held[[0, 5, 6, 7, 13, -1]] = True                              # nothing free
     held[[2, 9, 10]] = False                                        # everything free
     for case in (held, ~held, np.zeros_like(held), np.ones_like(held)):
-        free = ~case.ravel()
-        want = np.zeros(H.shape[0])
-        if free.any():
-            want[free] = np.linalg.solve(H[np.ix_(free, free)], r.ravel()[free])
         got = BlockCholesky(system, case).solve(r)
-        np.testing.assert_allclose(got.ravel(), want, rtol=1e-9, atol=1e-11)
+        np.testing.assert_allclose(got.ravel(), _held_reference(H, r, case), rtol=1e-9, atol=1e-11)
         assert np.all(got[case] == 0.0)
     later = held.copy()
     later[8:, :3] = ~later[8:, :3]
-    free = ~later.ravel()
-    want = np.zeros(H.shape[0])
-    want[free] = np.linalg.solve(H[np.ix_(free, free)], r.ravel()[free])
     reused = BlockCholesky(system, later, previous=BlockCholesky(system, held))
-    np.testing.assert_allclose(reused.solve(r).ravel(), want, rtol=1e-9, atol=1e-11)
+    np.testing.assert_allclose(reused.solve(r).ravel(), _held_reference(H, r, later), rtol=1e-9, atol=1e-11)
 
 
 def test_run_peaks_marks_the_deepest_entry_of_every_run_per_channel():

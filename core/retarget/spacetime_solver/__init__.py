@@ -23,8 +23,8 @@ Bounds.  The bounded problem ``min ½ yᵀ𝓗y − r₀ᵀy, lo/σ ≤ y ≤ hi
 solved exactly: every step is an exact solve of ``𝓗_FF d_F = r_F`` with the
 held (active) entries fixed, by a block-tridiagonal Cholesky of ``𝓗`` in
 frame-major order (:class:`BlockCholesky`: blocks ``(2 + β) M + λ I`` and
-``−M``, held rows/columns replaced by the identity; O(f n³) flops in BLAS-3
-blocks, memory f·n², linear in the take length).  The held set is found by
+``−M`` restricted to each frame's free entries, packed; O(Σ |F_t|³) flops in
+BLAS-3 blocks, memory Σ |F_t|² / 2, linear in the take length).  The held set is found by
 
 - :func:`peak_active_set` (first): from the unbounded solution, hold the
   deepest part of every run of violated frames of a slider (entries violated by at least

@@ -4,7 +4,7 @@
 - :func:`banded_step` — the banded Cholesky of ``𝓗_FF``;
 - :func:`cg_step` — conjugate gradients preconditioned by the unbounded inverse (huge problems);
 - :class:`BlockCholesky` / :func:`block_step` — the block-tridiagonal Cholesky in frame-major order (the exact
-  route, O(f n³), memory f·n²);
+  route on each frame's free entries, O(Σ |F_t|³), memory Σ |F_t|² / 2);
 
 and :func:`reduced_step`, which picks the cheapest of them.
 """
@@ -23,7 +23,8 @@ __all__ = ["reduced_step", "capacitance_step", "banded_step", "cg_step", "BlockC
 #: Largest banded-Cholesky Newton step (≈ flops, f·n·(2n)²) before bounded space-time falls back to CG.
 BANDED_FLOP_LIMIT = 4e9
 
-#: Largest block-Cholesky factor (bytes: (f − 2) · n² · 8) the exact route builds; beyond it CG is used.
+#: Largest block-Cholesky factor (bytes: (f − 2) · n (n + 1) / 2 · 8, packed, nothing held) the exact route builds;
+#: beyond it CG is used.
 BLOCK_BYTES_LIMIT = 2 * 2 ** 30
 
 #: Frames factored between two progress calls of :class:`BlockCholesky` (when given one).
@@ -377,7 +378,7 @@ def capacitance_limit(system: SpacetimeSystem) -> int:
 
 def block_fits(system: SpacetimeSystem) -> bool:
     """Whether :class:`BlockCholesky` stays within :data:`BLOCK_BYTES_LIMIT`."""
-    return system.shape[0] * system.n * system.n * 8 <= BLOCK_BYTES_LIMIT
+    return system.shape[0] * system.n * (system.n + 1) // 2 * 8 <= BLOCK_BYTES_LIMIT
 
 
 def reduced_step(system: SpacetimeSystem, act: np.ndarray, r: np.ndarray, scale: float,
