@@ -1070,12 +1070,7 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
     err = np.maximum.reduceat(np.abs(res), starts)
     norm = np.sqrt(np.add.reduceat(res * res, starts))
     out = [None] * B
-    span_l = t[K[:, 1]] - t[K[:, 0]]
-    span_m = t[K[:, 2]] - t[K[:, 1]]
-    span_r = t[K[:, 3]] - t[K[:, 2]]
-    reach = np.column_stack([np.maximum(span_l, span_m), np.maximum(span_m, span_r)])      # per refitted slope
-    size = np.abs(np.column_stack([held[:, [0, 2]], x[:, [0, 2]]])).max(axis=1)       # the keys' values
-    accept = good & (err <= tol * (1 - 1e-6)) & _slopes_safe(x[:, [1, 3]], reach, size, tol)
+    accept = good & (err <= tol * (1 - 1e-6)) & _slopes_safe(t, K, held, x, tol)
     xs = x.tolist()
     for g in np.flatnonzero(accept).tolist():
         out[g] = tuple(xs[g])
@@ -1108,8 +1103,7 @@ def _absorb_batch(t: np.ndarray, V: np.ndarray, tests: list, idx: list, kv: list
         first[:, 4] = _ragged_argmax(score, sub_starts, sub_owner)[1]
         xc, ec, bad = _chebyshev_batch(A[keep], y[keep], sub_owner, sub_starts, first, tol)
         startable[g[bad]] = False                                     # a singular reference: the scalar path
-        safe = _slopes_safe(xc[:, [1, 3]], reach[g], np.maximum(size[g], np.abs(xc[:, [0, 2]]).max(axis=1)), tol)
-        for q in np.flatnonzero((ec <= tol * (1 - 1e-6)) & safe).tolist():
+        for q in np.flatnonzero((ec <= tol * (1 - 1e-6)) & _slopes_safe(t, K[g], held[g], xc, tol)).tolist():
             out[int(g[q])] = tuple(xc[q].tolist())
     # rank-deficient or tiny systems: the scalar path
     for gg in np.flatnonzero(~good | ((err > tol) & (norm <= tol * np.sqrt(rows)) & ~startable)):
@@ -1128,10 +1122,8 @@ def _absorb_one(t: np.ndarray, v: np.ndarray, idx: list, kv: list, km: list, p: 
     if x is None or err > tol * (1 - 1e-6):
         return None
     a, b = max(p - 2, 0), min(p + 2, len(idx) - 1)
-    h = np.diff(t[[idx[a], idx[p - 1], idx[p + 1], idx[b]]])
-    size = max(abs(kv[a]), abs(kv[b]), abs(x[0]), abs(x[2]))
-    if not _slopes_safe(np.array([[x[1], x[3]]]), np.array([[max(h[0], h[1]), max(h[1], h[2])]]), np.array([size]),
-                        tol)[0]:
+    K = np.array([[idx[a], idx[p - 1], idx[p + 1], idx[b]]])
+    if not _slopes_safe(t, K, np.array([[kv[a], km[a], kv[b], km[b]]]), np.asarray(x)[None], tol)[0]:
         return None
     return tuple(float(a) for a in x)
 
@@ -1147,12 +1139,16 @@ _SLOPE_REACH = 1e8
 _SLOPE_SIZE = 1e3
 
 
-def _slopes_safe(m: np.ndarray, reach: np.ndarray, size: np.ndarray, tol: float) -> np.ndarray:
-    """Per row of refitted slopes ``m`` (B, 2), the longest segment each shapes ``reach`` (B, 2) and the largest
-    key value involved ``size`` (B,): whether every ``|h · m|`` is within :data:`_SLOPE_REACH` tolerances or
-    :data:`_SLOPE_SIZE` times ``size`` (B,)."""
+def _slopes_safe(t: np.ndarray, K: np.ndarray, held: np.ndarray, x: np.ndarray, tol: float) -> np.ndarray:
+    """Per absorption test (keys a, p − 1, p + 1, b at samples ``K`` (B, 4); ``held`` (B, 4) value and slope of
+    keys a and b; ``x`` (B, 4) the refitted values and slopes of keys p − 1 and p + 1): whether each refitted
+    ``|h · m|`` (h the longest segment the slope shapes) is within :data:`_SLOPE_REACH` tolerances or
+    :data:`_SLOPE_SIZE` times the largest key value involved (B,)."""
+    h = np.diff(t[K], axis=1)                                         # segments L, M, R
+    reach = np.column_stack([np.maximum(h[:, 0], h[:, 1]), np.maximum(h[:, 1], h[:, 2])])
+    size = np.abs(np.column_stack([held[:, [0, 2]], x[:, [0, 2]]])).max(axis=1)
     bound = np.maximum(_SLOPE_REACH * tol, _SLOPE_SIZE * size)
-    return np.all(np.abs(m) * reach <= bound[:, None], axis=1)
+    return np.all(np.abs(x[:, [1, 3]]) * reach <= bound[:, None], axis=1)
 
 
 def _absorb_system(t: np.ndarray, v: np.ndarray, idx: list, kv: list, km: list, p: int) -> tuple:
