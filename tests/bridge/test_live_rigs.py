@@ -187,3 +187,37 @@ def test_mirror_swaps_left_and_right(registered):
     rest = np.array(arm.data.bones["head"].matrix_local.to_3x3())
     np.testing.assert_allclose(got, face_to_armature(euler_matrix([-0.3, 0.0, -0.2])) @ rest, atol=1e-5)
     assert LLF_CURVES[52] == "HeadYaw"
+
+
+@pytest.mark.parametrize("method", ["COPY", "SOLVE"])
+def test_a_live_frame_allocates_nothing_the_size_of_the_face(registered, method):
+    """Issue #26 item 14 (the mechanism, not a timing): a live frame costs ShapeSpace work in the number of
+    channels, not of vertices.  On ICT FaceKit (27k vertices) no frame of the recording allocates as much as
+    a quarter of one float32 copy of the face's coordinates (81 of 324 KB; one float32 per vertex is 108 KB):
+    decoding, mapping, solving and writing the sliders read no mesh data.  What a frame of ICT FaceKit costs
+    beyond this in the ``bpy`` module is Blender's own evaluation (glibc handing the buffers it frees back to
+    the system after every update: ``docs/benchmarks.md``, Live capture)."""
+    import tracemalloc
+
+    from shapespace.bridge.live import rig
+    from shapespace.core.live import decode_llf
+    tpl, ict = _template_and(shared("ict_facekit", "ict_facekit_expressions.glb"), "ICTFace")
+    configure(ict, method=method, template=tpl)
+    scene = bpy.context.scene
+    pipeline = rig.build_pipeline(scene, scene.shapespace_live, ict)
+    packets = [d for _, d in live_replay.llf_packets(CSV)]
+    limit = 0.25 * 12 * len(ict.data.vertices)
+    peaks = []
+    tracemalloc.start()
+    try:
+        for data in packets:
+            tracemalloc.reset_peak()
+            before = tracemalloc.get_traced_memory()[0]
+            frame = decode_llf(data, 0.0)
+            assert not pipeline.write(*pipeline.solve(pipeline.process(frame.vector(), frame.time)))
+            peaks.append(tracemalloc.get_traced_memory()[1] - before)
+    finally:
+        tracemalloc.stop()
+    print(f"\n{method}: peak per frame {max(peaks)} B, median {int(np.median(peaks))} B (limit {limit:.0f})")
+    assert max(peaks) < limit, (max(peaks), limit)
+    assert any(kb.value > 0.0 for kb in ict.data.shape_keys.key_blocks[1:])     # the frames were written
