@@ -3,7 +3,7 @@
     blender -b target.blend --command shapespace transfer --source-rig template.blend:Object --object Head \\
         --out rigged.blend [--naming source|arkit|suffix|pascal] [--existing refuse|skip|overwrite]
         [--landmarks auto|stored|shapes|geometry|named|FILE.json] [--unmatched-parts move|keep|refuse]
-        [--parts-collection COLLECTION] [--report FILE] [--dry-run]
+        [--parts-collection COLLECTION] [--examples stored|none|FILE.json] [--report FILE] [--dry-run]
 
 The source rig is appended from its .blend, used, and removed again: the saved file holds the target with its
 new keys only (plus the landmark pairs used, stored on the target for the next run).  stdout carries only the
@@ -34,6 +34,11 @@ else proposes them (from shared shapes, else from the heads' geometry) and store
 "target": {"eye_inner_L": 456, ...}} (vertex indices; names: eye_inner/eye_outer/lid_upper/lid_lower/brow_inner/
 brow_mid/brow_outer/mouth_corner/nostril/jaw_angle + _L/_R, lip_upper_outer, lip_lower_outer, lip_upper_inner,
 lip_lower_inner, nose_tip, chin); the names on both sides are used (at least 5).
+--examples: target shape keys that show how some source shapes should look on this head; every transferred key
+is refined so they are reproduced, and they are kept as they are.  'stored' (default) uses the list of the panel
+(Transfer Shapes > Examples), 'none' ignores it; FILE.json: {"version": 1, "examples": [{"key": "jawOpen"},
+{"key": "SmileScan", "weights": {"mouthSmileLeft": 1, "mouthSmileRight": 1}}]} (a key named after a source shape
+needs no weights: that shape at 1).
 Existing keys of the same names are refused unless --existing skip|overwrite says otherwise.
 Saving: --out never overwrites an input (the opened .blend, the source .blend); --overwrite allows saving into
 the opened .blend (Blender keeps the old one as .blend1) or replacing a file of another kind."""
@@ -60,6 +65,9 @@ def add_parser(sub) -> None:
     tr.add_argument("--parts-collection", metavar="COLLECTION",
                     help="meshes of this collection (eyes, teeth as objects of their own) are transferred with the "
                          "target as its parts and get shape keys of the same names")
+    tr.add_argument("--examples", type=_example_choice, default="stored", metavar="stored|none|FILE.json",
+                    help="target shape keys given as examples of the source's shapes: the panel's list (default), "
+                         "none, or a file")
     tr.add_argument("--target", help="target .blend to open first (default: the open file)")
     tr.add_argument("--out", help="save the result as this .blend")
     tr.add_argument("--dry-run", action="store_true", help="compute and report only; save nothing")
@@ -74,6 +82,24 @@ def _landmark_choice(value: str) -> str:
         return value
     raise argparse.ArgumentTypeError(f"{value!r}: auto, stored, shapes, geometry, named or a FILE.json of named "
                                      f"landmarks")
+
+
+def _example_choice(value: str) -> str:
+    import argparse
+    if value in ("stored", "none") or value.lower().endswith(".json"):
+        return value
+    raise argparse.ArgumentTypeError(f"{value!r}: stored, none or a FILE.json of examples")
+
+
+def _examples(bridge, target, how: str) -> list:
+    """The examples' ``[(key, weights or None)]``: the panel's list, none, or a file."""
+    if how == "none":
+        return []
+    specs = bridge.stored_examples(target) if how == "stored" else bridge.load_example_file(how)
+    if specs:
+        _say(f"{len(specs)} examples ({'the panel' if how == 'stored' else how}): "
+             f"{', '.join(key for key, _ in specs[:6])}{' …' if len(specs) > 6 else ''}")
+    return specs
 
 
 def _say(text: str) -> None:
@@ -176,7 +202,8 @@ def transfer(args, inputs: list) -> tuple:
     src_file, src_name = _split_source(args.source_rig)
     opened = args.target or bpy.data.filepath or (inputs[0] if inputs else "")
     lm_file = args.landmarks if args.landmarks.lower().endswith(".json") else ""
-    read = [p for p in (bpy.data.filepath, args.target, *inputs, src_file, lm_file) if p]
+    ex_file = args.examples if args.examples.lower().endswith(".json") else ""
+    read = [p for p in (bpy.data.filepath, args.target, *inputs, src_file, lm_file, ex_file) if p]
     out, report_out = check_outputs([("--out", args.out, "blend"), ("--report", args.report, "json")], read,
                                     args.overwrite, opened)
     if src_file and not os.path.isfile(src_file):
@@ -199,6 +226,7 @@ def transfer(args, inputs: list) -> tuple:
             raise ShapeSpaceError("--source-rig and --object name the same mesh", ErrorCode.SAME_KEY)
         _say(f"transfer {source.name} → {target.name}")
         parts = _parts(target, args.parts_collection)
+        examples = _examples(bridge, target, args.examples)
         landmarks = _landmarks(bridge, source, target, args.landmarks)
         step = {"last": -1}
 
@@ -209,7 +237,8 @@ def transfer(args, inputs: list) -> tuple:
                 _say(f"{tenth * 10}%")
 
         rep = bridge.transfer_shapes(source, target, naming=args.naming, existing=args.existing,
-                                     unmatched_parts=args.unmatched_parts, progress=progress, parts=parts)
+                                     unmatched_parts=args.unmatched_parts, progress=progress, parts=parts,
+                                     examples=examples)
     finally:
         bridge.remove_appended(appended)
     for warning in rep.warnings:

@@ -126,6 +126,7 @@ class ErrorCode(str, enum.Enum):
     STALE_LANDMARKS = "stale_landmarks"
     LINKED = "linked"
     RIG_CHANGED = "rig_changed"
+    TRANSFER_EXAMPLE_RESIDUAL = "transfer_example_residual"
 
     def __str__(self) -> str:
         return self.value
@@ -252,4 +253,6 @@ DESCRIPTIONS = {
     ErrorCode.STALE_LANDMARKS: "landmark pairs placed on meshes whose vertex count has changed since: place them "
                                "again",
     ErrorCode.LINKED: "data linked from a library that would have to be changed (the change would be lost on save)",
+    ErrorCode.TRANSFER_EXAMPLE_RESIDUAL: "a transfer's example is not reproduced (examples that contradict each "
+                                         "other: the transferred keys were written, the report says which)",
 }

@@ -9,6 +9,17 @@ from .base import ShapeSpaceSidebar
 SHOWN = 12          # landmark pairs listed in the panel
 
 
+class SHAPESPACE_UL_transfer_examples(bpy.types.UIList):
+    """Shape keys of the target given as examples of the source rig's shapes"""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index):
+        row = layout.row(align=True)
+        key = context.active_object.data.shape_keys
+        there = key is not None and item.key in key.key_blocks
+        row.label(text=item.key, icon="SHAPEKEY_DATA" if there else "ERROR")
+        row.prop(item, "weights", text="")
+
+
 class SHAPESPACE_PT_transfer_shapes(ShapeSpaceSidebar, bpy.types.Panel):
     """Give the active mesh a source rig's shape keys (landmarks, registration preview, then transfer)"""
 
@@ -50,11 +61,25 @@ class SHAPESPACE_PT_transfer_shapes(ShapeSpaceSidebar, bpy.types.Panel):
         row.operator("shapespace.propose_landmarks", icon="AUTO")
         row.operator("shapespace.clear_landmark_pairs", text="", icon="TRASH")
         box.operator("shapespace.add_landmark_pair", text="Add Selected Vertex Pair", icon="ADD")
+        _draw_examples(layout, ob)
         row = layout.row(align=True)
         row.operator("shapespace.preview_registration", icon="HIDE_OFF")
         row.operator("shapespace.clear_registration_preview", text="", icon="X")
         layout.operator("shapespace.transfer_shapes", icon="SHAPEKEY_DATA")
         _draw_verdict(layout, ob)
+
+
+def _draw_examples(layout, ob) -> None:
+    """The examples: shape keys of this mesh, each with its weights of the source's shapes."""
+    box = layout.box()
+    st = ob.shapespace_authoring
+    box.label(text=f"Examples: {len(st.examples)}" if len(st.examples) else "Examples: none (plain transfer)",
+              icon="SHAPEKEY_DATA")
+    row = box.row()
+    row.template_list("SHAPESPACE_UL_transfer_examples", "", st, "examples", st, "active_example", rows=2)
+    col = row.column(align=True)
+    col.operator("shapespace.add_transfer_example", text="", icon="ADD")
+    col.operator("shapespace.remove_transfer_example", text="", icon="REMOVE")
 
 
 def _draw_verdict(layout, ob) -> None:

@@ -21,6 +21,15 @@ PARTS = [("move", "Move as Rigged", "Separate parts move as an artist would rig 
          ("refuse", "Refuse", "Stop when a separate part of this mesh has no counterpart on the source")]
 
 
+class SHAPESPACE_PG_transfer_example(bpy.types.PropertyGroup):
+    """A shape key of the target given as an example of the source rig's shapes (Transfer Shapes ▸ Examples)."""
+
+    key: bpy.props.StringProperty(name="Shape Key", description="The target's shape key that is the example")
+    weights: bpy.props.StringProperty(
+        name="Weights", description="The source shapes this example shows, as name=weight pairs (jawOpen=1, "
+                                    "mouthClose=0.5); empty: the source shape of the key's name at 1")
+
+
 class SHAPESPACE_PG_authoring(bpy.types.PropertyGroup):
     """Transfer Shapes settings of a target mesh (what the Rig ▸ Transfer Shapes panel edits)."""
 
@@ -36,3 +45,8 @@ class SHAPESPACE_PG_authoring(bpy.types.PropertyGroup):
         name="Part Objects", type=bpy.types.Collection,
         description="Meshes of this collection (eyes, teeth, tongue as objects of their own) are transferred with "
                     "this mesh as its parts and get shape keys of the same names")
+    examples: bpy.props.CollectionProperty(
+        name="Examples", type=SHAPESPACE_PG_transfer_example,
+        description="Shape keys of this mesh that show how some source shapes should look on it: every transferred "
+                    "key is refined so they are reproduced, and they are kept as they are")
+    active_example: bpy.props.IntProperty(name="Active Example", min=0)

@@ -84,7 +84,7 @@ def oracle_gain(DT, TD, TN, SN, held):
 def refine(T, TT, TD, TN, SN, DT, keys, combo, given=None):
     """Refine ``DT`` with the example set made with weight ``combo`` (:func:`example_set`) and given to the
     refinement with ``given`` (default: the same); (refinement, example names)."""
-    from shapespace.core.authoring.examples import mirror_partners, refine_with_examples
+    from shapespace.core.authoring.examples import closing_keys, mirror_partners, refine_with_examples
     chosen, rows = example_set(keys, combo)
     _, told = example_set(keys, combo if given is None else given)
     W = np.zeros((len(rows), len(SN)))
@@ -94,7 +94,8 @@ def refine(T, TT, TD, TN, SN, DT, keys, combo, given=None):
             W[e, SN.index(name)] = said[name]
             E[e] += w * TD[TN.index(name)]
     names = [" + ".join(row) for row in rows]
-    return refine_with_examples(T, TT, DT, E, W, names=names, partners=mirror_partners(SN)), chosen
+    return refine_with_examples(T, TT, DT, E, W, names=names, partners=mirror_partners(SN),
+                                closers=closing_keys(SN)), chosen
 
 
 def pair_metrics(src, dst, src_tag, dst_tag):

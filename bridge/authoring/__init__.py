@@ -10,11 +10,12 @@ everything is computed: validate → compute → write, and on any failure the f
 
 - :mod:`.reading` — the source rig and the target as arrays; the target's signature;
 - :mod:`.landmarks` — the landmark pairs per target object (stored, placed, proposed); the openings;
+- :mod:`.examples` — target keys given as examples of the source's shapes (panel list, command-line file);
 - :mod:`.registration` — the registration and its preview object;
 - :mod:`.transfer` — read, write and the background job of a transfer; the last transfer's verdict;
 - :mod:`.source_file` — a source rig appended from another .blend (command line).
 
-Level order (each imports only those above it): reading → landmarks → registration → transfer; source_file
+Level order (each imports only those above it): reading → examples, landmarks → registration → transfer; source_file
 stands alone.
 """
 from ...core.authoring.job import (
@@ -28,6 +29,7 @@ from ...core.authoring.job import (
                                    compute_transfer,
 )
 from ...core.authoring.report import TransferReport
+from .examples import add_example, load_example_file, remove_example, stored_examples
 from .landmarks import (
                                    LANDMARKS_PROP,
                                    LANDMARKS_SCHEMA,
@@ -78,4 +80,5 @@ __all__ = ["MIN_LANDMARKS", "PREVIEW_PROP", "LANDMARKS_PROP", "LANDMARKS_SCHEMA"
            "write_preview", "start_preview_job", "finish_preview_job", "transfer_shapes", "selected_vertex",
            "append_object", "remove_appended", "TransferPlan", "TransferOutcome", "read_transfer",
            "compute_transfer", "write_transfer", "start_transfer_job", "finish_transfer_job", "last_verdict",
-           "verdict_status"]
+           "verdict_status", "load_example_file", "stored_examples", "add_example",
+           "remove_example"]

@@ -28,8 +28,9 @@ from ...core.errors import ErrorCode
 from ...core.jobs import BackgroundJob
 from ...core.result import ShapeSpaceError
 from .. import driven, part_objects, storage
-from ..arrays import write_float
+from ..arrays import read_float, write_float
 from ..meshes import triangles
+from .examples import example_keys, read_examples
 from .landmarks import landmarks_for, openings
 from .reading import finite, read_source_rig, read_target, target_signature
 from .registration import clear_preview
@@ -71,13 +72,15 @@ def _new_names(rig: SourceRig, naming: str) -> dict:
     return out
 
 
-def _plan(rig: SourceRig, tgt: TargetMesh, names: dict, existing: str, target_obj, groups: bool = True) -> tuple:
+def _plan(rig: SourceRig, tgt: TargetMesh, names: dict, existing: str, target_obj, groups: bool = True,
+          kept: tuple = ()) -> tuple:
     """Which source keys are written, which target keys are replaced, which are skipped (by policy); masks
-    (vertex groups) only where ``groups``."""
+    (vertex groups) only where ``groups``.  ``kept``: source keys whose target key is an example (never
+    written, whatever the policy)."""
     if existing not in EXISTING:
         raise ShapeSpaceError(f"unknown policy for existing keys {existing!r}: {', '.join(EXISTING)}",
                               ErrorCode.METHOD)
-    have = set(tgt.keys)
+    have = set(tgt.keys) - {names[n] for n in kept}
     reference = tgt.keys[0] if tgt.keys else None
     clash = [n for n in rig.names if names[n] in have]
     if clash and existing == "refuse":
@@ -87,7 +90,7 @@ def _plan(rig: SourceRig, tgt: TargetMesh, names: dict, existing: str, target_ob
     if reference is not None and existing == "overwrite" and any(names[n] == reference for n in clash):
         raise ShapeSpaceError(f"a source key would replace the basis {reference!r} of {tgt.name!r}: rename it or "
                               f"skip existing keys", ErrorCode.RESERVED_NAME)
-    skip = set(clash) if existing == "skip" else set()
+    skip = (set(clash) if existing == "skip" else set()) | set(kept)
     # driven keys whose primary / inputs were skipped are skipped too (their correction belongs to our primary)
     for n, v in rig.inbetweens.items():
         if v["primary"] in skip:
@@ -97,6 +100,7 @@ def _plan(rig: SourceRig, tgt: TargetMesh, names: dict, existing: str, target_ob
             skip.add(n)
     write = [n for n in rig.names if n not in skip]
     replace = [names[n] for n in write if names[n] in have]
+    skip -= set(kept)                                 # reported as kept examples, not as skipped
     groups_clash = sorted({rig.groups[n] for n in write if n in rig.groups
                            and rig.groups[n] in target_obj.vertex_groups}) if groups else []
     if groups_clash and existing == "refuse":
@@ -250,22 +254,34 @@ def _with_part_objects(target, source, tgt: TargetMesh, parts) -> TargetMesh:
                       parts=len(triangle_parts(len(neutral), tri)[1]), own=len(tgt.neutral), objects=objects)
 
 
-def _part_plans(rig, tgt: TargetMesh, names: dict, existing: str) -> list:
-    """Each part object's keys to write / replace / skip under the same policy (no masks on part objects)."""
+def _part_plans(rig, tgt: TargetMesh, names: dict, existing: str, kept: tuple = ()) -> list:
+    """Each part object's keys to write / replace / skip under the same policy (no masks on part objects); the
+    examples' keys are kept on them too."""
     out = []
     for p in tgt.objects:
         ob = bpy.data.objects[p.name]
         mesh = TargetMesh(name=p.name, neutral=np.zeros((0, 3)), triangles=np.zeros((0, 3), int), keys=p.keys,
                           parts=0)
-        write, replace, skipped, _ = _plan(rig, mesh, names, existing, ob, groups=False)
+        write, replace, skipped, _ = _plan(rig, mesh, names, existing, ob, groups=False,
+                                           kept=tuple(n for n in kept if names[n] in p.keys))
         out.append((p, write, replace, skipped))
     return out
 
 
+def _signature(target, parts, examples) -> tuple:
+    """:func:`target_signature` and the examples' coordinates as read (an example sculpted further while the
+    transfer computes makes the result stale)."""
+    blocks = target.data.shape_keys.key_blocks if target.data.shape_keys is not None else {}
+    shapes = tuple(read_float(blocks[ex.key].points, "co", 3).tobytes() if ex.key in blocks else None
+                   for ex in examples)
+    return target_signature(target, parts), shapes
+
+
 def read_transfer(source, target, naming: str = "source", existing: str = "refuse",
-                  unmatched_parts: str = "keep", parts=None) -> TransferPlan:
+                  unmatched_parts: str = "keep", parts=None, examples=None) -> TransferPlan:
     """Step 1 of :func:`transfer_shapes` (main thread): validate and read everything; writes nothing.
-    ``parts``: part objects transferred with the target (:func:`bridge.part_objects.meshes_of`)."""
+    ``parts``: part objects transferred with the target (:func:`bridge.part_objects.meshes_of`); ``examples``:
+    ``[(target key, weights or None)]`` (:mod:`.examples`)."""
     start = time.perf_counter()
     if source is not None and target is not None and source == target:
         raise ShapeSpaceError("the source rig and the target are the same object", ErrorCode.SAME_KEY)
@@ -279,8 +295,11 @@ def read_transfer(source, target, naming: str = "source", existing: str = "refus
     parts = list(parts or ())
     tgt = _with_part_objects(target, source, tgt, parts)
     names = _new_names(rig, naming)
-    write, replace, skipped, groups_clash = _plan(rig, tgt, names, existing, target)
-    part_plans = _part_plans(rig, tgt, names, existing)
+    specs = list(examples or ())
+    read = read_examples(target, specs, rig, tgt, names)
+    kept = example_keys(specs, rig, names)
+    write, replace, skipped, groups_clash = _plan(rig, tgt, names, existing, target, kept=tuple(kept))
+    part_plans = _part_plans(rig, tgt, names, existing, tuple(kept))
     carried = openings(source, target, rig, tgt)
     if not write:
         raise ShapeSpaceError(f"{target.name!r} already has every shape of {source.name!r}: nothing to transfer",
@@ -288,8 +307,8 @@ def read_transfer(source, target, naming: str = "source", existing: str = "refus
     pairs = landmarks_for(source, target, rig, tgt)
     return TransferPlan(source=source.name, target=target.name, rig=rig, tgt=tgt, pairs=pairs, names=names,
                         write=write, replace=replace, skipped=skipped, groups_clash=groups_clash, existing=existing,
-                        unmatched_parts=unmatched_parts, signature=target_signature(target, parts), started=start,
-                        part_plans=part_plans, openings=carried)
+                        unmatched_parts=unmatched_parts, signature=_signature(target, parts, read), started=start,
+                        part_plans=part_plans, openings=carried, examples=read, kept=kept)
 
 
 def _write_part_objects(outcome: TransferOutcome, report: TransferReport) -> None:
@@ -345,9 +364,9 @@ def write_transfer(outcome: TransferOutcome) -> TransferReport:
     plan, report = outcome.plan, outcome.report
     target = bpy.data.objects.get(plan.target)
     parts = [bpy.data.objects.get(p.name) for p in plan.tgt.objects]
-    if target is None or target.type != "MESH" or target_signature(target, parts) != plan.signature:
+    if target is None or target.type != "MESH" or _signature(target, parts, plan.examples) != plan.signature:
         raise ShapeSpaceError(f"{plan.target!r} changed while the transfer computed (mode, mesh, shape keys, "
-                              "vertex groups or part objects): nothing was written; transfer again",
+                              "examples, vertex groups or part objects): nothing was written; transfer again",
                               ErrorCode.RIG_CHANGED)
     own = plan.tgt.own if plan.tgt.own >= 0 else len(plan.tgt.neutral)
     _write(target, plan.rig, plan.names, plan.write, plan.replace, outcome.full[:, :own], plan.tgt.neutral[:own],
@@ -355,6 +374,8 @@ def write_transfer(outcome: TransferOutcome) -> TransferReport:
     _write_part_objects(outcome, report)
     _store_verdict(target, report)
     clear_preview(target)                       # it served its purpose; the result file does not keep it
+    shown = {ex.key for ex in plan.examples}
+    report.kept = [plan.names[n] if plan.names[n] in shown else n for n in plan.kept]
     report.skipped = [plan.names[n] for n in plan.skipped] + (
         [f"vertex group {g} (kept)" for g in plan.groups_clash] if plan.existing == "skip" else [])
     report.seconds = time.perf_counter() - plan.started
@@ -381,7 +402,7 @@ def finish_transfer_job(job: BackgroundJob) -> TransferReport:
 
 
 def transfer_shapes(source, target, naming: str = "source", existing: str = "refuse", unmatched_parts: str = "keep",
-                    progress=None, parts=None) -> TransferReport:
+                    progress=None, parts=None, examples=None) -> TransferReport:
     """Transfer every shape key of ``source`` onto ``target``: :func:`read_transfer` → :func:`compute_transfer`
     → :func:`write_transfer` (validate → compute → write).
 
@@ -403,11 +424,15 @@ def transfer_shapes(source, target, naming: str = "source", existing: str = "ref
     parts : sequence of bpy.types.Object, optional
         Part objects (eyes, teeth as meshes of their own) transferred with the target; each gets shape keys
         of the same names (:mod:`bridge.part_objects`).
+    examples : sequence of (str, dict or None), optional
+        Target shape keys given as examples, each with its weights of the source's shapes (None: the source
+        shape of its name at 1; :mod:`bridge.authoring.examples`): every key is refined so they are reproduced,
+        and the example keys are kept as they are.
 
     Raises
     ------
     core.ShapeSpaceError
         Before anything is written; the file is unchanged.
     """
-    plan = read_transfer(source, target, naming, existing, unmatched_parts, parts)
+    plan = read_transfer(source, target, naming, existing, unmatched_parts, parts, examples)
     return write_transfer(compute_transfer(plan, progress))

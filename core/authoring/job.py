@@ -4,7 +4,8 @@
 gathered in a :class:`TransferPlan` or a :class:`PreviewPlan`) on Blender's main thread; this module computes on
 any thread (touching no Blender data): :func:`compute_preview` registers the source neutral onto the target,
 :func:`compute_transfer` registers, transfers every shape (deformation transfer), moves the target's unmatched
-parts, runs the per-key checks and maps the vertex-group masks; the bridge then writes the outcome in one step.
+parts, refines every key to the examples the user gave (:class:`TransferExample`), runs the per-key checks and
+maps the vertex-group masks; the bridge then writes the outcome in one step.
 Both raise :class:`~core.progress.Cancelled` from ``progress`` (nothing computed is kept) and
 :class:`~core.result.ShapeSpaceError` when the registration fails or the result is not finite.
 """
@@ -17,8 +18,9 @@ import numpy as np
 from ..blas_threads import single_threaded
 from ..errors import ErrorCode
 from ..progress import ProgressFn, notify, scaled
-from ..result import Result, ShapeSpaceError, Status
+from ..result import Issue, Result, ShapeSpaceError, Status
 from .contacts import with_references
+from .examples import closing_keys, mirror_partners, refine_with_examples
 from .landmarks import LandmarkPairs
 from .parts import move_parts, plan_for_transfer
 from .quality import check_keys
@@ -26,11 +28,13 @@ from .registration import Correspondence, register
 from .report import TransferReport
 from .transfer import Transfer
 
-__all__ = ["SourceRig", "TargetMesh", "PreviewPlan", "PreviewOutcome", "TransferPlan", "TransferOutcome",
-           "compute_preview", "compute_transfer", "map_weights"]
+__all__ = ["SourceRig", "TargetMesh", "PreviewPlan", "PreviewOutcome", "TransferExample", "TransferPlan",
+           "TransferOutcome", "compute_preview", "compute_transfer", "map_weights"]
 
 #: The transfer solves this many shapes at a time (the same numbers as all at once; progress between chunks).
 CHUNK = 8
+#: An example the refinement reproduces further than this (relative) is reported: the examples contradict.
+EXAMPLE_RESIDUAL = 1e-3
 
 
 @dataclass
@@ -115,6 +119,21 @@ def compute_preview(plan: PreviewPlan, progress: ProgressFn | None = None) -> Pr
 
 # ------------------------------------------------------------------ transfer
 @dataclass
+class TransferExample:
+    """A target shape given as an example of the source's shapes (thesis 3.4.1; Li, Weise & Pauly 2010).
+
+    ``deltas`` (q, 3): the shape minus the target's neutral on every row of :class:`TargetMesh` (NaN rows: not
+    given — a part object without a key of that name; the plain transfer's prediction stands there);
+    ``weights``: source key name → approximate weight (keys of :attr:`TransferPlan.write` or
+    :attr:`TransferPlan.kept`).
+    """
+
+    key: str
+    deltas: np.ndarray
+    weights: dict
+
+
+@dataclass
 class TransferPlan:
     """Everything a transfer needs, read from Blender (``bridge.authoring.read_transfer``); no Blender references."""
 
@@ -134,6 +153,9 @@ class TransferPlan:
     started: float
     part_plans: list = field(default_factory=list)   # (PartObject, write, replace, skipped) per part object
     openings: list = field(default_factory=list)     # core.authoring.contacts.Opening (named lid/lip contours)
+    examples: list = field(default_factory=list)     # TransferExample: the transferred keys are refined to them
+    kept: list = field(default_factory=list)         # source keys computed but not written: their name is an example
+    # (keys an example weights are computed too, written or not)
 
 
 @dataclass
@@ -147,7 +169,8 @@ class TransferOutcome:
 
 
 def compute_transfer(plan: TransferPlan, progress: ProgressFn | None = None) -> TransferOutcome:
-    """Registration, deformation transfer, parts, per-key checks and mapped masks (any thread; no Blender data).
+    """Registration, deformation transfer, parts, the examples' refinement, per-key checks and mapped masks (any
+    thread; no Blender data).
 
     ``progress(fraction)`` (:mod:`core.progress`) is called through the registration and between the shape
     chunks; raising :class:`~core.progress.Cancelled` from it stops the work before anything is written.
@@ -179,14 +202,24 @@ def _compute_transfer(plan: TransferPlan, progress: ProgressFn | None) -> Transf
     if not moving:
         report.warnings.extend(issue.message for issue in transfer.issues)
     notify(progress, 0.7)
-    rows = [rig.names.index(n) for n in write]
+    used = [n for ex in plan.examples for n in ex.weights]          # an example may weight a key not written
+    computed = write + [n for n in dict.fromkeys(plan.kept + used) if n not in write]
+    rows = [rig.names.index(n) for n in computed]
     sculpts = rig.full_sculpts()[rows]
     solved = _solve(transfer, sculpts, tgt.neutral.shape, progress)
     if not np.isfinite(solved).all():
-        bad = write[int(np.argwhere(~np.isfinite(solved))[0][0])]
+        bad = computed[int(np.argwhere(~np.isfinite(solved))[0][0])]
         raise ShapeSpaceError(f"the transfer of {bad!r} produced non-finite positions: nothing was written",
                               ErrorCode.NON_FINITE)
-    _check_and_move_parts(rig, tgt, write, sculpts, solved, corr, moving, report, plan.openings)
+    part_plan, moved = None, None
+    if moving:
+        part_plan = plan_for_transfer(rig.neutral, rig.triangles, sculpts, computed, tgt.neutral, tgt.triangles,
+                                      solved, corr.part_map)
+        solved, moved = move_parts(part_plan, tgt.neutral, tgt.triangles, solved, computed)
+        report.parts = part_plan.summary()
+    if plan.examples:
+        solved = _refine(plan, computed, solved, report, scaled(progress, 0.95, 0.99))
+    _check(rig, tgt, write, sculpts[:len(write)], solved[:len(write)], part_plan, moved, report, plan.openings)
     full = np.zeros((len(rig.names),) + tgt.neutral.shape)
     full[rows] = solved
     scale = float(np.linalg.norm(np.ptp(rig.neutral, axis=0))) or 1.0
@@ -210,23 +243,47 @@ def _solve(transfer: Transfer, sculpts: np.ndarray, shape: tuple, progress: Prog
     return solved
 
 
-def _check_and_move_parts(rig: SourceRig, tgt: TargetMesh, write: list, sculpts: np.ndarray, solved: np.ndarray,
-                          corr: Correspondence, moving: bool, report: TransferReport, openings: list) -> None:
-    """Move the target's parts (policy ``move``, in place) and run the per-key checks into ``report``: a failed
-    check is an error issue (and a warning line) and makes the status WARNING."""
-    plan, moved = None, None
-    if moving:
-        plan = plan_for_transfer(rig.neutral, rig.triangles, sculpts, write, tgt.neutral, tgt.triangles, solved,
-                                 corr.part_map)
-        solved, moved = move_parts(plan, tgt.neutral, tgt.triangles, solved, write)
-        report.parts = plan.summary()
+def _refine(plan: TransferPlan, computed: list, solved: np.ndarray, report: TransferReport,
+            progress: ProgressFn | None) -> np.ndarray:
+    """The transferred keys refined so the examples are reproduced (:func:`core.authoring.examples.
+    refine_with_examples`); rows an example leaves out (NaN) take the plain transfer's prediction."""
+    index = {n: i for i, n in enumerate(computed)}
+    W = np.zeros((len(plan.examples), len(computed)))
+    E = np.empty((len(plan.examples),) + solved.shape[1:])
+    for e, ex in enumerate(plan.examples):
+        for name, w in ex.weights.items():
+            W[e, index[name]] = w
+        predicted = np.einsum("k,kvi->vi", W[e], solved)
+        E[e] = np.where(np.isnan(ex.deltas), predicted, ex.deltas)
+    names = [ex.key for ex in plan.examples]
+    ref = refine_with_examples(plan.tgt.neutral, plan.tgt.triangles, solved, E, W, names=names,
+                               partners=mirror_partners(computed), closers=closing_keys(computed), progress=progress)
+    report.examples = [{"key": ex.key, "weights": {plan.names[n]: w for n, w in ex.weights.items()},
+                        "residual_before": float(r0), "residual_after": float(r1)}
+                       for ex, r0, r1 in zip(plan.examples, ref.residual_before, ref.residual_after)]
+    report.examples_gain = not np.isinf(ref.strength)
+    written = set(plan.write)
+    report.examples_changed = [plan.names[n] for n, c in zip(computed, ref.key_change) if c > 1e-6 and n in written]
+    for ex in report.examples:
+        if ex["residual_after"] > EXAMPLE_RESIDUAL:
+            message = (f"example {ex['key']!r} is reproduced within {100 * ex['residual_after']:.1f} % only (the "
+                       f"examples contradict each other: give each its weights)")
+            report.issues.append(Issue("error", ErrorCode.TRANSFER_EXAMPLE_RESIDUAL, message, (ex["key"],)))
+            report.warnings.append(message)
+    return ref.deltas
+
+
+def _check(rig: SourceRig, tgt: TargetMesh, write: list, sculpts: np.ndarray, solved: np.ndarray, plan, moved,
+           report: TransferReport, openings: list) -> None:
+    """Run the per-key checks into ``report``: a failed check is an error issue (and a warning line) and makes
+    the status WARNING."""
     keys, issues, status = check_keys(rig.neutral, sculpts, write, tgt.neutral, solved, plan=plan, moved=moved,
                                       src_tris=rig.triangles, dst_tris=tgt.triangles, openings=openings)
     report.openings = [o.name for o in openings]
     report.keys = keys
     report.issues.extend(issues)
     report.warnings.extend(issue.message for issue in issues)
-    report.status = Status.WARNING if status != Status.OK else Status.OK
+    report.status = Status.WARNING if status != Status.OK or report.issues else Status.OK
 
 
 def map_weights(corr: Correspondence, src_tris: np.ndarray, weights: np.ndarray) -> np.ndarray:

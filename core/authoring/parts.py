@@ -78,7 +78,7 @@ KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
 # keys turn the eyeballs (23.5° in every direction; ICT FaceKit's eyeLook* move the lids only); a real ARKit
 # stream (Live Link Face, eye angles against weights, R² ≥ 0.97) turns by Up 25°, Down 35°, In/Out 34°
 EYE_LOOK_DEGREES = {"Up": 20.0, "Down": 25.0, "In": 25.0, "Out": 30.0}
-FOLLOW_RADIUS = 0.01          # × diagonal: binding falloff (2 % carried lip motion deep into the cavity)
+FOLLOW_RADIUS = 0.02          # × diagonal: binding falloff, half weight here (the cavity is not bound, ``_follow``)
 FOLLOW_MEDIAN = 0.012         # × diagonal: a part whose median distance to the skin is below this follows it
 TOUCH = 0.003                 # × diagonal: a part closer than this somewhere touches the skin (cavity)
 EYE_RESIDUAL = 0.06           # relative RMS of a sphere fit below which a part is an eyeball
@@ -638,6 +638,13 @@ def _closest_on_side(V, skin, idx, jaw, side):
     return tri, bary, point, dist
 
 
+def _falloff(d):
+    """Binding weight at distance ``d`` (× diagonal) from the skin: 1 on it, ½ at :data:`FOLLOW_RADIUS`, then
+    falling as the inverse square (a sheet of teeth or gums behind the lips moves with them all across, as
+    Ready Player Me's artist authored it: 60–100 % of the lip's motion at 1.5 % of the diagonal, 25 % at 7 %)."""
+    return 1.0 / (1.0 + (d / FOLLOW_RADIUS) ** 2)
+
+
 def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None, upper=None, bound=None, side=None):
     """Surface binding of vertices ``idx`` to the skin, fading into their jaw share of the jaw motion (the
     skin's under them, or ``shares`` (m,) where not NaN: :func:`_cavity_shares`).  ``upper`` (m,) bool: upper
@@ -649,7 +656,7 @@ def _follow(V, skin, idx, deltas, jaw, jaw_motion, shares=None, upper=None, boun
     ST = skin.tris
     tri, bary, point, dist = _closest_on_side(V, skin, idx, jaw, side)
     diag = max(bbox_diagonal(V), 1e-300)
-    w = np.exp(-(dist / (FOLLOW_RADIUS * diag)) ** 2)
+    w = _falloff(dist / diag)
     if bound is not None:
         w = np.where(bound, w, 0.0)
     share = np.sum(bary * jaw[ST[tri]], axis=1)

@@ -42,6 +42,10 @@ class TransferReport(Report):
     parts: list = field(default_factory=list)            # per-part kind, size, confidence, reason
     part_objects: list = field(default_factory=list)     # per part object: keys created / overwritten / skipped
     openings: list = field(default_factory=list)         # eye / mouth openings whose closure was carried
+    examples: list = field(default_factory=list)         # per example: key, weights, relative residual before/after
+    examples_gain: bool = False                          # the examples taught a gain carried to the other keys
+    examples_changed: list = field(default_factory=list)  # keys the examples changed (written names)
+    kept: list = field(default_factory=list)             # target keys kept because they are examples
 
     def __post_init__(self):
         super().__post_init__()

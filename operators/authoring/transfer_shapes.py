@@ -35,8 +35,12 @@ nothing is written then)"""
     def read_plan(self, context):
         ob = context.active_object
         st = ob.shapespace_authoring
+        specs = attempt(self, authoring.stored_examples, ob)
+        if specs is FAILED:
+            return FAILED
         return attempt(self, authoring.read_transfer, st.source, ob, naming=st.naming, existing=st.existing,
-                       unmatched_parts=st.unmatched_parts, parts=part_objects.meshes_of(st.parts_collection, ob))
+                       unmatched_parts=st.unmatched_parts, parts=part_objects.meshes_of(st.parts_collection, ob),
+                       examples=specs)
 
     @staticmethod
     def job_label(plan):
@@ -55,6 +59,8 @@ nothing is written then)"""
             extra.append(f"{len(rep.overwritten)} replaced")
         if rep.empty:
             extra.append(f"empty on the source: {', '.join(rep.empty[:4])}")
+        if rep.examples:
+            extra.append(f"refined to {len(rep.examples)} examples, {len(rep.examples_changed)} keys changed")
         if rep.part_objects:
             extra.append(f"also on {', '.join(p['object'] for p in rep.part_objects)}")
         failed = [k["name"] for k in rep.keys if k["failed"]]

@@ -2,7 +2,15 @@
 import numpy as np
 import pytest
 
-from core.authoring.examples import SMOOTHS, STRENGTHS, mirror_partners, mirror_vertices, refine_with_examples
+from core.authoring.examples import (
+    SMOOTHS,
+    STRENGTHS,
+    closing_keys,
+    mirror_partners,
+    mirror_vertices,
+    parse_weights,
+    refine_with_examples,
+)
 from core.progress import Cancelled
 from core.result import ShapeSpaceError
 
@@ -262,3 +270,58 @@ def test_progress_reports_each_candidate_and_cancelling_stops_the_refinement():
 
     with pytest.raises(Cancelled):
         refine_with_examples(V, T, D, 0.5 * D[:3], np.eye(4)[:3], mirror=None, progress=stop)
+
+
+# ------------------------------------------------------------------ step 4 and the panel's weights
+def _jaw_and_close(V):
+    """jawOpen drops the lower half (y < 0) by up to 0.1; mouthClose cancels 80 % of it where |x| < 0.5 (the
+    lips) and nothing elsewhere; a third key moves the top."""
+    J = np.zeros_like(V)
+    J[:, 2] = -0.1 * np.clip(-V[:, 1], 0.0, None)
+    lips = np.abs(V[:, 0]) < 0.5
+    M = np.where(lips[:, None], -0.8 * J, 0.0)
+    B = np.zeros_like(V)
+    B[:, 2] = 0.05 * np.clip(V[:, 1], 0.0, None)
+    return np.stack([J, M, B]), lips
+
+
+def test_a_closing_key_keeps_cancelling_its_share_of_the_openers_refinement():
+    """An example opens the jaw 1.3× as far as the transfer: mouthClose (no example) keeps shutting 80 % of it
+    on the lips and stays still elsewhere; without ``closers`` it is left as it was; a closing key an example
+    uses is the example's."""
+    V, T = grid(15)
+    D, lips = _jaw_and_close(V)
+    names = ["jawOpen", "mouthClose", "browInnerUp"]
+    closers = closing_keys(names)
+    assert closers.tolist() == [-1, 0, -1]
+    r = refine_with_examples(V, T, D, 1.3 * D[:1], np.eye(3)[:1], mirror=None, strengths=(), closers=closers)
+    np.testing.assert_allclose(r.deltas[0], 1.3 * D[0], atol=1e-12)
+    np.testing.assert_allclose(r.deltas[1][lips], -0.8 * 1.3 * D[0][lips], atol=1e-12)
+    assert not r.deltas[1][~lips].any()
+    np.testing.assert_array_equal(r.deltas[2], D[2])
+    plain = refine_with_examples(V, T, D, 1.3 * D[:1], np.eye(3)[:1], mirror=None, strengths=())
+    np.testing.assert_array_equal(plain.deltas[1], D[1])
+    shut = 0.5 * D[1]
+    own = refine_with_examples(V, T, D, np.stack([1.3 * D[0], shut]), np.eye(3)[:2], mirror=None, strengths=(),
+                               closers=closers)
+    np.testing.assert_allclose(own.deltas[1], shut, atol=1e-12)
+    with pytest.raises(ShapeSpaceError, match="closers must be"):
+        refine_with_examples(V, T, D, D[:1], np.eye(3)[:1], mirror=None, closers=[0, 5, -1])
+
+
+def test_closing_keys_by_canonical_name():
+    assert closing_keys(["MouthClose", "JawOpen", "EyeBlinkLeft"]).tolist() == [1, -1, -1]
+    assert closing_keys(["mouthClose", "eyeBlinkLeft"]).tolist() == [-1, -1]       # no opener: nothing
+
+
+def test_panel_weights_are_parsed_and_bad_ones_refused_by_name():
+    assert parse_weights("jawOpen=1, mouthClose = 0.5; browInnerUp=-2", "x") == {
+        "jawOpen": 1.0, "mouthClose": 0.5, "browInnerUp": -2.0}
+    assert parse_weights("  ", "x") == {}
+    for text, message in (("jawOpen", "'jawOpen' is not name=weight"), ("=1", "'=1' is not name=weight"),
+                          ("jawOpen=abc", "the weight of 'jawOpen' is not a number: 'abc'"),
+                          ("jawOpen=inf", "the weight of 'jawOpen' is not finite"),
+                          ("jawOpen=11", "the weight of 'jawOpen' is 11: at most 10"),
+                          ("jawOpen=1, jawOpen=2", "'jawOpen' is given twice")):
+        with pytest.raises(ShapeSpaceError, match=message):
+            parse_weights(text, "example 'Smile'")
