@@ -69,6 +69,24 @@ def fcurves(action, id_block=None) -> list:
     return list(bag.fcurves) if bag is not None else []
 
 
+def strip_fcurves(strip, id_block=None) -> list:
+    """F-Curves an NLA strip plays on ``id_block``: its action's curves of the strip's own slot (4.4+: one
+    action may hold several IDs' slots), of ``id_block``'s first suitable slot when the strip names none."""
+    action = strip.action
+    if action is None:
+        return []
+    if not LAYERED:
+        return list(action.fcurves)
+    slot = getattr(strip, "action_slot", None) or _slot_for(action, id_block)
+    bag = _channelbag(action, slot)
+    return list(bag.fcurves) if bag is not None else []
+
+
+def active_fcurves(id_block) -> list:
+    """F-Curves of the action ``id_block`` plays directly (through its own slot), [] when none."""
+    return fcurves(active_action(id_block), id_block)
+
+
 def active_action(id_block):
     ad = getattr(id_block, "animation_data", None)
     return ad.action if ad is not None else None

@@ -124,6 +124,7 @@ class ErrorCode(str, enum.Enum):
     NO_MIRROR_MAP = "no_mirror_map"
     STALE_MIRROR_MAP = "stale_mirror_map"
     STALE_LANDMARKS = "stale_landmarks"
+    STALE_PART = "stale_part"
     LINKED = "linked"
     RIG_CHANGED = "rig_changed"
     TRANSFER_EXAMPLE_RESIDUAL = "transfer_example_residual"
@@ -250,6 +251,8 @@ DESCRIPTIONS = {
                                 "counts or the edge list changed): rebuild it",
     ErrorCode.RIG_CHANGED: "a rig changed (mode, mesh, shape keys or slider ranges) while a long computation for "
                            "it ran in the background, so its result no longer applies",
+    ErrorCode.STALE_PART: "a part set in the Parts list that the mesh no longer has as it was (edited since): find "
+                          "the parts again or set the row to Auto",
     ErrorCode.STALE_LANDMARKS: "landmark pairs placed on meshes whose vertex count has changed since: place them "
                                "again",
     ErrorCode.LINKED: "data linked from a library that would have to be changed (the change would be lost on save)",

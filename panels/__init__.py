@@ -1,7 +1,7 @@
 """Sidebar panels (View3D ▸ Sidebar ▸ ShapeSpace), one module per capability, registered in sidebar order."""
 import bpy
 
-from .authoring import SHAPESPACE_PT_transfer_shapes, SHAPESPACE_UL_transfer_examples
+from .authoring import SHAPESPACE_PT_transfer_shapes, SHAPESPACE_UL_transfer_examples, SHAPESPACE_UL_transfer_parts
 from .controls import SHAPESPACE_PT_controls
 from .export import SHAPESPACE_PT_export
 from .facespace import SHAPESPACE_PT_face_space, SHAPESPACE_UL_flagged_frames
@@ -12,7 +12,8 @@ from .posespace import SHAPESPACE_PT_correctives, SHAPESPACE_UL_examples, SHAPES
 from .retarget import SHAPESPACE_PT_retarget
 from .rig import SHAPESPACE_PT_rig
 
-classes = (SHAPESPACE_PT_rig, SHAPESPACE_PT_controls, SHAPESPACE_UL_transfer_examples, SHAPESPACE_PT_transfer_shapes,
+classes = (SHAPESPACE_PT_rig, SHAPESPACE_PT_controls, SHAPESPACE_UL_transfer_examples, SHAPESPACE_UL_transfer_parts,
+           SHAPESPACE_PT_transfer_shapes,
            SHAPESPACE_PT_named_landmarks,
            SHAPESPACE_UL_pins,
            SHAPESPACE_PT_direct,

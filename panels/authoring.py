@@ -20,6 +20,18 @@ class SHAPESPACE_UL_transfer_examples(bpy.types.UIList):
         row.prop(item, "weights", text="")
 
 
+class SHAPESPACE_UL_transfer_parts(bpy.types.UIList):
+    """The target's facial parts: mesh and lowest vertex, size, the kind used last and the kind set"""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index):
+        row = layout.row(align=True)
+        stale = item.used == ""
+        row.label(text=f"{item.object or data.id_data.name} #{item.vertex} ({item.vertices})",
+                  icon="ERROR" if stale else "QUESTION" if item.unsure else "MESH_DATA")
+        row.label(text=item.used or "gone")
+        row.prop(item, "kind", text="")
+
+
 class SHAPESPACE_PT_transfer_shapes(ShapeSpaceSidebar, bpy.types.Panel):
     """Give the active mesh a source rig's shape keys (landmarks, registration preview, then transfer)"""
 
@@ -61,6 +73,7 @@ class SHAPESPACE_PT_transfer_shapes(ShapeSpaceSidebar, bpy.types.Panel):
         row.operator("shapespace.propose_landmarks", icon="AUTO")
         row.operator("shapespace.clear_landmark_pairs", text="", icon="TRASH")
         box.operator("shapespace.add_landmark_pair", text="Add Selected Vertex Pair", icon="ADD")
+        _draw_parts(layout, ob)
         _draw_examples(layout, ob)
         row = layout.row(align=True)
         row.operator("shapespace.preview_registration", icon="HIDE_OFF")
@@ -80,6 +93,25 @@ def _draw_examples(layout, ob) -> None:
     col = row.column(align=True)
     col.operator("shapespace.add_transfer_example", text="", icon="ADD")
     col.operator("shapespace.remove_transfer_example", text="", icon="REMOVE")
+
+
+def _draw_parts(layout, ob) -> None:
+    """The parts: each with the kind the last Find Parts or transfer used (why, for the active one) and the kind
+    the user set."""
+    box = layout.box()
+    st = ob.shapespace_authoring
+    unsure = sum(row.unsure for row in st.parts)
+    text = f"Parts: {len(st.parts)}" + (f", {unsure} unsure" if unsure else "") if len(st.parts) else \
+        "Parts: not listed yet (Find Parts)"
+    box.label(text=text, icon="MESH_DATA")
+    if len(st.parts):
+        row = box.row()
+        row.template_list("SHAPESPACE_UL_transfer_parts", "", st, "parts", st, "active_part", rows=3)
+        if 0 <= st.active_part < len(st.parts):
+            box.label(text=st.parts[st.active_part].reason or "-", icon="INFO")
+    row = box.row(align=True)
+    row.operator("shapespace.find_transfer_parts", icon="VIEWZOOM")
+    row.operator("shapespace.select_transfer_part", text="", icon="RESTRICT_SELECT_OFF")
 
 
 def _draw_verdict(layout, ob) -> None:

@@ -11,7 +11,7 @@ from bpy.app.handlers import persistent
 from ..bridge import storage
 from ..bridge.live import session as live_session
 from ..bridge.posespace import stored as posespace_stored
-from .authoring import SHAPESPACE_PG_authoring, SHAPESPACE_PG_transfer_example
+from .authoring import SHAPESPACE_PG_authoring, SHAPESPACE_PG_transfer_example, SHAPESPACE_PG_transfer_part
 from .facespace import SHAPESPACE_PG_face, SHAPESPACE_PG_flagged_frame
 from .live import SHAPESPACE_PG_live
 from .manipulation import SHAPESPACE_PG_pin, SHAPESPACE_PG_settings
@@ -23,7 +23,7 @@ __all__ = ["KEY_SHAPES", "RETARGET_METHODS", "classes", "register", "unregister"
 classes = (SHAPESPACE_PG_pin, SHAPESPACE_PG_settings, SHAPESPACE_PG_reader, SHAPESPACE_PG_target,
            SHAPESPACE_PG_example, SHAPESPACE_PG_psd, SHAPESPACE_PG_retarget,
            SHAPESPACE_PG_flagged_frame, SHAPESPACE_PG_face, SHAPESPACE_PG_live,
-           SHAPESPACE_PG_transfer_example, SHAPESPACE_PG_authoring)
+           SHAPESPACE_PG_transfer_example, SHAPESPACE_PG_transfer_part, SHAPESPACE_PG_authoring)
 
 
 @persistent

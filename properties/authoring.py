@@ -30,6 +30,30 @@ class SHAPESPACE_PG_transfer_example(bpy.types.PropertyGroup):
                                     "mouthClose=0.5); empty: the source shape of the key's name at 1")
 
 
+PART_KINDS = [("auto", "Auto", "As Find Parts and the transfer propose (the used kind and why are shown)"),
+              ("follow", "Follow Skin", "Bound to the skin under it (lashes, brows, eyelines, the mouth cavity)"),
+              ("jaw", "Jaw", "The jaw's rigid motion (lower teeth, lower gums, tongue)"),
+              ("skull", "Skull", "Still with the skull (upper teeth and gums)"),
+              ("eye", "Eye", "Turned about its centre for the eyeLook shapes"),
+              ("still", "Keep Still", "Not moved by any transferred shape (a part its rig moves by itself)")]
+
+
+class SHAPESPACE_PG_transfer_part(bpy.types.PropertyGroup):
+    """A facial part of the target or of a part object and how transferred shapes move it (Transfer Shapes ▸
+    Parts)."""
+
+    object: bpy.props.StringProperty(name="Object", description="The mesh the part is in")
+    vertex: bpy.props.IntProperty(name="Vertex", min=0, description="The part's lowest vertex index in its mesh")
+    vertices: bpy.props.IntProperty(name="Vertices", min=0, description="The part's vertex count")
+    size: bpy.props.FloatProperty(name="Size", min=0.0, description="The summed length of the part's edges when "
+                                  "listed (a part edited since is no longer this row's)")
+    kind: bpy.props.EnumProperty(name="Kind", items=PART_KINDS, default="auto",
+                                 description="How transferred shapes move this part")
+    used: bpy.props.StringProperty(name="Used", description="The kind the last Find Parts or transfer used")
+    reason: bpy.props.StringProperty(name="Reason", description="Why that kind")
+    unsure: bpy.props.BoolProperty(name="Unsure", description="The proposal is unsure of this part: check it")
+
+
 class SHAPESPACE_PG_authoring(bpy.types.PropertyGroup):
     """Transfer Shapes settings of a target mesh (what the Rig ▸ Transfer Shapes panel edits)."""
 
@@ -50,3 +74,8 @@ class SHAPESPACE_PG_authoring(bpy.types.PropertyGroup):
         description="Shape keys of this mesh that show how some source shapes should look on it: every transferred "
                     "key is refined so they are reproduced, and they are kept as they are")
     active_example: bpy.props.IntProperty(name="Active Example", min=0)
+    parts: bpy.props.CollectionProperty(
+        name="Parts", type=SHAPESPACE_PG_transfer_part,
+        description="The separate parts of this mesh and its Part Objects (eyes, teeth, tongue, lashes, brows, "
+                    "cavity) and how transferred shapes move each; set a kind to correct the proposal")
+    active_part: bpy.props.IntProperty(name="Active Part", min=0)

@@ -98,11 +98,12 @@ def refine(T, TT, TD, TN, SN, DT, keys, combo, given=None):
                                 closers=closing_keys(SN)), chosen
 
 
-def pair_metrics(src, dst, src_tag, dst_tag):
-    """Metrics of one ordered pair (keys without the pair suffix)."""
+def pair_metrics(src, dst, src_tag, dst_tag, kinds=None):
+    """Metrics of one ordered pair (keys without the pair suffix); ``kinds``: the target's parts its rig moves
+    (:func:`bench_transfer_v2.read_head_keyed`)."""
     T, TT, TD, TN = dst
     SN = src[3]
-    DT = v2.transferred(src, dst, src_tag, dst_tag)[0]
+    DT = v2.transferred(src, dst, src_tag, dst_tag, kinds)[0]
     keys = authored_keys(TD, TN, SN)
     out = {}
     for combo, given, tag in ((0.0, None, ""), (COMBO_WEIGHT, None, "_combo"),
@@ -127,13 +128,14 @@ def pair_metrics(src, dst, src_tag, dst_tag):
 
 def run(quick: bool = False) -> dict:
     """Every key of every ordered pair (``quick`` computes the same: the suite has no repetitions)."""
-    heads = {tag: v2.read_head(tag) for tag in v2.HEADS}
+    loaded = {tag: v2.read_head_keyed(tag) for tag in v2.HEADS}
+    heads = {tag: None if h is None else h[0] for tag, h in loaded.items()}
     out = {}
     for s in v2.HEADS:
         for d in v2.HEADS:
             if s == d or heads[s] is None or heads[d] is None:
                 continue
-            m = pair_metrics(heads[s], heads[d], s, d)
+            m = pair_metrics(heads[s], heads[d], s, d, loaded[d][2])
             out.update({f"{k}_{s}_{d}": v for k, v in m.items()})
             print(f"bench examples: {s} -> {d}: held-out plain {m['transfer_rel_energy_plain_heldout']:.3f} "
                   f"refined {m['transfer_rel_energy_examples5']:.3f} (worse "

@@ -49,10 +49,14 @@ def read_head(tag):
 
 
 def read_head_keyed(tag):
-    """(:func:`read_head`'s tuple, keyed (n,) bool: the vertex is on an object that has shape keys), or None."""
+    """(:func:`read_head`'s tuple, keyed (n,) bool: the vertex is on an object that has shape keys, the parts of
+    part objects their rig moves by itself as the transfer keeps them, ``{vertex: ("still", reason)}``:
+    ``bridge.authoring.parts.rig_kinds`` — Face Cap's eyes, turned by their parents' rotation), or None."""
     import bpy
 
     from shapespace.bridge import assets, shapekeys
+    from shapespace.bridge.authoring.parts import rig_kinds
+    from shapespace.core.authoring.mesh import triangle_parts
     from shapespace.core.names import canonical_name
     rel, objects = HEADS[tag]
     path = shared_data(rel, f"the {tag} head")
@@ -81,7 +85,10 @@ def read_head_keyed(tag):
         for j, name in enumerate(model.names if model is not None else ()):
             D[names.index(canonical_name(name)), o:o + n] = model.deltas[j] @ L.T
     keyed = np.concatenate([np.full(n, model is not None) for model, _, _, n in models])
-    return (np.concatenate(verts), np.concatenate(tris), D, names), keyed
+    V, TT = np.concatenate(verts), np.concatenate(tris)
+    spans = [(bpy.data.objects[name], o, n) for name, (_, _, o, n) in zip(objects[1:], models[1:])]
+    rigged = rig_kinds(bpy.data.objects[objects[0]], spans, triangle_parts(len(V), TT)[0])
+    return (V, TT, D, names), keyed, rigged
 
 
 def _openings(src_tag, S, ST, dst_tag, T, TT):
@@ -120,9 +127,10 @@ def _scores(T, TD, TN, DT, SN, t_part, openings, keyed=None):
     return out, (max(gaps_a) if gaps_a else None)
 
 
-def transferred(src, dst, src_tag, dst_tag):
+def transferred(src, dst, src_tag, dst_tag, kinds=None):
     """Landmarks → register → Transfer (with the named openings) → parts of one ordered pair: (deltas
-    (k, n_t, 3) in the source's shape order, target part labels, openings, part plan, moved parts)."""
+    (k, n_t, 3) in the source's shape order, target part labels, openings, part plan, moved parts); ``kinds``:
+    the target's parts set still by their rig (:func:`read_head_keyed`), as the transfer applies them."""
     from shapespace.core import authoring
     from shapespace.core.authoring import contacts, parts
     S, ST, SD, SN = src
@@ -134,19 +142,20 @@ def transferred(src, dst, src_tag, dst_tag):
     openings = contacts.with_references(_openings(src_tag, S, ST, dst_tag, T, TT), S, SD, SN)
     tr = authoring.Transfer(S, ST, T, TT, reg.value, openings=openings)
     DT = tr.solve(SD)
-    plan = parts.plan_for_transfer(S, ST, SD, SN, T, TT, DT, reg.value.part_map)
+    plan = parts.plan_for_transfer(S, ST, SD, SN, T, TT, DT, reg.value.part_map, kinds)
     DT, moved = parts.move_parts(plan, T, TT, DT, SN)
     return DT, t_part, openings, plan, moved
 
 
-def pair(src, dst, src_tag, dst_tag, keyed=None):
+def pair(src, dst, src_tag, dst_tag, keyed=None, kinds=None):
     """Metrics of one ordered pair (keys without the pair suffix) and the target's authored blink gap
-    (``keyed``: the target's vertices on objects with shape keys, see :func:`read_head_keyed`)."""
+    (``keyed``: the target's vertices on objects with shape keys; ``kinds``: its parts its rig moves; see
+    :func:`read_head_keyed`)."""
     from shapespace.core.authoring import quality
     S, ST, SD, SN = src
     T, TT, TD, TN = dst
     t0 = time.perf_counter()
-    DT, t_part, openings, plan, moved = transferred(src, dst, src_tag, dst_tag)
+    DT, t_part, openings, plan, moved = transferred(src, dst, src_tag, dst_tag, kinds)
     seconds = time.perf_counter() - t0
     _, _, status = quality.check_keys(S, SD, SN, T, DT, openings=openings, plan=plan, moved=moved, src_tris=ST,
                                       dst_tris=TT)
@@ -165,7 +174,7 @@ def run(quick: bool = False) -> dict:
         for d in HEADS:
             if s == d or heads[s] is None or heads[d] is None:
                 continue
-            m, authored = pair(heads[s], heads[d], s, d, loaded[d][1])
+            m, authored = pair(heads[s], heads[d], s, d, loaded[d][1], loaded[d][2])
             out.update({f"{k}_{s}_{d}": v for k, v in m.items()})
             out[f"transfer_blink_gap_frac_authored_{d}"] = authored
             print(f"bench transfer v2: {s} -> {d}: rel energy {m['transfer_rel_energy']:.3f} median "

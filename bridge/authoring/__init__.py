@@ -11,12 +11,13 @@ everything is computed: validate → compute → write, and on any failure the f
 - :mod:`.reading` — the source rig and the target as arrays; the target's signature;
 - :mod:`.landmarks` — the landmark pairs per target object (stored, placed, proposed); the openings;
 - :mod:`.examples` — target keys given as examples of the source's shapes (panel list, command-line file);
+- :mod:`.parts` — the target's facial parts (panel list, the kinds set there) and the parts their rig moves;
 - :mod:`.registration` — the registration and its preview object;
 - :mod:`.transfer` — read, write and the background job of a transfer; the last transfer's verdict;
 - :mod:`.source_file` — a source rig appended from another .blend (command line).
 
-Level order (each imports only those above it): reading → examples, landmarks → registration → transfer; source_file
-stands alone.
+Level order (each imports only those above it): reading → examples, landmarks, parts → registration →
+transfer; source_file stands alone.
 """
 from ...core.authoring.job import (
                                    PreviewOutcome,
@@ -45,6 +46,7 @@ from .landmarks import (
                                    set_landmarks,
                                    use_named_landmarks,
 )
+from .parts import find_parts, moved_by_rig, part_kinds, select_part
 from .reading import read_source_rig, read_target
 from .registration import (
                                    PREVIEW_PROP,
@@ -81,4 +83,4 @@ __all__ = ["MIN_LANDMARKS", "PREVIEW_PROP", "LANDMARKS_PROP", "LANDMARKS_SCHEMA"
            "append_object", "remove_appended", "TransferPlan", "TransferOutcome", "read_transfer",
            "compute_transfer", "write_transfer", "start_transfer_job", "finish_transfer_job", "last_verdict",
            "verdict_status", "load_example_file", "stored_examples", "add_example",
-           "remove_example"]
+           "remove_example", "find_parts", "moved_by_rig", "part_kinds", "select_part"]

@@ -19,7 +19,7 @@ from ..arrays import read_float
 from ..meshes import triangles, vertex_groups
 
 __all__ = ["SourceRig", "TargetMesh", "read_source_rig", "read_target", "mesh_object", "read_neutral", "finite",
-           "target_signature"]
+           "target_signature", "with_part_objects"]
 
 
 def mesh_object(obj, role: str):
@@ -109,3 +109,15 @@ def target_signature(target, parts=()) -> tuple:
     return (target.mode, target.library is not None or target.data.library is not None, len(target.data.vertices),
             read_neutral(target).tobytes(), keys, tuple(g.name for g in target.vertex_groups),
             part_objects.signature(target, list(parts)))
+
+
+def with_part_objects(target, source, tgt: TargetMesh, parts) -> TargetMesh:
+    """``tgt`` with the part objects ``parts`` appended (their rows after the target's own; ``source`` is
+    refused among them, None for none)."""
+    verts, tris, objects = part_objects.read_part_objects(target, source, parts, len(tgt.neutral), triangles,
+                                                          finite)
+    if not objects:
+        return tgt
+    neutral, tri = np.vstack([tgt.neutral, verts]), np.vstack([tgt.triangles, tris])
+    return TargetMesh(name=tgt.name, neutral=neutral, triangles=tri, keys=tgt.keys,
+                      parts=len(triangle_parts(len(neutral), tri)[1]), own=len(tgt.neutral), objects=objects)

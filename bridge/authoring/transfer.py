@@ -21,7 +21,6 @@ import numpy as np
 
 from ...core import blobs
 from ...core.authoring.job import SourceRig, TargetMesh, TransferOutcome, TransferPlan, compute_transfer
-from ...core.authoring.mesh import triangle_parts
 from ...core.authoring.report import TransferReport
 from ...core.authoring.transfer import convert_name
 from ...core.errors import ErrorCode
@@ -29,10 +28,10 @@ from ...core.jobs import BackgroundJob
 from ...core.result import ShapeSpaceError
 from .. import driven, part_objects, storage
 from ..arrays import read_float, write_float
-from ..meshes import triangles
 from .examples import example_keys, read_examples
 from .landmarks import landmarks_for, openings
-from .reading import finite, read_source_rig, read_target, target_signature
+from .parts import part_kinds, part_owner, show_parts
+from .reading import read_source_rig, read_target, target_signature, with_part_objects
 from .registration import clear_preview
 
 __all__ = ["NAMINGS", "EXISTING", "LAST_PROP", "LAST_SCHEMA", "TransferReport", "TransferPlan", "TransferOutcome",
@@ -243,17 +242,6 @@ def _undo_write(target, old_keys: set, groups: list, made_key: bool, old_meta) -
             target.vertex_groups.remove(g)
 
 
-def _with_part_objects(target, source, tgt: TargetMesh, parts) -> TargetMesh:
-    """``tgt`` with the part objects appended (their rows after the target's own)."""
-    verts, tris, objects = part_objects.read_part_objects(target, source, parts, len(tgt.neutral), triangles,
-                                                          finite)
-    if not objects:
-        return tgt
-    neutral, tri = np.vstack([tgt.neutral, verts]), np.vstack([tgt.triangles, tris])
-    return TargetMesh(name=tgt.name, neutral=neutral, triangles=tri, keys=tgt.keys,
-                      parts=len(triangle_parts(len(neutral), tri)[1]), own=len(tgt.neutral), objects=objects)
-
-
 def _part_plans(rig, tgt: TargetMesh, names: dict, existing: str, kept: tuple = ()) -> list:
     """Each part object's keys to write / replace / skip under the same policy (no masks on part objects); the
     examples' keys are kept on them too."""
@@ -293,7 +281,7 @@ def read_transfer(source, target, naming: str = "source", existing: str = "refus
     if target.library is not None or target.data.library is not None:
         raise ShapeSpaceError(f"{target.name!r} is linked from a library: make it local first", ErrorCode.LINKED)
     parts = list(parts or ())
-    tgt = _with_part_objects(target, source, tgt, parts)
+    tgt = with_part_objects(target, source, tgt, parts)
     names = _new_names(rig, naming)
     specs = list(examples or ())
     read = read_examples(target, specs, rig, tgt, names)
@@ -305,10 +293,11 @@ def read_transfer(source, target, naming: str = "source", existing: str = "refus
         raise ShapeSpaceError(f"{target.name!r} already has every shape of {source.name!r}: nothing to transfer",
                               ErrorCode.NO_TARGETS)
     pairs = landmarks_for(source, target, rig, tgt)
+    kinds = part_kinds(target, tgt)
     return TransferPlan(source=source.name, target=target.name, rig=rig, tgt=tgt, pairs=pairs, names=names,
                         write=write, replace=replace, skipped=skipped, groups_clash=groups_clash, existing=existing,
                         unmatched_parts=unmatched_parts, signature=_signature(target, parts, read), started=start,
-                        part_plans=part_plans, openings=carried, examples=read, kept=kept)
+                        part_plans=part_plans, openings=carried, examples=read, kept=kept, part_kinds=kinds)
 
 
 def _write_part_objects(outcome: TransferOutcome, report: TransferReport) -> None:
@@ -359,7 +348,7 @@ def write_transfer(outcome: TransferOutcome) -> TransferReport:
     """Step 3 (main thread): write the new keys (and mask groups) in one step; returns the report.
 
     Refused, with nothing written, when the target is gone or changed (mode, vertices, shape keys, vertex
-    groups) since :func:`read_transfer`.
+    groups, part objects, the kinds set for its parts) since :func:`read_transfer`.
     """
     plan, report = outcome.plan, outcome.report
     target = bpy.data.objects.get(plan.target)
@@ -368,10 +357,19 @@ def write_transfer(outcome: TransferOutcome) -> TransferReport:
         raise ShapeSpaceError(f"{plan.target!r} changed while the transfer computed (mode, mesh, shape keys, "
                               "examples, vertex groups or part objects): nothing was written; transfer again",
                               ErrorCode.RIG_CHANGED)
+    if part_kinds(target, plan.tgt) != plan.part_kinds:
+        raise ShapeSpaceError(f"the kinds of the parts of {plan.target!r} changed while the transfer computed (Parts "
+                              "list or the rig of a part object): nothing was written; transfer again",
+                              ErrorCode.RIG_CHANGED)
     own = plan.tgt.own if plan.tgt.own >= 0 else len(plan.tgt.neutral)
     _write(target, plan.rig, plan.names, plan.write, plan.replace, outcome.full[:, :own], plan.tgt.neutral[:own],
            {g: w[:own] for g, w in outcome.masks.items()}, plan.existing == "overwrite", report)
     _write_part_objects(outcome, report)
+    for entry in report.parts:
+        name, entry["vertex"] = part_owner(plan.tgt, entry["first"])
+        entry["object"] = name or plan.target
+    if report.parts:
+        show_parts(target, plan.tgt, report.parts)
     _store_verdict(target, report)
     clear_preview(target)                       # it served its purpose; the result file does not keep it
     shown = {ex.key for ex in plan.examples}

@@ -22,7 +22,7 @@ from ..result import Issue, Result, ShapeSpaceError, Status
 from .contacts import with_references
 from .examples import closing_keys, mirror_partners, refine_with_examples
 from .landmarks import LandmarkPairs
-from .parts import move_parts, plan_for_transfer
+from .parts import move_parts, plan_for_transfer, still_vertices
 from .quality import check_keys
 from .registration import Correspondence, register
 from .report import TransferReport
@@ -155,6 +155,7 @@ class TransferPlan:
     openings: list = field(default_factory=list)     # core.authoring.contacts.Opening (named lid/lip contours)
     examples: list = field(default_factory=list)     # TransferExample: the transferred keys are refined to them
     kept: list = field(default_factory=list)         # source keys computed but not written: their name is an example
+    part_kinds: dict = field(default_factory=dict)   # vertex → (kind, reason): parts set in the panel or by their rig
     # (keys an example weights are computed too, written or not)
 
 
@@ -214,11 +215,21 @@ def _compute_transfer(plan: TransferPlan, progress: ProgressFn | None) -> Transf
     part_plan, moved = None, None
     if moving:
         part_plan = plan_for_transfer(rig.neutral, rig.triangles, sculpts, computed, tgt.neutral, tgt.triangles,
-                                      solved, corr.part_map)
+                                      solved, corr.part_map, plan.part_kinds)
         solved, moved = move_parts(part_plan, tgt.neutral, tgt.triangles, solved, computed)
         report.parts = part_plan.summary()
+    elif plan.part_kinds:
+        unused = sorted({kind for kind, _ in plan.part_kinds.values()} - {"still"})
+        if unused:
+            report.warnings.append(f"parts set to {', '.join(unused)} are moved only with Unmatched Parts: Move as "
+                                   f"Rigged (now {plan.unmatched_parts}); parts set still are kept still")
+    held = still_vertices(tgt.neutral.shape[0], tgt.triangles, plan.part_kinds) if plan.part_kinds else None
+    if held is not None:
+        solved[:, held] = 0.0
     if plan.examples:
         solved = _refine(plan, computed, solved, report, scaled(progress, 0.95, 0.99))
+        if held is not None:
+            solved[:, held] = 0.0                  # the examples' refinement does not move what is held still
     _check(rig, tgt, write, sculpts[:len(write)], solved[:len(write)], part_plan, moved, report, plan.openings)
     full = np.zeros((len(rig.names),) + tgt.neutral.shape)
     full[rows] = solved

@@ -10,8 +10,9 @@ moved here, as an artist would rig it:
     lashes, brows, eyelines, sheets of teeth lying behind the lips: each vertex is bound to its closest point
     ``p`` on the skin (triangle, barycentric coordinates, offset ``x − p``), like a surface binding: its
     displacement is the skin's at ``p`` plus the offset turned by the skin triangle's rotation (polar factor of
-    its deformation gradient).  The binding fades with the distance to the skin, ``w = exp(−(dist / r)²)`` with
-    ``r`` 1 % of the head's diagonal, towards the jaw/skull motion of that vertex.  A sheet of teeth is bound
+    its deformation gradient).  The binding fades with the distance to the skin, ``w = 1 / (1 + (dist / r)²)``
+    with ``r`` = :data:`FOLLOW_RADIUS` (2 % of the head's diagonal: half weight there), towards the jaw/skull
+    motion of that vertex.  A sheet of teeth is bound
     to its own lip: the upper row (:data:`UPPER_SHEET`, by the skin's skull share only) to the skin that stays
     with the skull, the lower row (:data:`LOWER_SHEET`) to the skin the jaw moves.  The mouth cavity is not
     bound to the lips at all, its rim included: it is carried by its jaw share of the jaw's rigid motion (the
@@ -35,7 +36,9 @@ moved here, as an artist would rig it:
 ``source``
     parts the source has too: deformation transfer already moved them.
 ``still``
-    kept still (the user's choice).
+    kept still: the user's choice, or a part object its rig moves by itself (an eye the rig turns by its
+    transform, a part an armature deforms that does not deform the face: ``bridge.authoring.parts``), which
+    shape keys would move twice.
 ``skin``
     the largest part.
 
@@ -50,7 +53,8 @@ an upper one, with the skull; open sheets of teeth lying on the mouth's skin joi
 upper row follow the lips only by the skin's skull share, ``1 − jaw``).  A target part is ``source`` only
 where the source's matched part is the same part: the same kind for the same reason, at a similar extent (a
 mouth cavity: the source's cavity, open or closed, see ``_same_part``).  Each kind carries a confidence and a
-reason; the user corrects it (:meth:`PartPlan.with_kinds`).
+reason; the user corrects it, naming a part by any of its vertices (:meth:`PartPlan.with_vertex_kinds`,
+``kinds`` of :func:`plan_for_transfer`; the panel's *Parts* list).
 """
 from __future__ import annotations
 
@@ -68,12 +72,14 @@ from ..surface import TriangleSurface
 from .mesh import bbox_diagonal, inv3, symmetry_plane, triangle_parts
 from .transfer import frames
 
-__all__ = ["KINDS", "UNSURE", "UPPER_SHEET", "LOWER_SHEET", "TONGUE", "TONGUE_OUT", "EYE_LOOK_DEGREES", "PartPlan",
-           "propose_parts", "plan_for_transfer",
+__all__ = ["KINDS", "USER_KINDS", "UNSURE", "UPPER_SHEET", "LOWER_SHEET", "TONGUE", "TONGUE_OUT", "EYE_LOOK_DEGREES",
+           "PartPlan", "still_vertices", "propose_parts", "plan_for_transfer",
            "move_parts", "jaw_membership",
            "fit_rigid", "sphere_fit"]
 
 KINDS = ("skin", "source", "follow", "jaw", "skull", "eye", "still")
+#: The kinds a user may give a part (``skin`` is the largest part; ``source`` is the registration's finding).
+USER_KINDS = ("follow", "jaw", "skull", "eye", "still")
 # eyeLook* at weight 1, degrees (ARKit documents the direction only).  Of the shared heads only Ready Player Me's
 # keys turn the eyeballs (23.5° in every direction; ICT FaceKit's eyeLook* move the lids only); a real ARKit
 # stream (Live Link Face, eye angles against weights, R² ≥ 0.97) turns by Up 25°, Down 35°, In/Out 34°
@@ -114,8 +120,9 @@ class PartPlan:
     frame: object = field(default=None, repr=False, compare=False)      # the face frame the proposal used
     extents: dict = field(default_factory=dict, repr=False, compare=False)    # part → its extent / diagonal
 
-    def with_kinds(self, kinds: dict) -> PartPlan:
-        """A copy with some parts' kinds set by the user (confidence 1)."""
+    def with_kinds(self, kinds: dict, reasons: dict | None = None) -> PartPlan:
+        """A copy with some parts' kinds set (confidence 1); ``reasons`` (part → why) defaults to "set by the
+        user"."""
         out = PartPlan(self.labels, dict(self.kinds), dict(self.confidence), dict(self.reasons), self.frame,
                        self.extents)
         for p, k in kinds.items():
@@ -125,8 +132,37 @@ class PartPlan:
                                       ErrorCode.RANGE)
             if k not in KINDS:
                 raise ShapeSpaceError(f"part {p}: kind {k!r} is not one of {', '.join(KINDS)}", ErrorCode.INVALID)
-            out.kinds[p], out.confidence[p], out.reasons[p] = k, 1.0, "set by the user"
+            out.kinds[p], out.confidence[p] = k, 1.0
+            out.reasons[p] = (reasons or {}).get(p, "set by the user")
         return out
+
+    def with_vertex_kinds(self, kinds: dict) -> PartPlan:
+        """A copy with the parts of some vertices set: ``{vertex: (kind, reason)}`` (a part is named by any of
+        its vertices; kinds from :data:`USER_KINDS`).
+
+        Raises
+        ------
+        ShapeSpaceError
+            A vertex out of range or in no triangle (no part), the skin, a kind not in :data:`USER_KINDS`, or
+            one part given two different kinds — naming the vertex.
+        """
+        by_part, why = {}, {}
+        n = self.labels.shape[0]
+        for v, (kind, reason) in sorted(kinds.items()):
+            v = int(v)
+            if not 0 <= v < n:
+                raise ShapeSpaceError(f"part at vertex {v}: the target has {n} vertices", ErrorCode.RANGE)
+            p = int(self.labels[v])
+            if p <= 0:
+                what = "is the skin (the largest part)" if p == 0 else "is in no triangle: no part"
+                raise ShapeSpaceError(f"part at vertex {v}: that vertex {what}", ErrorCode.INVALID)
+            if kind not in USER_KINDS:
+                raise ShapeSpaceError(f"part at vertex {v}: kind {kind!r} is not one of {', '.join(USER_KINDS)}",
+                                      ErrorCode.INVALID)
+            if by_part.get(p, kind) != kind:
+                raise ShapeSpaceError(f"part at vertex {v} is given {kind!r} and {by_part[p]!r}", ErrorCode.INVALID)
+            by_part[p], why[p] = kind, str(reason)
+        return self.with_kinds(by_part, why)
 
     def to_json(self) -> dict:
         """Plain data (labels are re-derived from the mesh; only per-part choices are stored)."""
@@ -135,10 +171,17 @@ class PartPlan:
                 "reasons": {str(p): r for p, r in self.reasons.items()}}
 
     def summary(self) -> list:
-        """One dict per part: part, kind, vertices, confidence, ``unsure`` (confidence below
-        :data:`UNSURE`: check it in the panel), reason."""
-        sizes = np.bincount(self.labels[self.labels >= 0]) if np.any(self.labels >= 0) else np.zeros(0, int)
+        """One dict per part: part, kind, vertices, ``first`` (its lowest vertex index: how the panel and
+        :meth:`with_vertex_kinds` name it), confidence, ``unsure`` (confidence below :data:`UNSURE`: check it in
+        the panel), reason."""
+        on = self.labels >= 0
+        sizes = np.bincount(self.labels[on]) if np.any(on) else np.zeros(0, int)
+        first = np.full(sizes.size, -1, dtype=np.int64)
+        idx = np.flatnonzero(on)
+        labels, at = np.unique(self.labels[idx], return_index=True)
+        first[labels] = idx[at]                                  # each label's lowest index
         return [{"part": int(p), "kind": k, "vertices": int(sizes[p]) if p < sizes.size else 0,
+                 "first": int(first[p]) if p < first.size else -1,
                  "confidence": round(float(self.confidence.get(p, 1.0)), 3),
                  "unsure": bool(self.confidence.get(p, 1.0) < UNSURE), "reason": self.reasons.get(p, "")}
                 for p, k in sorted(self.kinds.items())]
@@ -291,7 +334,8 @@ def _is_cavity(plan, p):
 
 
 def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: np.ndarray, names: Sequence[str],
-                      dst_verts: np.ndarray, dst_tris: np.ndarray, deltas: np.ndarray, part_map: dict) -> PartPlan:
+                      dst_verts: np.ndarray, dst_tris: np.ndarray, deltas: np.ndarray, part_map: dict,
+                      kinds: dict | None = None) -> PartPlan:
     """The proposed :class:`PartPlan` of a transfer: the source's parts from its own ``jawOpen``, the target's
     from the transferred one, a target part ``source`` where the source has and moves the same kind.
 
@@ -302,6 +346,9 @@ def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: n
     dst_verts, dst_tris, deltas : (n_t, 3), (f_t, 3), (k, n_t, 3) transferred
     part_map : dict
         :attr:`Correspondence.part_map`.
+    kinds : dict, optional
+        ``{vertex: (kind, reason)}``: parts set by the user or by their rig (:meth:`PartPlan.with_vertex_kinds`),
+        over the proposal.
     """
     canon = [canonical_name(n) for n in names]
     j = canon.index("jawOpen") if "jawOpen" in canon else None
@@ -311,7 +358,28 @@ def plan_for_transfer(src_verts: np.ndarray, src_tris: np.ndarray, src_deltas: n
     motion = np.linalg.norm(src_deltas, axis=2).max(axis=0) if src_deltas.shape[0] else np.zeros(len(s_lab))
     tol = 1e-3 * bbox_diagonal(src_verts)
     moving = [int(q) for q in np.unique(s_lab[s_lab > 0]) if motion[s_lab == q].max() > tol]
-    return propose_parts(dst_verts, dst_tris, t_lab, part_map, None if j is None else deltas[j], s_plan, moving)
+    plan = propose_parts(dst_verts, dst_tris, t_lab, part_map, None if j is None else deltas[j], s_plan, moving)
+    return plan.with_vertex_kinds(kinds) if kinds else plan
+
+
+def still_vertices(n: int, tris: ArrayLike, kinds: dict) -> np.ndarray:
+    """Vertices of the parts set ``still`` in ``kinds`` (``{vertex: (kind, reason)}``, as
+    :func:`plan_for_transfer`): what a transfer that does not move parts as rigged still keeps still.
+
+    Parameters
+    ----------
+    n : int
+        Vertices of the target.
+    tris : array_like of int (f, 3)
+    kinds : dict
+
+    Returns
+    -------
+    ndarray of bool (n,)
+    """
+    lab, _ = triangle_parts(n, np.asarray(tris, dtype=np.int64))
+    parts = {int(lab[v]) for v, (kind, _) in kinds.items() if kind == "still" and 0 <= int(v) < n and lab[v] > 0}
+    return np.isin(lab, sorted(parts))
 
 
 def _tongues(V, TT, lab, kinds, why, frame, diag):

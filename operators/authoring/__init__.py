@@ -12,6 +12,7 @@ from .preview_registration import SHAPESPACE_OT_preview_registration
 from .propose_landmarks import SHAPESPACE_OT_propose_landmarks
 from .remove_landmark_pair import SHAPESPACE_OT_remove_landmark_pair
 from .transfer_examples import SHAPESPACE_OT_add_transfer_example, SHAPESPACE_OT_remove_transfer_example
+from .transfer_parts import SHAPESPACE_OT_find_transfer_parts, SHAPESPACE_OT_select_transfer_part
 from .transfer_shapes import SHAPESPACE_OT_transfer_shapes
 
 classes = (
@@ -24,6 +25,8 @@ classes = (
     SHAPESPACE_OT_transfer_shapes,
     SHAPESPACE_OT_add_transfer_example,
     SHAPESPACE_OT_remove_transfer_example,
+    SHAPESPACE_OT_find_transfer_parts,
+    SHAPESPACE_OT_select_transfer_part,
     SHAPESPACE_OT_place_named_landmark,
     SHAPESPACE_OT_mirror_named_landmarks,
     SHAPESPACE_OT_clear_named_landmarks,

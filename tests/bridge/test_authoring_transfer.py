@@ -568,7 +568,8 @@ def test_panel_draws_settings_landmarks_and_every_operator(registered):
     assert ops == {"shapespace.propose_landmarks", "shapespace.clear_landmark_pairs", "shapespace.add_landmark_pair",
                    "shapespace.remove_landmark_pair", "shapespace.preview_registration",
                    "shapespace.clear_registration_preview", "shapespace.transfer_shapes",
-                   "shapespace.add_transfer_example", "shapespace.remove_transfer_example"}
+                   "shapespace.add_transfer_example", "shapespace.remove_transfer_example",
+                   "shapespace.find_transfer_parts", "shapespace.select_transfer_part"}
     assert {"source", "naming", "existing", "unmatched_parts"} <= {name for kind, name in log if kind == "prop"}
     assert ("label", "Landmarks: 12 pairs") in log
 

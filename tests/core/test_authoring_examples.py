@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from core.authoring import examples as examples_module
 from core.authoring.examples import (
     SMOOTHS,
     STRENGTHS,
@@ -325,3 +326,16 @@ def test_panel_weights_are_parsed_and_bad_ones_refused_by_name():
                           ("jawOpen=1, jawOpen=2", "'jawOpen' is given twice")):
         with pytest.raises(ShapeSpaceError, match=message):
             parse_weights(text, "example 'Smile'")
+
+
+def test_a_gain_that_helps_one_left_out_example_and_hurts_the_others_is_not_applied():
+    # The one-standard-error rule: a candidate whose per-fold gains over the plain transfer do not exceed their
+    # standard error is no evidence, however low its total (one example predicted perfectly, four slightly worse);
+    # a candidate that helps every fold a little is.
+    plain = np.ones(5)
+    lucky = np.array([0.0, 1.05, 1.05, 1.05, 1.05])            # total 4.2: lowest, but one fold carries it
+    steady = np.full(5, 0.9)                                    # total 4.5: better on every fold
+    cv = {(np.inf, 0.0): (1.0, plain), (0.003, 1.0): (0.84, lucky), (0.3, 10.0): (0.9, steady)}
+    assert examples_module._choose(cv) == (0.3, 10.0)
+    del cv[(0.3, 10.0)]
+    assert examples_module._choose(cv) == (np.inf, 0.0)

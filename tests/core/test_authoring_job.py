@@ -14,6 +14,7 @@ from core.authoring.job import (
     PreviewPlan,
     SourceRig,
     TargetMesh,
+    TransferExample,
     TransferPlan,
     compute_preview,
     compute_transfer,
@@ -138,3 +139,24 @@ def test_map_weights_interpolates_barycentrically_and_zeroes_unmapped_vertices()
     weights = np.array([0.0, 1.0, 0.5, 2.0])
     out = map_weights(Corr(), tris, weights)
     np.testing.assert_allclose(out, [0.2 * 0.0 + 0.3 * 1.0 + 0.5 * 0.5, 1.0, 0.0])   # 2.0 clipped to 1
+
+
+def test_a_part_held_still_stays_still_when_an_example_moves_it(moved):
+    """A part set still (``TransferPlan.part_kinds``) is still in every written key, also where an example's
+    residual would be spread onto it (the examples' refinement runs after the parts are moved)."""
+    rig, tgt, pairs, s, R = moved
+    box = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float) * 0.05 * s + tgt.neutral.mean(axis=0)
+    tris = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]) + len(tgt.neutral)
+    with_box = TargetMesh(name="Target", neutral=np.vstack([tgt.neutral, box]),
+                          triangles=np.vstack([tgt.triangles, tris]), keys=[], parts=2)
+    held = np.arange(len(tgt.neutral), len(with_box.neutral))
+    plan = _plan(rig, with_box, pairs, write=["a", "b", "c"], unmatched_parts="move")
+    plan.part_kinds = {int(held[0]): ("still", "set by the user")}
+    plain = compute_transfer(plan).full[1]
+    assert not plain[held].any()
+    example = plain + 0.1 * s                                          # every row moved, the box included
+    plan.examples = [TransferExample(key="ex", deltas=example, weights={"b": 1.0})]
+    out = compute_transfer(plan)
+    assert not out.full[:, held].any()                                 # held still in every key
+    skin = np.setdiff1d(np.arange(len(with_box.neutral)), held)
+    np.testing.assert_allclose(out.full[1, skin], example[skin], atol=1e-9 * s)   # the example met elsewhere

@@ -252,3 +252,39 @@ def test_closures_are_measured_against_the_sources_own_blink():
     assert np.allclose(ref.reference, 2.0 / 3.0)
     assert np.allclose(contacts.closures([ref], V, D), [[1.0] * 3, [0.5] * 3])
     assert contacts.with_references([o], V, D, ["jawOpen", "eyeSquint_L"])[0].reference is None
+
+
+def test_parts_are_named_by_their_lowest_vertex_and_set_by_any_vertex(face):
+    V, T, lab, jaw, _, _, lash = face
+    plan = parts.propose_parts(V, T, lab, None, jaw)
+    firsts = {s["part"]: s["first"] for s in plan.summary()}
+    for p, v in firsts.items():                                      # the lowest index of each part
+        assert v == int(np.flatnonzero(lab == p)[0])
+    eye = _part_of(V, lab, (0.35, 0.3, 0.87))
+    some = int(np.flatnonzero(lab == eye)[5])                         # any vertex of the eye names it
+    set_ = plan.with_vertex_kinds({some: ("still", "moved by its rig: grp_eye is animated"),
+                                   firsts[lash]: ("jaw", "set by the user")})
+    assert set_.kinds[eye] == "still" and set_.reasons[eye].startswith("moved by its rig")
+    assert set_.kinds[lash] == "jaw" and set_.confidence[lash] == 1.0 and plan.kinds[eye] == "eye"
+    with pytest.raises(ShapeSpaceError, match="vertex 0: that vertex is the skin"):
+        plan.with_vertex_kinds({0: ("still", "")})
+    with pytest.raises(ShapeSpaceError, match=f"vertex {len(V)}: the target has {len(V)} vertices"):
+        plan.with_vertex_kinds({len(V): ("still", "")})
+    with pytest.raises(ShapeSpaceError, match="kind 'source' is not one of"):
+        plan.with_vertex_kinds({some: ("source", "")})
+    other = int(np.flatnonzero(lab == eye)[7])
+    with pytest.raises(ShapeSpaceError, match="is given 'still' and 'eye'|is given 'eye' and 'still'"):
+        plan.with_vertex_kinds({some: ("eye", ""), other: ("still", "")})
+
+
+def test_a_part_set_still_stays_still_in_every_shape_moved_as_rigged_or_not(face):
+    V, T, lab, jaw, _, _, _ = face
+    eye = _part_of(V, lab, (0.35, 0.3, 0.87))
+    v = int(np.flatnonzero(lab == eye)[0])
+    plan = parts.propose_parts(V, T, lab, None, jaw).with_vertex_kinds({v: ("still", "moved by its rig")})
+    D = np.stack([jaw, np.zeros_like(V)])
+    out, moved = parts.move_parts(plan, V, T, D.copy(), ["jawOpen", "eyeLookUp_L"])
+    assert not out[:, lab == eye].any() and moved.get(eye, 0.0) == 0.0
+    mask = parts.still_vertices(len(V), T, {v: ("still", ""), 0: ("still", ""), int(np.flatnonzero(lab == 0)[0]):
+                                            ("follow", "")})
+    np.testing.assert_array_equal(mask, lab == eye)                  # the skin is never held still

@@ -1,0 +1,58 @@
+"""Transfer Shapes ▸ Parts: find the target's facial parts (and its part objects'), and select one to see it."""
+import bpy
+
+from ...bridge import authoring, part_objects
+from ..polls import active_mesh
+from ..reporting import FAILED, attempt
+
+
+class SHAPESPACE_OT_find_transfer_parts(bpy.types.Operator):
+    """List the separate parts of the active mesh and its Part Objects (eyes, teeth, tongue, lashes, brows,
+cavity) with the kind proposed for each and why; the kinds you set are kept"""
+
+    bl_idname = "shapespace.find_transfer_parts"
+    bl_label = "Find Parts"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return active_mesh(cls, context) is not None
+
+    def execute(self, context):
+        ob = context.active_object
+        found = attempt(self, authoring.find_parts, ob,
+                        part_objects.meshes_of(ob.shapespace_authoring.parts_collection, ob))
+        if found is FAILED:
+            return {"CANCELLED"}
+        unsure = sum(row.unsure for row in ob.shapespace_authoring.parts)
+        tail = f"; {unsure} unsure: check them" if unsure else ""
+        self.report({"INFO"}, f"{found} parts found on {ob.name!r}{tail}")
+        return {"FINISHED"}
+
+
+class SHAPESPACE_OT_select_transfer_part(bpy.types.Operator):
+    """Select the vertices of the active part of the list on its mesh (see them in Edit Mode)"""
+
+    bl_idname = "shapespace.select_transfer_part"
+    bl_label = "Select Part"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        ob = active_mesh(cls, context)
+        if ob is None:
+            return False
+        if not len(ob.shapespace_authoring.parts):
+            cls.poll_message_set("No parts listed: Find Parts first")
+            return False
+        return True
+
+    def execute(self, context):
+        ob = context.active_object
+        st = ob.shapespace_authoring
+        done = attempt(self, authoring.select_part, ob, st.active_part,
+                       part_objects.meshes_of(st.parts_collection, ob))
+        if done is FAILED:
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"{done[1]} vertices of {done[0]!r} selected")
+        return {"FINISHED"}
