@@ -39,3 +39,15 @@ def transfer_target(cls, context, need_landmarks: int = 0):
             cls.poll_message_set(f"Place at least {need_landmarks} landmark pairs first ({have} placed)")
             return None
     return ob
+
+
+def listed(cls, context, items: str, empty: str):
+    """The active mesh when its Transfer Shapes list ``items`` (``examples``, ``parts``) has rows; otherwise set
+    the poll message (``empty`` when the list is empty) and return None."""
+    ob = active_mesh(cls, context)
+    if ob is None:
+        return None
+    if not len(getattr(ob.shapespace_authoring, items)):
+        cls.poll_message_set(empty)
+        return None
+    return ob

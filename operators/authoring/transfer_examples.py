@@ -2,8 +2,9 @@
 import bpy
 
 from ...bridge import authoring
-from ..polls import active_mesh, sculpted_key
+from ..polls import sculpted_key
 from ..reporting import FAILED, attempt
+from ._polls import listed
 
 
 class SHAPESPACE_OT_add_transfer_example(bpy.types.Operator):
@@ -37,13 +38,7 @@ class SHAPESPACE_OT_remove_transfer_example(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        ob = active_mesh(cls, context)
-        if ob is None:
-            return False
-        if not len(ob.shapespace_authoring.examples):
-            cls.poll_message_set("The mesh has no examples")
-            return False
-        return True
+        return listed(cls, context, "examples", "The mesh has no examples") is not None
 
     def execute(self, context):
         ob = context.active_object

@@ -4,6 +4,7 @@ import bpy
 from ...bridge import authoring, part_objects
 from ..polls import active_mesh
 from ..reporting import FAILED, attempt
+from ._polls import listed
 
 
 class SHAPESPACE_OT_find_transfer_parts(bpy.types.Operator):
@@ -39,13 +40,7 @@ class SHAPESPACE_OT_select_transfer_part(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        ob = active_mesh(cls, context)
-        if ob is None:
-            return False
-        if not len(ob.shapespace_authoring.parts):
-            cls.poll_message_set("No parts listed: Find Parts first")
-            return False
-        return True
+        return listed(cls, context, "parts", "No parts listed: Find Parts first") is not None
 
     def execute(self, context):
         ob = context.active_object
