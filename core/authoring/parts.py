@@ -289,9 +289,14 @@ def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map
     skin = _Skin(V, TT, lab)
     frame = _face_frame(V, lab, jaw, None if jaw_delta is None else np.asarray(jaw_delta, dtype=np.float64))
     closed = _closed_parts(TT, lab)
+    others = np.flatnonzero(lab > 0)
+    to_skin = np.zeros(len(V))
+    if others.size:                                      # one query for every part (thousands of hair cards)
+        to_skin[others] = skin.closest(V[others])[3]
     for p in np.unique(lab[lab > 0]):
         p = int(p)
-        kinds[p], conf[p], why[p] = _classify(V, skin, frame, lab, np.flatnonzero(lab == p), diag, p in closed)
+        idx = np.flatnonzero(lab == p)
+        kinds[p], conf[p], why[p] = _classify(V, to_skin[idx], frame, idx, diag, p in closed)
     _beside_eyes(V, lab, kinds, conf, why, diag)
     _teeth_rows(V, lab, PartPlan(lab, kinds, conf, why, frame), diag, _mouth_sheets(V, skin, lab, kinds, why, jaw))
     _tongues(V, TT, lab, kinds, why, frame, diag)
@@ -515,11 +520,11 @@ def _closed_parts(TT, lab):
     return {int(p) for p in np.unique(part) if p > 0 and int(p) not in open_parts}
 
 
-def _classify(V, skin, frame, lab, idx, diag, closed):
+def _classify(V, dist, frame, idx, diag, closed):
+    """(kind, confidence, reason) of the part of vertices ``idx`` whose distances to the skin are ``dist``."""
     eye = _eye_likeness(V, frame, idx, diag)
     if eye > 0:
         return "eye", eye, "a round part off the mirror plane"
-    _, _, _, dist = skin.closest(V[idx])
     med, low = float(np.median(dist)) / diag, float(dist.min()) / diag
     if (med < FOLLOW_MEDIAN or low < TOUCH) and not closed:
         why = "lies on the skin" if med < FOLLOW_MEDIAN else "touches the skin"
