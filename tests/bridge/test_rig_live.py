@@ -153,30 +153,42 @@ def test_a_packet_costs_blender_one_evaluation_on_a_budget_of_one():
         count[0] += 1
 
     bpy.app.handlers.depsgraph_update_post.append(counted)
+    per, seen = [], {"probes": 0, "shown_other": 0}
+
+    def feed(data):
+        frame = decode_llf(data, 0.0)
+        v = pipe.process(frame.vector(), frame.time)
+        redisplays = pipe.redisplays
+        count[0] = 0
+        assert pipe.write(*pipe.solve(v)) == ""
+        bpy.context.view_layer.update()
+        per.append(count[0])
+        last = pipe.last
+        np.testing.assert_allclose(brig.read_controls(controls), pipe.shown, atol=1e-6)   # what it shows
+        assert count[0] == last.evaluations + pipe.redisplays - redisplays <= 2
+        if last.refreshed and not last.trials:
+            seen["probes"] += 1
+            assert count[0] == 1
+        if pipe.redisplays == redisplays and last.last_evaluated is not None and \
+                not np.array_equal(last.last_evaluated, last.value):
+            seen["shown_other"] += 1
+            t = pipe.targets(v[:pipe.n_source])
+            shown = np.linalg.norm(_evaluated(rig)[idx] - t, axis=1).max()
+            assert shown <= last.pin_errors.max() + tol * (1 + 1e-6)
+
     try:
-        per, probes, shown_other = [], 0, 0
         for _, data in packets:
-            frame = decode_llf(data, 0.0)
-            v = pipe.process(frame.vector(), frame.time)
-            redisplays = pipe.redisplays
-            count[0] = 0
-            assert pipe.write(*pipe.solve(v)) == ""
-            bpy.context.view_layer.update()
-            per.append(count[0])
-            last = pipe.last
-            np.testing.assert_allclose(brig.read_controls(controls), pipe.shown, atol=1e-6)   # what it shows
-            assert count[0] == last.evaluations + pipe.redisplays - redisplays <= 2
-            if last.refreshed and not last.trials:
-                probes += 1
-                assert count[0] == 1
-            if pipe.redisplays == redisplays and last.last_evaluated is not None and \
-                    not np.array_equal(last.last_evaluated, last.value):
-                shown_other += 1
-                t = pipe.targets(v[:pipe.n_source])
-                shown = np.linalg.norm(_evaluated(rig)[idx] - t, axis=1).max()
-                assert shown <= last.pin_errors.max() + tol * (1 + 1e-6)
+            feed(data)
+        natural = seen["probes"]
+        # Whether a frame of the capture ends asking for a column refresh depends on the last bits of the
+        # solver's arithmetic (BLAS kernels differ by CPU: none does on AMD EPYC with bpy 5.2's NumPy); the
+        # probe frame is made sure of by asking for one, as a stalled frame does, and feeding the last packet.
+        pipe.solver.pending = 1
+        feed(packets[-1][1])
+        assert seen["probes"] == natural + 1
     finally:
         bpy.app.handlers.depsgraph_update_post.remove(counted)
+    probes, shown_other = seen["probes"], seen["shown_other"]
     assert probes >= 1 and shown_other >= probes
     assert free_y and all(bones[name].location[1] == y for name, y in free_y.items())    # not a control: kept
     assert per.count(2) == pipe.redisplays < 0.1 * len(packets)
