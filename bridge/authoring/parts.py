@@ -146,8 +146,9 @@ def _joined(tgt: TargetMesh, name: str, index: int) -> int:
 
 
 def _firsts(tgt: TargetMesh) -> tuple:
-    """(part label per joined vertex, lowest vertex of each part label, each part's size: the summed length of
-    its triangles' edges — unchanged by moving or turning a part object, changed by editing the part)."""
+    """(part label per joined vertex, lowest vertex of each part label, each part's vertex count, each part's
+    size: the summed length of its triangles' edges — unchanged by moving or turning a part object, changed by
+    editing the part)."""
     lab, _ = triangle_parts(len(tgt.neutral), tgt.triangles)
     on = np.flatnonzero(lab >= 0)
     count = int(lab.max()) + 1 if on.size else 0
@@ -158,17 +159,22 @@ def _firsts(tgt: TargetMesh) -> tuple:
     V = np.asarray(tgt.neutral, dtype=np.float64)
     edges = np.linalg.norm(V[T] - V[np.roll(T, 1, axis=1)], axis=2).sum(axis=1)
     size = np.bincount(lab[T[:, 0]], weights=edges, minlength=count) if count else np.zeros(0)
-    return lab, first, size
+    return lab, first, np.bincount(lab[on], minlength=count), size
 
 
-def _same_part(row, lab, first, size, v) -> bool:
-    """Row ``row`` still names the part at joined vertex ``v``: the lowest vertex of a part of the same vertex
-    count and size (a part whose lowest index another part took over after an edit is not the same)."""
+def _fits(vertices: int, size: float, count: int, now: float) -> bool:
+    """A row's stored vertex count and size still describe a part of ``count`` vertices and size ``now``."""
+    return vertices == count and abs(size - now) <= SIZE_TOL * max(now, 1e-30)
+
+
+def _same_part(row, parts: tuple, v) -> bool:
+    """Row ``row`` still names the part at joined vertex ``v`` (``parts``: :func:`_firsts`): the lowest vertex
+    of a part of the same vertex count and size (a part whose lowest index another part took over after an edit
+    is not the same)."""
+    lab, first, counts, size = parts
     if v < 0 or lab[v] <= 0 or first[lab[v]] != v:
         return False
-    q = lab[v]
-    return int(np.count_nonzero(lab == q)) == row.vertices and \
-        abs(size[q] - row.size) <= SIZE_TOL * max(size[q], 1e-30)
+    return _fits(row.vertices, row.size, int(counts[lab[v]]), float(size[lab[v]]))
 
 
 def part_kinds(target, tgt: TargetMesh, strict: bool = True) -> dict:
@@ -185,7 +191,7 @@ def part_kinds(target, tgt: TargetMesh, strict: bool = True) -> dict:
         A set row whose part no longer exists (object not in this transfer, vertex out of range or no longer
         the lowest vertex of a part: the mesh was edited), or whose kind is unknown — naming the row.
     """
-    lab, first, size = _firsts(tgt)
+    found = _firsts(tgt)
     out = {}
     for row in target.shapespace_authoring.parts:
         if row.kind == AUTO:
@@ -194,14 +200,14 @@ def part_kinds(target, tgt: TargetMesh, strict: bool = True) -> dict:
         if row.kind not in USER_KINDS:
             raise ShapeSpaceError(f"{where}: not one of {', '.join(USER_KINDS)}", ErrorCode.INVALID)
         v = _joined(tgt, row.object, row.vertex)
-        if not _same_part(row, lab, first, size, v):
+        if not _same_part(row, found, v):
             if not strict:
                 continue
             raise ShapeSpaceError(f"{where} is no longer a part of this transfer (the mesh or its Part Objects "
                                   f"changed): Find Parts again, or set the row to Auto", ErrorCode.STALE_PART)
         out[v] = (row.kind, "set by the user")
     spans = [(bpy.data.objects[p.name], p.start, p.count) for p in tgt.objects]
-    for v, kind in rig_kinds(target, spans, lab).items():
+    for v, kind in rig_kinds(target, spans, found[0]).items():
         out.setdefault(v, kind)
     return out
 
@@ -231,17 +237,13 @@ def rig_kinds(target, spans, labels: np.ndarray) -> dict:
     return out
 
 
-def _rows(target) -> dict:
-    return {(row.object, row.vertex): row for row in target.shapespace_authoring.parts}
-
-
 def show_parts(target, tgt: TargetMesh, summary: list) -> int:
     """Fill the panel's list from a part plan's summary (:meth:`core.authoring.parts.PartPlan.summary`, rows of
     the joined target ``tgt``): each part's object, vertex, vertex count and size, the kind used and why.  A kind
     the user set stays on its row while the row names the same part (:func:`_same_part`); a set row that no
     longer does is kept, shown as gone, for the transfer to refuse by name; *Auto* rows of parts gone are
     dropped.  Returns the number of parts listed."""
-    lab, first, size = _firsts(tgt)
+    lab, _, counts, size = _firsts(tgt)
     items = target.shapespace_authoring.parts
     old = [(row.object, row.vertex, row.kind, row.vertices, row.size) for row in items]
     used, rows = set(), []
@@ -250,8 +252,7 @@ def show_parts(target, tgt: TargetMesh, summary: list) -> int:
         q = lab[s["first"]]
         kind = AUTO
         for i, (o, v, k, n, z) in enumerate(old):
-            if i not in used and k != AUTO and (o, v) == (name, index) and n == s["vertices"] \
-                    and abs(z - size[q]) <= SIZE_TOL * max(size[q], 1e-30):
+            if i not in used and k != AUTO and (o, v) == (name, index) and _fits(n, z, int(counts[q]), size[q]):
                 kind = k
                 used.add(i)
                 break
@@ -296,9 +297,10 @@ def part_vertices(target, index: int, parts=()) -> tuple:
         raise ShapeSpaceError(f"no part {index} ({len(items)} listed)", ErrorCode.RANGE)
     row = items[index]
     tgt = with_part_objects(target, None, read_target(target), list(parts))
-    lab, first, size = _firsts(tgt)
+    found = _firsts(tgt)
+    lab = found[0]
     v = _joined(tgt, row.object, row.vertex)
-    if not _same_part(row, lab, first, size, v):
+    if not _same_part(row, found, v):
         raise ShapeSpaceError(f"part {row.object or target.name!r} vertex {row.vertex} is no longer a part of the "
                               f"mesh: Find Parts again", ErrorCode.STALE_PART)
     rows = np.flatnonzero(lab == lab[v])
