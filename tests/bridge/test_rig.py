@@ -163,6 +163,7 @@ def test_quaternion_axis_angle_and_property_channels_write_and_restore_exactly()
 # bpy 4.2 crashes (SIGSEGV) at interpreter exit once Rigify has been enabled (`import bpy, addon_utils;
 # addon_utils.enable("rigify")` is enough; 4.5 and 5.x do not): the conftest's exit guard for glTF exports is the
 # same remedy (os._exit after pytest's summary on bpy < 5.0), so this test carries its marker.
+@pytest.mark.rigify
 @pytest.mark.gltf_export
 def test_rigify_face_solve_from_rest_recovers_random_poses():
     """Rigify's own face (generated from the human meta-rig fitted to the head, automatic weights): quaternion

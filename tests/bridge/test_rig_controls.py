@@ -68,7 +68,8 @@ def _pair_change(rig, channel, rng_pairs) -> float:
     return worst / rigs.diagonal(rest)
 
 
-@pytest.mark.parametrize("name", sorted(BUILDERS))
+@pytest.mark.parametrize("name", [pytest.param(n, marks=[pytest.mark.rigify] if n == "rigify" else [])
+                                  for n in sorted(BUILDERS)])
 def test_propose_finds_the_channels_that_move_the_face_and_none_that_do_not(registered, name):
     rig = BUILDERS[name](_head())
     _activate(rig.mesh)
@@ -167,6 +168,7 @@ def _panel():
     return SHAPESPACE_PT_controls
 
 
+@pytest.mark.rigify
 def test_mirror_controls_on_rigify_face_bones(registered):
     rig = rigs.rigify_rig(_head())
     face, arm = rig.mesh, rig.armature
@@ -203,6 +205,7 @@ def test_mirror_controls_on_rigify_face_bones(registered):
     assert _stored_text(face) == text
 
 
+@pytest.mark.rigify
 def test_mirrored_rigify_channel_moves_the_face_as_the_mirror_image(registered):
     rig = rigs.rigify_rig(_head())
     face, arm = rig.mesh, rig.armature

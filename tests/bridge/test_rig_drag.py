@@ -126,6 +126,7 @@ def test_drag_lands_every_pin_and_release_keys_exactly_the_changed_channels(buil
     np.testing.assert_allclose(rig.world_points(), shown, atol=1e-6 * diag)
 
 
+@pytest.mark.rigify
 @pytest.mark.gltf_export                                   # bpy 4.2 exit guard after Rigify (see test_rig.py)
 def test_rigify_drag_lands_every_pin_and_keys_all_four_quaternion_components():
     rig = rigs.rigify_rig(_head())

@@ -127,6 +127,7 @@ def test_budget_of_one_evaluation_is_kept_and_its_hits_are_counted():
     assert err <= TOL
 
 
+@pytest.mark.rigify
 def test_a_packet_costs_blender_one_evaluation_on_a_budget_of_one():
     """The mechanism of the live speed goal (Rigify's face, the shipped capture), counted by Blender's
     ``depsgraph_update_post`` handler: on a budget of one evaluation a packet (solve, write, the viewport's
@@ -295,6 +296,7 @@ def _stream_until_a_probe_is_shown(pipe, packets):
     raise AssertionError("no frame left a probe on the rig")
 
 
+@pytest.mark.rigify
 @pytest.mark.parametrize("recording", [False, True], ids=["stop", "stop_recording"])
 def test_stop_leaves_the_last_verified_controls_on_the_rig_not_a_probe(recording):
     """Rigify's face on a budget of one evaluation (probes are shown, module doc of bridge.rig.live): right after a

@@ -290,6 +290,7 @@ def test_one_slotted_action_keys_the_bones_and_the_shape_keys_of_a_hybrid_face(r
         np.testing.assert_allclose(values[k], brig.read_controls(rig.controls), atol=1e-6)
 
 
+@pytest.mark.rigify
 def test_a_non_finite_quaternion_key_in_the_prior_action_is_refused_naming_action_channel_and_frame(registered):
     """Rigify's face (a control bone in QUATERNION mode): a NaN key on its w curve is refused by the action, the
     channel and the first frame Blender's curve is not finite at, before anything changes."""

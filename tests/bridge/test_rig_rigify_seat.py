@@ -47,6 +47,7 @@ def rigify():
 
 # bpy 4.2 crashes at interpreter exit once Rigify has been enabled (see test_rig.py): same exit guard.
 @pytest.mark.gltf_export
+@pytest.mark.rigify
 def test_rigify_face_bones_sit_on_the_heads_landmarks_and_the_head_stays_put(rigify):
     rig, rest = rigify
     bpy.context.view_layer.update()
@@ -72,6 +73,7 @@ def test_rigify_face_bones_sit_on_the_heads_landmarks_and_the_head_stays_put(rig
 
 
 @pytest.mark.gltf_export
+@pytest.mark.rigify
 def test_rigify_automatic_weights_bind_lips_lids_and_jaw_to_their_bones(rigify):
     rig, rest = rigify
     ob = rig.mesh
@@ -88,6 +90,7 @@ def test_rigify_automatic_weights_bind_lips_lids_and_jaw_to_their_bones(rigify):
 
 
 @pytest.mark.gltf_export
+@pytest.mark.rigify
 def test_rigify_controls_move_their_own_region_as_blender_evaluates_it(rigify):
     """The jaw opens the lower face (chin and lower lip, not the upper lip, nose or brows); an upper-lid control
     moves that lid, not the lower lid or the other eye."""

@@ -60,6 +60,7 @@ def test_self_take_is_reproduced_by_the_written_action_as_blender_plays_it(build
 
 
 # Rigify's add-on leaves bpy 4.2 crashing at exit: same marker (exit guard) as test_rig.py's Rigify test.
+@pytest.mark.rigify
 @pytest.mark.gltf_export
 def test_self_take_on_rigify_face_is_reproduced_by_the_written_action():
     rig = rigs.rigify_rig(_head())
