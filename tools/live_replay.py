@@ -115,16 +115,17 @@ PROTOCOLS = {"llf": llf_packets, "facecap": facecap_packets, "ifacialmocap": ifa
 
 
 def send(packets: list, host: str = "127.0.0.1", port: int = 11111, rate: float = 60.0,
-         deadline: float | None = None) -> int:
+         deadline: float | None = None, stop=None) -> int:
     """Send ``[(seconds, datagram)]`` at ``rate`` per second (absolute schedule: no drift); returns how many
-    were sent (fewer if ``deadline``, a ``time.monotonic()`` value, passes first)."""
+    were sent (fewer if ``deadline``, a ``time.monotonic()`` value, passes first, or ``stop``, a
+    ``threading.Event``, is set)."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         start = time.monotonic()
         for k, (_, data) in enumerate(packets):
             due = start + k / rate
             now = time.monotonic()
-            if deadline is not None and now > deadline:
+            if (deadline is not None and now > deadline) or (stop is not None and stop.is_set()):
                 return k
             if due > now:
                 time.sleep(due - now)

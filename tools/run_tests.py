@@ -5,11 +5,14 @@
 1. ``ruff check .`` (settings in pyproject.toml) in ``.venv/core``; lint errors fail the run.
 2. ``mkdocs build --strict`` (mkdocs.yml) in ``.venv/core`` into ``site/``: a broken link or anchor, a missing
    page or a page left out of the navigation fails the run.
-3. pytest, one run per line of ``RUNS``: the core tier on a plain Python without Blender, every tier on
-   Blender 5.0, the Blender tiers on 4.2 LTS, 4.5 LTS and 5.2 LTS (Python 3.13), and the
-   installed-extension test once more on 5.2 LTS in a venv WITHOUT SciPy, so the SciPy wheel the
-   extension bundles is what runs.  Every run passes ``--run-slow`` (tests/conftest.py): the perf/scale tests
-   marked ``slow``, which a plain ``pytest tests/core`` skips for a fast inner loop, run here too.
+3. pytest, one run per line of ``RUNS``: the core tier on a plain Python without Blender (the Python,
+   NumPy and SciPy of Blender 5.0's environment, so it is not run again there), the Blender tiers on 5.0,
+   4.2 LTS, 4.5 LTS and 5.2 LTS (Python 3.13), and the installed-extension test once more on 5.2 LTS in a
+   venv WITHOUT SciPy, so the SciPy wheel the extension bundles is what runs.  Tests marked ``one_blender``
+   (ShapeSpace's own command-line and report logic) run on 5.0 only; on 4.2 the tests marked ``rigify``
+   run last (tests/bridge/conftest.py says why).  Every run passes ``--run-slow`` (tests/conftest.py): the
+   perf/scale tests marked ``slow``, which a plain ``pytest tests/core`` skips for a fast inner loop, run here
+   too.
 
 ``--env NAME`` (repeatable) runs only those environments' lines.  Creates the environments on first
 use (tools/env.py).  Blender always runs with a temporary user folder (tests/conftest.py), never the
@@ -29,7 +32,7 @@ import env  # noqa: E402
 BLENDER_TIERS = ["tests/bridge", "tests/e2e"]
 RUNS = (  # (environment, pytest paths, extra environment variables)
     ("core", ["tests/core"], {}),
-    ("bpy50", ["tests"], {}),
+    ("bpy50", BLENDER_TIERS, {}),
     ("bpy42", BLENDER_TIERS, {}),
     ("bpy45", BLENDER_TIERS, {}),
     ("bpy52", BLENDER_TIERS, {}),

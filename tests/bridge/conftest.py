@@ -56,9 +56,19 @@ def gltf_export_guard(request):
 RIGIFY_LAST = bpy.app.version < (4, 3, 0)
 
 
+#: The reference Blender: tests marked ``one_blender`` (ShapeSpace's own command-line and report logic, which reads
+#: no version-dependent Blender data) run on it only; tools/run_tests.py runs the Blender tiers on every version.
+REFERENCE_BLENDER = (5, 0)
+
+
 def pytest_collection_modifyitems(config, items):
     if RIGIFY_LAST:
         items.sort(key=lambda item: item.get_closest_marker("rigify") is not None)      # stable: order kept
+    if tuple(bpy.app.version[:2]) != REFERENCE_BLENDER:
+        skip = pytest.mark.skip(reason="one_blender: runs on the reference Blender %d.%d only" % REFERENCE_BLENDER)
+        for item in items:
+            if item.get_closest_marker("one_blender") is not None:
+                item.add_marker(skip)
 
 
 def pytest_sessionfinish(session, exitstatus):

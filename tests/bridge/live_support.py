@@ -40,11 +40,21 @@ def configure(target, source="LLF", method="COPY", **settings):
 
 
 def sender(packets, port, rate=60.0, seconds=30.0):
-    """Send ``[(t, datagram)]`` from a thread at ``rate``; returns the started thread (ends by itself)."""
-    th = threading.Thread(target=live_replay.send, args=(packets, HOST, port, rate, time.monotonic() + seconds),
-                          daemon=True)
+    """Send ``[(t, datagram)]`` from a thread at ``rate``; returns the started thread (ends by itself after
+    ``seconds``, or at once after :func:`halt`)."""
+    stop = threading.Event()
+    th = threading.Thread(target=live_replay.send, args=(packets, HOST, port, rate, time.monotonic() + seconds,
+                                                         stop), daemon=True)
+    th.stop = stop
     th.start()
     return th
+
+
+def halt(th) -> None:
+    """Stop a :func:`sender` thread now and wait for it."""
+    th.stop.set()
+    th.join(10)
+    assert not th.is_alive()
 
 
 def raw_sender(datagrams, port):

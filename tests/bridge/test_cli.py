@@ -85,6 +85,7 @@ def test_corrupt_file_is_one_line_and_nonzero(tmp_path, suffix):
     assert len(lines) == 1 and lines[0].startswith(f"shapespace: error: cannot read {bad}")
 
 
+@pytest.mark.one_blender
 def test_unsupported_type_and_usage_errors(tmp_path):
     other = tmp_path / "face.obj"
     other.write_text("v 0 0 0\n")
@@ -164,6 +165,7 @@ def test_batch_out_keeps_every_result(shot, tmp_path):
 
 
 # ----------------------------------------------------------------------------------------- r12
+@pytest.mark.one_blender
 def test_outputs_never_overwrite_inputs(shot, tmp_path):
     blend, take = shot
     kept = digest(blend), digest(take)
@@ -183,6 +185,7 @@ def test_outputs_never_overwrite_inputs(shot, tmp_path):
     assert digest(f"{blend}1") == kept[0] and "FBHead_take" in _saved_actions(blend)
 
 
+@pytest.mark.one_blender
 def test_report_onto_a_file_of_another_kind_needs_overwrite(shot, tmp_path):
     blend, take = shot
     notes = tmp_path / "notes.txt"
@@ -199,6 +202,7 @@ def test_report_onto_a_file_of_another_kind_needs_overwrite(shot, tmp_path):
     assert code == 0, err
 
 
+@pytest.mark.one_blender
 def test_retarget_needs_out_or_dry_run(shot):
     blend, take = shot
     code, out, err = cli(blend, "--", "retarget", "--source", take, "--method", "copy")
@@ -210,6 +214,7 @@ def test_retarget_needs_out_or_dry_run(shot):
 
 
 # ----------------------------------------------------------------------------------------- r16
+@pytest.mark.one_blender
 def test_unwritable_destinations_fail_before_any_work(shot, tmp_path):
     blend, take = shot
     missing = tmp_path / "no" / "dir"
@@ -249,6 +254,7 @@ def test_one_bad_take_does_not_abort_the_batch(shot, tmp_path):
 
 
 # ----------------------------------------------------------------------------------------- r24
+@pytest.mark.one_blender
 def test_bad_flags_are_refused_naming_the_flag(shot):
     blend, take = shot
     for flag, value in (("--lam", "nan"), ("--lam", "0"), ("--key-tolerance", "-1"), ("--key-tolerance", "nan")):

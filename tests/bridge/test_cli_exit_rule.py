@@ -28,6 +28,7 @@ def _take_report(path, *results):
     path.write_text(json.dumps({"target": "FBHead", "method": "spacetime", "results": list(results)}))
 
 
+@pytest.mark.one_blender
 def test_help_states_the_exit_rule():
     code, out, _ = _cli("--", "--help")
     assert code == 0
@@ -41,6 +42,7 @@ def test_help_states_the_exit_rule():
     ["merge-reports", "--reports-dir", "."],                      # --takes and --out are required
     ["no-such-command"],
 ])
+@pytest.mark.one_blender
 def test_usage_errors_exit_2(args):
     code, out, err = _cli("--", *args)
     assert code == 2 and out == "", err
@@ -75,6 +77,7 @@ def test_export_exits_0_when_done_and_1_on_a_failed_export(tmp_path):
     assert not (tmp_path / "b.fbx").exists()
 
 
+@pytest.mark.one_blender
 def test_merge_reports_exit_0_only_when_every_take_is_ok(tmp_path):
     _take_report(tmp_path / "a.json", {"source": "a.csv", "ok": True, "converged": True})
     _take_report(tmp_path / "b.json", {"source": "b.csv", "ok": True, "status": "warning"})
@@ -86,6 +89,7 @@ def test_merge_reports_exit_0_only_when_every_take_is_ok(tmp_path):
     assert merged["ok"] and merged["status"] == "warning"
 
 
+@pytest.mark.one_blender
 def test_merge_reports_exit_1_when_a_take_failed(tmp_path):
     _take_report(tmp_path / "a.json", {"source": "a.csv", "ok": True})
     _take_report(tmp_path / "b.json", {"source": "b.csv", "ok": False, "error": "b.csv: no channels"})
@@ -97,6 +101,7 @@ def test_merge_reports_exit_1_when_a_take_failed(tmp_path):
     assert not merged["ok"] and merged["status"] == "failed" and merged["succeeded"] == ["a.csv"]
 
 
+@pytest.mark.one_blender
 def test_merge_reports_exit_1_when_a_take_did_not_converge(tmp_path):
     """A fit that stopped at its iteration limit is never reported as done (it used to exit 0)."""
     _take_report(tmp_path / "a.json", {"source": "a.csv", "ok": True, "converged": True})

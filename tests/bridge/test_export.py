@@ -189,6 +189,7 @@ def test_command_line_retarget_then_export_keeps_the_animation(tmp_path):
     (["--out", "X/a.glb", "--frame-range", "30", "10"], 1, "the first frame is after the last"),
     (["--out", "X/missing/a.glb"], 1, "does not exist"),
 ])
+@pytest.mark.one_blender
 def test_command_line_bad_input_is_one_line(tmp_path, args, code, text):
     args = [a.replace("X", str(tmp_path)) for a in args]
     got, out, err = _cli(BLEND, "--", "export", *args)
@@ -198,6 +199,7 @@ def test_command_line_bad_input_is_one_line(tmp_path, args, code, text):
     assert not [p for p in os.listdir(tmp_path) if not p.startswith(".")]
 
 
+@pytest.mark.one_blender
 def test_merge_reports_command(tmp_path):
     (tmp_path / "a.json").write_text(json.dumps({"target": "FBHead", "method": "copy",
                                                  "results": [{"source": "a.csv", "ok": True}]}))
@@ -209,6 +211,7 @@ def test_merge_reports_command(tmp_path):
     assert merged["succeeded"] == ["a.csv"] and not merged["ok"] and merged["takes"] == 2
 
 
+@pytest.mark.one_blender
 def test_export_out_and_report_on_one_file_are_refused_before_any_work(tmp_path):
     """#26.2: ``--out x.glb --report x.glb`` would leave the JSON report in place of the glTF."""
     same = tmp_path / "x.glb"
@@ -228,6 +231,7 @@ def _take_report(path, source, ok=True):
     path.write_text(json.dumps({"target": "FBHead", "method": "copy", "results": [{"source": source, "ok": ok}]}))
 
 
+@pytest.mark.one_blender
 def test_merge_reports_never_overwrites_a_take_report(tmp_path):
     """#26.3: ``--out R/a.json`` is take a's own report, an input of the merge: refused, the report kept."""
     _take_report(tmp_path / "a.json", "a.csv")
@@ -240,6 +244,7 @@ def test_merge_reports_never_overwrites_a_take_report(tmp_path):
     assert (tmp_path / "a.json").read_bytes() == kept and sorted(os.listdir(tmp_path)) == ["a.json"]
 
 
+@pytest.mark.one_blender
 def test_merge_reports_messages(tmp_path):
     """#26.10: a damaged report is one line naming the damage; a missing --reports-dir is said once, up front;
     duplicate take stems are refused up front."""

@@ -19,7 +19,7 @@ import pytest
 
 import live_replay
 from blender_support import SS, bpy, draw_panel, import_file
-from live_support import CSV, HOST, configure, drive, frames_received, raw_sender, replay_and_drain, sender
+from live_support import CSV, HOST, configure, drive, frames_received, halt, raw_sender, replay_and_drain, sender
 from shapespace.bridge import actions, manipulation, retarget
 from shapespace.bridge.live import recording, session
 from shapespace.bridge.live.facecap import facecap_decoder
@@ -217,7 +217,7 @@ def test_stop_while_packets_arrive_keeps_the_take(registered):
     info = recording.take_info(bpy.data.actions[take])
     assert info["complete"] and info["frames"] > 20
     assert len(_take_curves(ob, take)["JawOpen"].keyframe_points) == info["frames"]
-    th.join(10)
+    halt(th)
 
 
 def test_unregister_while_packets_arrive_stops_everything(registered):
@@ -236,7 +236,7 @@ def test_unregister_while_packets_arrive_stops_everything(registered):
         assert len(actions.shape_key_curves(ob, action)["JawOpen"].keyframe_points) > 20
     finally:
         SS.register()
-    th.join(10)
+    halt(th)
 
 
 def test_opening_another_file_stops_the_receiver(registered):
@@ -245,7 +245,7 @@ def test_opening_another_file_stops_the_receiver(registered):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     assert session.RUNTIME.session is None and not receiver.alive
     assert not bpy.app.timers.is_registered(session._timer)
-    th.join(10)
+    halt(th)
 
 
 def test_deleted_target_stops_the_timer_with_a_message(registered):
@@ -266,7 +266,7 @@ def test_a_take_interrupted_by_saving_and_closing_is_in_the_file(registered, tmp
     bpy.ops.wm.save_as_mainfile(filepath=path)                  # "Blender closed mid-take" after a save
     keys_saved = len(_take_curves(ob, take)["JawOpen"].keyframe_points)
     _stop_all()
-    th.join(10)
+    halt(th)
     bpy.ops.wm.open_mainfile(filepath=path)
     action = bpy.data.actions[take]
     info = recording.take_info(action)

@@ -135,6 +135,7 @@ def test_cli_retarget_onto_hybrid_rig_reproduces_the_shape_key_retarget(tmp_path
     ("key:", "no shape key named"),
     ("jaw", "not a bone channel"),
 ])
+@pytest.mark.one_blender
 def test_malformed_specs_exit_2_naming_the_spec(tmp_path, spec, message):
     blend, _ = _hybrid_blend(tmp_path)
     out_file = tmp_path / "out.blend"
@@ -145,6 +146,7 @@ def test_malformed_specs_exit_2_naming_the_spec(tmp_path, spec, message):
     assert not out_file.exists()
 
 
+@pytest.mark.one_blender
 def test_controls_exclude_other_methods_with_exit_2(tmp_path):
     blend, _ = _hybrid_blend(tmp_path)
     code, out, err = _cli(blend, "--", "retarget", "--source", _csv(), "--controls", "key:cheekPuff",

@@ -14,7 +14,7 @@ import pytest
 
 import rigs
 from blender_support import bpy
-from live_support import CSV, configure, drive, frames_received, live_replay, raw_sender, replay_and_drain
+from live_support import CSV, configure, drive, frames_received, halt, live_replay, raw_sender, replay_and_drain, sender
 from shapespace.bridge import actions
 from shapespace.bridge import rig as brig
 from shapespace.bridge.live import session
@@ -268,7 +268,9 @@ def test_refusals_name_the_culprit_and_change_nothing():
     keyed = session.status().take_frames
     assert keyed >= 1
     bpy.data.objects.remove(rig.armature)
-    replay_and_drain(packets[5:], port)
+    th = sender(packets[5:], port)
+    assert drive(lambda: session.RUNTIME.session is None, seconds=30)     # the session ends on the next packet
+    halt(th)
     assert session.RUNTIME.session is None and "the rig 'Controls' was deleted" in session.RUNTIME.message
     for fc in actions.action_fcurves(bpy.data.actions[take]):
         assert len(fc.keyframe_points) == keyed
