@@ -46,7 +46,17 @@ from .landmarks import (
                                    set_landmarks,
                                    use_named_landmarks,
 )
-from .parts import find_parts, moved_by_rig, part_kinds, select_part
+from .parts import (
+                                   compute_find_parts,
+                                   find_parts,
+                                   finish_find_parts_job,
+                                   moved_by_rig,
+                                   part_kinds,
+                                   read_find_parts,
+                                   select_part,
+                                   start_find_parts_job,
+                                   write_find_parts,
+)
 from .reading import read_source_rig, read_target
 from .registration import (
                                    PREVIEW_PROP,
@@ -83,4 +93,5 @@ __all__ = ["MIN_LANDMARKS", "PREVIEW_PROP", "LANDMARKS_PROP", "LANDMARKS_SCHEMA"
            "append_object", "remove_appended", "TransferPlan", "TransferOutcome", "read_transfer",
            "compute_transfer", "write_transfer", "start_transfer_job", "finish_transfer_job", "last_verdict",
            "verdict_status", "load_example_file", "stored_examples", "add_example",
-           "remove_example", "find_parts", "moved_by_rig", "part_kinds", "select_part"]
+           "remove_example", "find_parts", "moved_by_rig", "part_kinds", "select_part", "read_find_parts",
+           "compute_find_parts", "write_find_parts", "start_find_parts_job", "finish_find_parts_job"]

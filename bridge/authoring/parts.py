@@ -16,16 +16,20 @@ deform the target deforms it — Face Cap's eyes turn by the rotation of their `
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import bpy
 import numpy as np
 
 from ...core.authoring.job import TargetMesh
 from ...core.authoring.mesh import triangle_parts
-from ...core.authoring.parts import USER_KINDS, propose_parts
+from ...core.authoring.parts import USER_KINDS, PartPlan, propose_parts
 from ...core.errors import ErrorCode
+from ...core.jobs import BackgroundJob
+from ...core.progress import notify, scaled
 from ...core.result import ShapeSpaceError
 from .. import actions
-from .reading import read_target, with_part_objects
+from .reading import read_target, target_signature, with_part_objects
 
 __all__ = ["AUTO", "TRANSFORM_PATHS", "moved_by_rig", "part_kinds", "find_parts", "show_parts", "part_vertices",
            "select_part", "part_owner", "rig_kinds"]
@@ -269,11 +273,79 @@ def show_parts(target, tgt: TargetMesh, summary: list) -> int:
     return len(rows)
 
 
+@dataclass(frozen=True)
+class FindPartsPlan:
+    """What :func:`read_find_parts` read (main thread) for the proposal to compute from."""
+
+    target: str
+    parts: tuple            #: the part objects' names
+    tgt: TargetMesh         #: the target joined with its part objects
+    signature: tuple        #: :func:`.reading.target_signature` when read
+
+
+@dataclass(frozen=True)
+class FindPartsOutcome:
+    """The proposal (:func:`compute_find_parts`), not yet shown."""
+
+    plan: FindPartsPlan
+    proposal: PartPlan
+
+
+def read_find_parts(target, parts=()) -> FindPartsPlan:
+    """Step 1 of :func:`find_parts` (main thread): read the target and its part objects; writes nothing.
+    Refused: what reading the target refuses (not a mesh, Edit Mode, no faces, non-finite), a part object
+    refused."""
+    parts = list(parts)
+    tgt = with_part_objects(target, None, read_target(target), parts)
+    return FindPartsPlan(target.name, tuple(p.name for p in parts), tgt, target_signature(target, parts))
+
+
+def compute_find_parts(plan: FindPartsPlan, progress=None) -> FindPartsOutcome:
+    """Step 2 (any thread, no Blender data): the connected parts and the kind proposed for each from their
+    shapes alone (a transfer refines jaw against skull with the transferred ``jawOpen``)."""
+    tgt = plan.tgt
+    lab, _ = triangle_parts(len(tgt.neutral), tgt.triangles)
+    proposal = propose_parts(tgt.neutral, tgt.triangles, lab, progress=scaled(progress, 0.0, 0.99))
+    notify(progress, 1.0)
+    return FindPartsOutcome(plan, proposal)
+
+
+def write_find_parts(outcome: FindPartsOutcome) -> int:
+    """Step 3 (main thread): apply the kinds the user set and the rig's (:func:`part_kinds`, read now) and fill
+    the list (:func:`show_parts`); returns the number of parts listed.  Refused, with the list unchanged, when
+    the target or its part objects changed since :func:`read_find_parts`, or a row is set to a kind it does not
+    know."""
+    plan = outcome.plan
+    target = bpy.data.objects.get(plan.target)
+    parts = [bpy.data.objects.get(name) for name in plan.parts]
+    if (target is None or target.type != "MESH" or any(p is None for p in parts)
+            or target_signature(target, parts) != plan.signature):
+        raise ShapeSpaceError(f"{plan.target!r} or its Part Objects changed while Find Parts computed: the list "
+                              f"was not changed; Find Parts again", ErrorCode.RIG_CHANGED)
+    proposal = outcome.proposal
+    kinds = part_kinds(target, plan.tgt, strict=False)
+    if kinds:
+        proposal = proposal.with_vertex_kinds(kinds)
+    return show_parts(target, plan.tgt, proposal.summary())
+
+
+def start_find_parts_job(plan: FindPartsPlan) -> BackgroundJob:
+    """Start :func:`compute_find_parts` of ``plan`` in a worker thread (a modal operator polls the job and
+    cancels it on Esc); :func:`finish_find_parts_job` shows its outcome once it is done."""
+    return BackgroundJob(lambda progress: compute_find_parts(plan, progress), name="ShapeSpace find parts").start()
+
+
+def finish_find_parts_job(job: BackgroundJob) -> int:
+    """Show a finished job's parts (main thread); re-raises what stopped the job (``Cancelled`` on Esc): the
+    list is unchanged then."""
+    return write_find_parts(job.result())
+
+
 def find_parts(target, parts=()) -> int:
     """*Find Parts*: propose the kind of every part of ``target`` and its part objects ``parts`` from their
-    shapes alone (a transfer refines jaw against skull with the transferred ``jawOpen``), apply the kinds the
-    user set and the rig's (:func:`part_kinds`), and fill the list (:func:`show_parts`).  Returns the number of
-    parts listed.
+    shapes alone, apply the kinds the user set and the rig's (:func:`part_kinds`), and fill the list
+    (:func:`show_parts`): :func:`read_find_parts` → :func:`compute_find_parts` → :func:`write_find_parts`.
+    Returns the number of parts listed.
 
     Raises
     ------
@@ -281,13 +353,7 @@ def find_parts(target, parts=()) -> int:
         What reading the target refuses (not a mesh, Edit Mode, no faces, non-finite), a part object refused,
         a row set to a kind it does not know.
     """
-    tgt = with_part_objects(target, None, read_target(target), list(parts))
-    lab, _ = triangle_parts(len(tgt.neutral), tgt.triangles)
-    plan = propose_parts(tgt.neutral, tgt.triangles, lab)
-    kinds = part_kinds(target, tgt, strict=False)
-    if kinds:
-        plan = plan.with_vertex_kinds(kinds)
-    return show_parts(target, tgt, plan.summary())
+    return write_find_parts(compute_find_parts(read_find_parts(target, parts)))
 
 
 def part_vertices(target, index: int, parts=()) -> tuple:

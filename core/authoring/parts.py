@@ -67,6 +67,7 @@ from scipy.spatial import ConvexHull, Delaunay, QhullError, cKDTree
 
 from ..errors import ErrorCode
 from ..names import canonical_name
+from ..progress import ProgressFn, notify
 from ..result import ShapeSpaceError
 from ..surface import TriangleSurface
 from .mesh import bbox_diagonal, inv3, symmetry_plane, triangle_parts
@@ -255,7 +256,7 @@ def jaw_membership(verts: np.ndarray, labels: np.ndarray, jaw_delta: np.ndarray 
 
 def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map: dict | None = None,
                   jaw_delta: np.ndarray | None = None, source_plan: PartPlan | None = None,
-                  source_moving: Sequence[int] = ()) -> PartPlan:
+                  source_moving: Sequence[int] = (), progress: ProgressFn | None = None) -> PartPlan:
     """Classify the target's parts (see the module docstring).
 
     Parameters
@@ -275,11 +276,14 @@ def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map
         The source's own parts (proposed with its authored ``jawOpen``).
     source_moving : sequence of int
         Source parts that its shapes move.
+    progress : callable, optional
+        ``progress(fraction)`` between steps and parts (:mod:`core.progress`; it may raise ``Cancelled``).
 
     Returns
     -------
     PartPlan
     """
+    notify(progress, 0.0)
     V = np.asarray(verts, dtype=np.float64)
     TT = np.asarray(tris, dtype=np.int64)
     lab = np.asarray(labels, dtype=np.int64)
@@ -287,18 +291,25 @@ def propose_parts(verts: ArrayLike, tris: ArrayLike, labels: ArrayLike, part_map
     jaw = jaw_membership(V, lab, jaw_delta)
     kinds, conf, why = {0: "skin"}, {0: 1.0}, {0: "the largest part"}
     skin = _Skin(V, TT, lab)
+    notify(progress, 0.05)
     frame = _face_frame(V, lab, jaw, None if jaw_delta is None else np.asarray(jaw_delta, dtype=np.float64))
+    notify(progress, 0.4)
     closed = _closed_parts(TT, lab)
     others = np.flatnonzero(lab > 0)
     to_skin = np.zeros(len(V))
     if others.size:                                      # one query for every part (thousands of hair cards)
         to_skin[others] = skin.closest(V[others])[3]
-    for p in np.unique(lab[lab > 0]):
+    notify(progress, 0.55)
+    ids = np.unique(lab[lab > 0])
+    for i, p in enumerate(ids):
         p = int(p)
         idx = np.flatnonzero(lab == p)
         kinds[p], conf[p], why[p] = _classify(V, to_skin[idx], frame, idx, diag, p in closed)
+        notify(progress, 0.55 + 0.15 * (i + 1) / len(ids))
     _beside_eyes(V, lab, kinds, conf, why, diag)
+    notify(progress, 0.75)
     _teeth_rows(V, lab, PartPlan(lab, kinds, conf, why, frame), diag, _mouth_sheets(V, skin, lab, kinds, why, jaw))
+    notify(progress, 0.95)
     _tongues(V, TT, lab, kinds, why, frame, diag)
     extents = {int(p): float(np.ptp(V[lab == p], axis=0).max()) / diag for p in np.unique(lab[lab >= 0])}
     plan = PartPlan(lab, kinds, conf, why, frame, extents)

@@ -3,28 +3,43 @@ import bpy
 
 from ...bridge import authoring, part_objects
 from ..polls import active_mesh
+from ..progress import ThreeStepJob
 from ..reporting import FAILED, attempt
 from ._polls import listed
 
 
-class SHAPESPACE_OT_find_transfer_parts(bpy.types.Operator):
+class SHAPESPACE_OT_find_transfer_parts(ThreeStepJob, bpy.types.Operator):
     """List the separate parts of the active mesh and its Part Objects (eyes, teeth, tongue, lashes, brows,
-cavity) with the kind proposed for each and why; the kinds you set are kept"""
+cavity) with the kind proposed for each and why; the kinds you set are kept (Esc cancels; the list is kept then)"""
 
     bl_idname = "shapespace.find_transfer_parts"
     bl_label = "Find Parts"
     bl_options = {"REGISTER", "UNDO"}
+    job_title = "Find Parts"
+    compute_step = staticmethod(authoring.compute_find_parts)
+    write_step = staticmethod(authoring.write_find_parts)
+    start_step = staticmethod(authoring.start_find_parts_job)
+    finish_step = staticmethod(authoring.finish_find_parts_job)
 
     @classmethod
     def poll(cls, context):
         return active_mesh(cls, context) is not None
 
-    def execute(self, context):
+    def read_plan(self, context):
         ob = context.active_object
-        found = attempt(self, authoring.find_parts, ob,
-                        part_objects.meshes_of(ob.shapespace_authoring.parts_collection, ob))
+        self._target = ob.name
+        return attempt(self, authoring.read_find_parts, ob,
+                       part_objects.meshes_of(ob.shapespace_authoring.parts_collection, ob))
+
+    @staticmethod
+    def job_label(plan):
+        return f"Finding the parts of {plan.target}"
+
+    def done(self, found):
+        """Report the parts listed (or a failure) and give the operator's return value."""
         if found is FAILED:
             return {"CANCELLED"}
+        ob = bpy.data.objects[self._target]
         unsure = sum(row.unsure for row in ob.shapespace_authoring.parts)
         tail = f"; {unsure} unsure: check them" if unsure else ""
         self.report({"INFO"}, f"{found} parts found on {ob.name!r}{tail}")

@@ -13,8 +13,8 @@ import tempfile
 import numpy as np
 import pytest
 
+from blender_support import NOT_CALLED, bpy, classify_operator_call, sphere_rig
 from blender_support import OPERATOR_CALLS as OPERATORS
-from blender_support import bpy, classify_operator_call, sphere_rig
 
 
 def _sphere(keys=3, name="Face"):
@@ -111,3 +111,8 @@ def test_matrix_summary():
     print(f"\nbad-scene matrix: {len(OUTCOMES)} cases, {handled} handled, "
           f"{counts.get('traceback', 0)} tracebacks, {counts.get('silent_change', 0)} silent changes; {counts}")
     assert handled == len(OUTCOMES)
+
+
+def test_every_operator_is_in_the_matrix_or_says_where_it_is_tested(registered):
+    ids = {name for name in dir(bpy.ops.shapespace) if not name.startswith("_")}
+    assert ids - set(OPERATORS) == set(NOT_CALLED) and not set(OPERATORS) - ids

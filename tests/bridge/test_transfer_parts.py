@@ -5,15 +5,18 @@ Cases: Face Cap's own file (its eyes turn by their ``grp_eye*`` parents' animate
 move); Ready Player Me's head, eyes and teeth copied as a keyless target with part objects
 (``test_part_objects``), an eye's rotation then animated as a rig would.
 """
+import time
+
 import bmesh
 import numpy as np
 import pytest
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from blender_support import RecordingLayout, blend_fingerprint, bpy, draw_panel, evaluated, import_file
+from blender_support import RecordingLayout, blend_fingerprint, bpy, draw_panel, esc_mid_way, evaluated, import_file
 from shapespace.bridge import actions, authoring, part_objects
 from shapespace.bridge.authoring.reading import read_target
+from shapespace.core.progress import Cancelled
 from shapespace.core.result import ShapeSpaceError
 from shapespace.panels.authoring import SHAPESPACE_PT_transfer_shapes as Panel
 from shapespace.panels.authoring import SHAPESPACE_UL_transfer_parts as PartsList
@@ -257,3 +260,49 @@ def test_a_kind_changed_while_the_transfer_computes_stops_the_write_finding_part
     assert blend_fingerprint() == before
     row.kind = "auto"
     assert authoring.write_transfer(outcome).created
+
+
+def _listed(ob):
+    return [(r.object, r.vertex, r.vertices, round(r.size, 6), r.kind, r.used, r.reason, r.unsure)
+            for r in ob.shapespace_authoring.parts]
+
+
+def test_find_parts_as_a_job_lists_what_the_direct_call_does_esc_and_an_edit_leave_the_list(registered):
+    """The panel's Find Parts computes in a worker (progress, Esc): ICT FaceKit's 55 parts.  Esc mid-way leaves the
+    list and the file as they were; run to its end, the job lists exactly what the direct call lists, with the
+    kind the user set kept; a target edited while it computed is refused by name and the list is kept."""
+    import_file(shared("ict_facekit", "ict_facekit_expressions.glb"))
+    ob = bpy.data.objects["ICTFace"]
+    assert authoring.find_parts(ob) == 55
+    ob.shapespace_authoring.parts[3].kind = "still"                      # the user's choice
+    before, listed = blend_fingerprint(), _listed(ob)
+    job = authoring.start_find_parts_job(authoring.read_find_parts(ob))
+    assert esc_mid_way(job, 0.1, 60)
+    with pytest.raises(Cancelled):
+        authoring.finish_find_parts_job(job)
+    assert blend_fingerprint() == before and _listed(ob) == listed
+    job = authoring.start_find_parts_job(authoring.read_find_parts(ob))
+    while not job.done:                                                  # the modal timer ticks
+        time.sleep(0.01)
+    assert authoring.finish_find_parts_job(job) == 55
+    assert all(b >= a for a, b in zip(job.reported, job.reported[1:])) and job.reported[-1] == 1.0
+    assert len(job.reported) > 55                                        # a step per part at least
+    via_job = _listed(ob)
+    assert via_job[3][4] == "still" and via_job[3][5] == "still"
+    assert authoring.find_parts(ob) == 55 and _listed(ob) == via_job
+    job = authoring.start_find_parts_job(authoring.read_find_parts(ob))
+    assert job.wait(60)
+    ob.data.shape_keys.reference_key.data[0].co.x += 0.01                # the artist edits the head meanwhile
+    before = blend_fingerprint()
+    with pytest.raises(ShapeSpaceError, match="'ICTFace' or its Part Objects changed while Find Parts computed"):
+        authoring.finish_find_parts_job(job)
+    assert blend_fingerprint() == before and _listed(ob) == via_job
+
+
+def test_find_parts_invoked_without_a_window_runs_in_one_go(registered):
+    face = _face_cap()
+    assert bpy.ops.shapespace.find_transfer_parts("INVOKE_DEFAULT") == {"FINISHED"}
+    direct = _listed(face)
+    face.shapespace_authoring.parts.clear()
+    assert authoring.find_parts(face, _parts_of(face)) == len(direct) > 0
+    assert _listed(face) == direct
