@@ -18,6 +18,7 @@ import numpy as np
 from ..core.errors import ErrorCode
 from ..core.result import ShapeSpaceError
 from .arrays import read_float
+from .meshes import triangles
 
 __all__ = ["PartObject", "meshes_of", "own_neutral", "read_part_objects", "to_part_space", "signature"]
 
@@ -105,8 +106,9 @@ def to_part_space(part: PartObject, rows: np.ndarray) -> np.ndarray:
 
 
 def signature(target, objects) -> tuple:
-    """What a write depends on for the part objects: names, modes, vertex counts, keys, placement (theirs and
-    the target's, evaluated now: a move since the last evaluation counts); a part object gone reads as None."""
+    """What a write depends on for the part objects: names, modes, vertex counts, keys, neutral, faces,
+    placement (theirs and the target's, evaluated now: a move since the last evaluation counts); a part object
+    gone reads as None."""
     if not objects:
         return ()
     bpy.context.view_layer.update()
@@ -117,5 +119,6 @@ def signature(target, objects) -> tuple:
             continue
         key = ob.data.shape_keys
         out.append((ob.name, ob.mode, len(ob.data.vertices), tuple(kb.name for kb in key.key_blocks) if key else (),
-                    tuple(np.round(np.array(ob.matrix_world), 9).ravel())))
+                    tuple(np.round(np.array(ob.matrix_world), 9).ravel()), own_neutral(ob).tobytes(),
+                    triangles(ob.data).tobytes()))
     return tuple(out)

@@ -28,11 +28,12 @@ from ...core.errors import ErrorCode
 from ...core.jobs import BackgroundJob
 from ...core.progress import notify, scaled
 from ...core.result import ShapeSpaceError
-from .. import actions
+from .. import actions, part_objects
 from .reading import read_target, target_signature, with_part_objects
 
 __all__ = ["AUTO", "TRANSFORM_PATHS", "moved_by_rig", "part_kinds", "find_parts", "show_parts", "part_vertices",
-           "select_part", "part_owner", "rig_kinds"]
+           "select_part", "part_owner", "rig_kinds", "FindPartsPlan", "FindPartsOutcome", "read_find_parts",
+           "compute_find_parts", "write_find_parts", "start_find_parts_job", "finish_find_parts_job"]
 
 #: The list's kind meaning "as the proposal finds".
 AUTO = "auto"
@@ -281,6 +282,7 @@ class FindPartsPlan:
     parts: tuple            #: the part objects' names
     tgt: TargetMesh         #: the target joined with its part objects
     signature: tuple        #: :func:`.reading.target_signature` when read
+    members: tuple          #: the names of the meshes in the target's Part Objects collection when read
 
 
 @dataclass(frozen=True)
@@ -297,7 +299,12 @@ def read_find_parts(target, parts=()) -> FindPartsPlan:
     refused."""
     parts = list(parts)
     tgt = with_part_objects(target, None, read_target(target), parts)
-    return FindPartsPlan(target.name, tuple(p.name for p in parts), tgt, target_signature(target, parts))
+    return FindPartsPlan(target.name, tuple(p.name for p in parts), tgt, target_signature(target, parts),
+                         _members(target))
+
+
+def _members(target) -> tuple:
+    return tuple(ob.name for ob in part_objects.meshes_of(target.shapespace_authoring.parts_collection, target))
 
 
 def compute_find_parts(plan: FindPartsPlan, progress=None) -> FindPartsOutcome:
@@ -319,7 +326,7 @@ def write_find_parts(outcome: FindPartsOutcome) -> int:
     target = bpy.data.objects.get(plan.target)
     parts = [bpy.data.objects.get(name) for name in plan.parts]
     if (target is None or target.type != "MESH" or any(p is None for p in parts)
-            or target_signature(target, parts) != plan.signature):
+            or target_signature(target, parts) != plan.signature or _members(target) != plan.members):
         raise ShapeSpaceError(f"{plan.target!r} or its Part Objects changed while Find Parts computed: the list "
                               f"was not changed; Find Parts again", ErrorCode.RIG_CHANGED)
     proposal = outcome.proposal

@@ -103,12 +103,13 @@ def read_target(obj) -> TargetMesh:
 
 
 def target_signature(target, parts=()) -> tuple:
-    """What a transfer's write depends on: mode, link state, vertices (the neutral), shape keys and groups."""
+    """What a transfer's or Find Parts' write depends on: mode, link state, vertices (the neutral), faces, shape
+    keys and groups, and the part objects' (:func:`bridge.part_objects.signature`)."""
     key = target.data.shape_keys
     keys = tuple(kb.name for kb in key.key_blocks) if key is not None else ()
     return (target.mode, target.library is not None or target.data.library is not None, len(target.data.vertices),
-            read_neutral(target).tobytes(), keys, tuple(g.name for g in target.vertex_groups),
-            part_objects.signature(target, list(parts)))
+            read_neutral(target).tobytes(), triangles(target.data).tobytes(), keys,
+            tuple(g.name for g in target.vertex_groups), part_objects.signature(target, list(parts)))
 
 
 def with_part_objects(target, source, tgt: TargetMesh, parts) -> TargetMesh:

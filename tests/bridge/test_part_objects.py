@@ -95,6 +95,13 @@ def test_a_part_object_in_edit_mode_or_moved_mid_way_is_refused_and_nothing_writ
     with pytest.raises(ShapeSpaceError, match="changed while the transfer computed"):
         authoring.write_transfer(outcome)
     assert blend_fingerprint() == before
+    teeth.location.x -= 0.01
+    outcome = authoring.compute_transfer(authoring.read_transfer(src, tgt, unmatched_parts="move", parts=parts))
+    teeth.data.vertices[0].co.z += 0.001                                 # its own shape edited while it computed
+    before = blend_fingerprint()
+    with pytest.raises(ShapeSpaceError, match="changed while the transfer computed"):
+        authoring.write_transfer(outcome)
+    assert blend_fingerprint() == before
     bpy.ops.object.select_all(action="DESELECT")
     teeth.select_set(True)
     bpy.context.view_layer.objects.active = teeth

@@ -306,3 +306,41 @@ def test_find_parts_invoked_without_a_window_runs_in_one_go(registered):
     face.shapespace_authoring.parts.clear()
     assert authoring.find_parts(face, _parts_of(face)) == len(direct) > 0
     assert _listed(face) == direct
+
+
+def _edit_a_part_objects_shape(face):
+    eye = bpy.data.objects["Mesh_0"]
+    points = eye.data.shape_keys.reference_key.data if eye.data.shape_keys else eye.data.vertices
+    points[0].co.z += 0.001
+
+
+def _join_two_parts_by_a_face(face):
+    """One triangle joining the skin to an eye-lash piece, no vertex added (the counts and positions stay)."""
+    me = face.data
+    row = next(r for r in face.shapespace_authoring.parts if r.object == "")
+    bm = bmesh.new()
+    bm.from_mesh(me)
+    bm.verts.ensure_lookup_table()
+    bm.faces.new([bm.verts[0], bm.verts[1], bm.verts[row.vertex]])
+    bm.to_mesh(me)
+    bm.free()
+
+
+def _unlink_a_part_object(face):
+    face.shapespace_authoring.parts_collection.objects.unlink(bpy.data.objects["Mesh_3"])
+
+
+@pytest.mark.parametrize("edit", [_edit_a_part_objects_shape, _join_two_parts_by_a_face, _unlink_a_part_object],
+                         ids=["part_object_shape", "target_faces", "part_objects_collection"])
+def test_find_parts_refuses_what_changed_while_it_computed_and_keeps_the_list(registered, edit):
+    face = _face_cap()
+    parts = _parts_of(face)
+    assert authoring.find_parts(face, parts) > 0
+    listed = _listed(face)
+    job = authoring.start_find_parts_job(authoring.read_find_parts(face, parts))
+    assert job.wait(60)
+    edit(face)
+    before = blend_fingerprint()
+    with pytest.raises(ShapeSpaceError, match="'Mesh_2' or its Part Objects changed while Find Parts computed"):
+        authoring.finish_find_parts_job(job)
+    assert blend_fingerprint() == before and _listed(face) == listed
