@@ -21,6 +21,10 @@ definition of ``bench_transfer_v2``):
 - ``transfer_rel_energy_oracle_gain_heldout_<pair>``: the ceiling of a per-vertex gain: the best gain per vertex
   fitted to the held-out keys themselves (least squares, in-sample) — what no refinement learnt from examples
   through a gain field can beat;
+- ``transfer_rel_energy_oracle_key_gain_heldout_<pair>``: the same with a per-key scale times a per-vertex gain
+  (the ceiling of every rescaling: a key's size included, which no one-key example states for another key);
+- ``transfer_rel_energy_oracle_linear_heldout_<pair>``: the best per-vertex 3×3 linear map fitted to the
+  held-out keys themselves (the ceiling of every per-vertex map of the transferred motion, direction included);
 - ``transfer_examples_heldout_worst_ratio_<pair>``: the largest refined / plain error ratio of a held-out key;
 - ``transfer_examples_residual_<pair>``: the largest relative residual of an example after refinement;
 - ``transfer_examples_s_<pair>``: seconds of the refinement (one-hot examples).
@@ -72,13 +76,45 @@ def held_out_scores(DT, DR, TD, TN, SN, held):
     return float(np.linalg.norm(e0) / norm), float(np.linalg.norm(e1) / norm), int((e1 > e0).sum()), ratio
 
 
+def _held(DT, TD, TN, SN, held):
+    """(authored (k, n, 3), transferred (k, n, 3)) of the keys ``held``."""
+    return np.stack([TD[TN.index(n)] for n in held]), np.stack([DT[SN.index(n)] for n in held])
+
+
 def oracle_gain(DT, TD, TN, SN, held):
     """Relative error over ``held`` of the best per-vertex gain fitted to the held-out keys themselves."""
-    A = np.stack([TD[TN.index(n)] for n in held])
-    X = np.stack([DT[SN.index(n)] for n in held])
+    A, X = _held(DT, TD, TN, SN, held)
     xx = np.einsum("kvi,kvi->v", X, X)
     g = np.einsum("kvi,kvi->v", A, X) / np.where(xx > 0, xx, 1.0)
     return float(np.linalg.norm(g[None, :, None] * X - A) / np.linalg.norm(A))
+
+
+def oracle_key_vertex_gain(DT, TD, TN, SN, held, sweeps=60):
+    """Relative error over ``held`` of the best product of a per-key scale ``s_k`` and a per-vertex gain ``g_v``
+    fitted to the held-out keys themselves: ``min Σ_k Σ_v ‖s_k g_v X_k(v) − A_k(v)‖²`` by alternating least
+    squares (each sweep solves one factor exactly, so the error never grows) — the ceiling of every correction
+    that only rescales, a key's size at every vertex included, which no one-key example can state for
+    another key."""
+    A, X = _held(DT, TD, TN, SN, held)
+    ax, xx = np.einsum("kvi,kvi->kv", A, X), np.einsum("kvi,kvi->kv", X, X)
+    s = np.ones(len(held))
+    for _ in range(sweeps):
+        g = (s[:, None] * ax).sum(axis=0) / np.maximum((s[:, None] ** 2 * xx).sum(axis=0), 1e-300)
+        s = (g[None] * ax).sum(axis=1) / np.maximum((g[None] ** 2 * xx).sum(axis=1), 1e-300)
+    return float(np.linalg.norm((s[:, None] * g[None])[..., None] * X - A) / np.linalg.norm(A))
+
+
+def oracle_linear(DT, TD, TN, SN, held):
+    """Relative error over ``held`` of the best per-vertex linear map ``L_v`` (3×3) fitted to the held-out keys
+    themselves, ``min Σ_k ‖L_v X_k(v) − A_k(v)‖²`` per vertex (9 unknowns against 3 × the held-out keys'
+    equations; a vertex no key moves keeps ``L_v = 0``, which changes nothing there) — the ceiling of every
+    per-vertex map of the transferred motion, direction included."""
+    A, X = _held(DT, TD, TN, SN, held)
+    M = np.einsum("kvi,kvj->vij", X, X)
+    B = np.einsum("kvi,kvj->vij", A, X)
+    ridge = 1e-12 * np.trace(M, axis1=1, axis2=2)[:, None, None] + 1e-300
+    L = np.linalg.solve(M + ridge * np.eye(3), B.transpose(0, 2, 1)).transpose(0, 2, 1)
+    return float(np.linalg.norm(np.einsum("vij,kvj->kvi", L, X) - A) / np.linalg.norm(A))
 
 
 def refine(T, TT, TD, TN, SN, DT, keys, combo, given=None):
@@ -119,6 +155,8 @@ def pair_metrics(src, dst, src_tag, dst_tag, kinds=None):
         if not tag:
             out["transfer_rel_energy_plain_heldout"] = plain
             out["transfer_rel_energy_oracle_gain_heldout"] = oracle_gain(DT, TD, TN, SN, held)
+            out["transfer_rel_energy_oracle_key_gain_heldout"] = oracle_key_vertex_gain(DT, TD, TN, SN, held)
+            out["transfer_rel_energy_oracle_linear_heldout"] = oracle_linear(DT, TD, TN, SN, held)
             out["transfer_examples_residual"] = float(ref.residual_after.max())
             out["transfer_examples_s"] = seconds
             out["transfer_examples_heldout_keys"] = len(held)
