@@ -63,22 +63,21 @@ def example_set(keys, combo):
     return chosen, [{chosen[i]: 1.0, chosen[(i + 1) % m]: combo} for i in range(m)]
 
 
+def _held(DT, TD, TN, SN, held):
+    """(authored (k, n, 3), transferred (k, n, 3)) of the keys ``held``."""
+    return np.stack([TD[TN.index(n)] for n in held]), np.stack([DT[SN.index(n)] for n in held])
+
+
 def held_out_scores(DT, DR, TD, TN, SN, held):
     """(relative error of the plain keys, of the refined keys, number of keys made worse, the largest ratio of
     a key's refined error to its plain error) over ``held``."""
-    A = np.stack([TD[TN.index(n)] for n in held])
-    X0 = np.stack([DT[SN.index(n)] for n in held])
+    A, X0 = _held(DT, TD, TN, SN, held)
     X1 = np.stack([DR[SN.index(n)] for n in held])
     e0 = np.linalg.norm((X0 - A).reshape(len(held), -1), axis=1)
     e1 = np.linalg.norm((X1 - A).reshape(len(held), -1), axis=1)
     norm = np.linalg.norm(A)
     ratio = float(np.max(e1 / np.where(e0 > 0, e0, 1.0)))
     return float(np.linalg.norm(e0) / norm), float(np.linalg.norm(e1) / norm), int((e1 > e0).sum()), ratio
-
-
-def _held(DT, TD, TN, SN, held):
-    """(authored (k, n, 3), transferred (k, n, 3)) of the keys ``held``."""
-    return np.stack([TD[TN.index(n)] for n in held]), np.stack([DT[SN.index(n)] for n in held])
 
 
 def oracle_gain(DT, TD, TN, SN, held):
